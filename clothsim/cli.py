@@ -1,0 +1,147 @@
+"""Headless commands: run, sweep, bench, view (the default).
+
+Exit status: 0 converged (or all runs converged), 1 stopped without converging (or some runs
+did not converge), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "configs" / "thermoform.yaml"
+
+
+def _progress_printer(stream, every_s: float = 0.2):
+    last = [0.0]
+    width = 28
+
+    def cb(prog):
+        now = time.perf_counter()
+        if now - last[0] < every_s:
+            return False
+        last[0] = now
+        import math
+
+        r = prog.residual
+        frac = 0.0 if not math.isfinite(r) or r <= 0 else min(1.0, max(0.0, 1 - math.log10(max(r, 1e-30)) / 20))
+        bar = "#" * int(frac * width)
+        stream.write(f"\r[{bar:<{width}}] it {prog.iteration:>8d}  ||V||inf {r:10.3e} N  "
+                     f"{prog.iterations_per_s:9.1f} it/s  contact {prog.contact_count:6d}  {prog.method}")
+        stream.flush()
+        return False
+
+    return cb
+
+
+def cmd_run(args) -> int:
+    from .config import SceneError, load_scene
+    from .mold import MoldError
+    from .material import MaterialError
+    from .simulation import solve
+
+    try:
+        scene = load_scene(args.scene, args.set)
+        show = sys.stderr.isatty() or args.progress
+        cb = _progress_printer(sys.stderr) if (show and not args.quiet) else None
+        result = solve(scene, callback=cb)
+    except (SceneError, MoldError, MaterialError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if cb is not None:
+        sys.stderr.write("\n")
+    s = result.summary()
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        result.save(out, ply_field=args.color)
+    line = (f"{s['status']}: {s['iterations']} iterations, ||V||_inf = {s['residual']:.3e} N "
+            f"(relative {s['relative_residual']:.1e}), energy {s['energy']:.6e} J, "
+            f"{s['wall_time_s']:.3f} s relaxing + {s['startup_s']:.2f} s start-up, solver {s['solver']}, "
+            f"{s['contact_count']} contact nodes")
+    print(line)
+    if s["status"] != "converged":
+        print(f"  {s['message']}")
+    if s["undetermined_nodes"]:
+        print(f"  note: {s['undetermined_nodes']} nodes are held only by slack springs (their position is not unique)")
+    if s.get("min_weft_extent_ratio", 1.0) < 0.5:
+        print(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
+              f"(it gathers: nothing holds its width)")
+    if out is not None:
+        print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
+    if args.json:
+        print(json.dumps(s, indent=2))
+    return 0 if result.converged else 1
+
+
+def cmd_view(args) -> int:
+    from .viewer import main as viewer_main
+
+    return viewer_main(args)
+
+
+def cmd_sweep(args) -> int:
+    from .sweep import main as sweep_main
+
+    return sweep_main(args)
+
+
+def cmd_bench(args) -> int:
+    from .bench import main as bench_main
+
+    return bench_main(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="clothsim", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command")
+
+    r = sub.add_parser("run", help="relax a scene headless and write its results")
+    r.add_argument("scene", help="scene YAML file")
+    r.add_argument("--out", help="output folder (result.npz, summary.json, history.csv, sheet.ply, scene.yaml)")
+    r.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override a scene field, e.g. --set solver.C=3 --set fabric.divisions=[80,80]")
+    r.add_argument("--color", choices=["strain", "pressure"], default="strain", help="sheet.ply colouring")
+    r.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--json", action="store_true", help="print the summary as JSON")
+    r.set_defaults(func=cmd_run)
+
+    v = sub.add_parser("view", help="open the browser viewer (default command)")
+    v.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE))
+    v.add_argument("--host", default="127.0.0.1")
+    v.add_argument("--port", type=int, default=8080)
+    v.add_argument("--upload-limit-mb", type=float, default=200.0)
+    v.add_argument("--no-browser", action="store_true")
+    v.set_defaults(func=cmd_view)
+
+    s = sub.add_parser("sweep", help="run a parameter sweep")
+    s.add_argument("sweep", help="sweep YAML file")
+    s.add_argument("--out", required=True)
+    s.add_argument("--workers", type=int, default=None)
+    s.add_argument("--dask", default=None, help="'local' for a LocalCluster or a scheduler address tcp://host:port")
+    s.add_argument("--force", action="store_true", help="rerun finished runs too")
+    s.set_defaults(func=cmd_sweep)
+
+    b = sub.add_parser("bench", help="speed-against-error benchmark")
+    b.add_argument("--quick", action="store_true")
+    b.add_argument("--out", default="docs")
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    if not argv or argv[0].startswith("--") and argv[0] not in ("-h", "--help"):
+        argv = ["view", *argv]
+    args = parser.parse_args(argv)
+    if args.command is None:
+        args = parser.parse_args(["view"])
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

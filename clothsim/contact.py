@@ -1,0 +1,137 @@
+"""Contact and residual kernels shared by every solver (numba, pure functions of arrays).
+
+The residual is the paper's eq. (6): V_k = |R_k| for a free node and |R*_k| for a contact node,
+with constrained axes removed. For a contact node we use the general form of "tangential part":
+the distance from R to the cone of admissible reactions' opposites, ``-cone(n_1..n_m)``, where
+n_i are the outward normals of the faces at the contact feature (one on a face interior: then the
+distance is |R - (R.n) n| when R pushes into the mold and |R| when it pulls away; two at an edge;
+the ring at a vertex). A node in a groove can so rest with its reaction anywhere in the cone of
+the adjacent face normals, and a node on a face behaves exactly as the paper says.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .kernels import node_force
+from .mold import mold_feature_normals, mold_query
+
+MAX_FEATURE_NORMALS = 64
+
+
+@njit(cache=True)
+def _norm3(a0, a1, a2):
+    return math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+
+
+@njit(cache=True)
+def cone_distance(R, normals, m):
+    """Distance from the vector R (3,) to the cone {-sum(l_i n_i), l_i >= 0} of the first m rows of
+    normals (unit vectors). Projection onto a polyhedral cone in 3-D lies on the origin, a ray or a
+    2-D face spanned by two generators, or R is inside (then 0)."""
+    best = _norm3(R[0], R[1], R[2])
+    if m == 0:
+        return best
+    for i in range(m):
+        g0, g1, g2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
+        t = R[0] * g0 + R[1] * g1 + R[2] * g2
+        if t > 0.0:
+            d = _norm3(R[0] - t * g0, R[1] - t * g1, R[2] - t * g2)
+            if d < best:
+                best = d
+    for i in range(m):
+        for j in range(i + 1, m):
+            a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
+            b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
+            aa = a0 * a0 + a1 * a1 + a2 * a2
+            bb = b0 * b0 + b1 * b1 + b2 * b2
+            ab = a0 * b0 + a1 * b1 + a2 * b2
+            ar = a0 * R[0] + a1 * R[1] + a2 * R[2]
+            br = b0 * R[0] + b1 * R[1] + b2 * R[2]
+            det = aa * bb - ab * ab
+            if det <= 1e-14:
+                continue
+            la = (bb * ar - ab * br) / det
+            lb = (aa * br - ab * ar) / det
+            if la >= 0.0 and lb >= 0.0:
+                d = _norm3(R[0] - la * a0 - lb * b0, R[1] - la * a1 - lb * b1, R[2] - la * a2 - lb * b2)
+                if d < best:
+                    best = d
+    if m >= 3 and best > 0.0:
+        for i in range(m):
+            for j in range(i + 1, m):
+                for k in range(j + 1, m):
+                    # solve [g_i g_j g_k] l = R by Cramer's rule
+                    a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
+                    b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
+                    c0, c1, c2 = -normals[k, 0], -normals[k, 1], -normals[k, 2]
+                    det = a0 * (b1 * c2 - b2 * c1) - b0 * (a1 * c2 - a2 * c1) + c0 * (a1 * b2 - a2 * b1)
+                    if abs(det) < 1e-12:
+                        continue
+                    r0, r1, r2 = R[0], R[1], R[2]
+                    l1 = (r0 * (b1 * c2 - b2 * c1) - b0 * (r1 * c2 - r2 * c1) + c0 * (r1 * b2 - r2 * b1)) / det
+                    l2 = (a0 * (r1 * c2 - r2 * c1) - r0 * (a1 * c2 - a2 * c1) + c0 * (a1 * r2 - a2 * r1)) / det
+                    l3 = (a0 * (b1 * r2 - b2 * r1) - b0 * (a1 * r2 - a2 * r1) + r0 * (a1 * b2 - a2 * b1)) / det
+                    if l1 >= 0.0 and l2 >= 0.0 and l3 >= 0.0:
+                        return 0.0
+    return best
+
+
+@njit(cache=True)
+def contact_normals(p, margs, qbuf, nbuf):
+    """Query the mold at p: fills qbuf (closest point, pseudo-normal, feature) and the feature's
+    face normals into nbuf; returns (signed distance, count of normals)."""
+    sd = mold_query(margs, p, qbuf)
+    m = mold_feature_normals(margs, int(qbuf[6]), int(qbuf[7]), nbuf)
+    if m == 0:
+        nbuf[0, 0] = qbuf[3]
+        nbuf[0, 1] = qbuf[4]
+        nbuf[0, 2] = qbuf[5]
+        m = 1
+    return sd, m
+
+
+@njit(cache=True)
+def node_residual(R, fixed_row, contact, p, has_mold, margs, qbuf, nbuf):
+    """V_k (eq. 6) for one node with resultant R (3,) (modified: constrained axes zeroed)."""
+    for a in range(3):
+        if fixed_row[a]:
+            R[a] = 0.0
+    if not contact or not has_mold:
+        return _norm3(R[0], R[1], R[2])
+    sd, m = contact_normals(p, margs, qbuf, nbuf)
+    return cone_distance(R, nbuf, m)
+
+
+@njit(cache=True)
+def residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
+                    x, y, cum, start, comp, ext, has_mold, margs, V):
+    """Fill V (N,) with eq. (6)'s entries; return ||V||_inf (nan if any entry is not finite)."""
+    R = np.empty(3)
+    qbuf = np.empty(8)
+    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
+    vmax = 0.0
+    for k in range(pos.shape[0]):
+        node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum, start, comp, ext, R)
+        v = node_residual(R, fixed[k], in_contact[k], pos[k], has_mold, margs, qbuf, nbuf)
+        V[k] = v
+        if not (v <= vmax):
+            if math.isnan(v):
+                return math.nan
+            vmax = v
+    return vmax
+
+
+@njit(cache=True)
+def max_penetration(pos, margs):
+    """Deepest penetration [m] of any node into the mold (0 if none)."""
+    q = np.empty(8)
+    worst = 0.0
+    for k in range(pos.shape[0]):
+        sd = mold_query(margs, pos[k], q)
+        if -sd > worst:
+            worst = -sd
+    return worst

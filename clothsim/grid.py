@@ -1,0 +1,256 @@
+"""Scene -> Model: nodes, springs, tributary widths, constraint masks, initial state.
+
+Node (i, j), i along warp (x, 0..nx) and j along weft (y, 0..ny), is row ``k = i * (ny + 1) + j``
+of the flat (N, 3) arrays. Springs are stored warp first (``(i, j)-(i+1, j)``, ``nx * (ny+1)`` of
+them, warp spring (i, j) at index ``i * (ny+1) + j``), then weft (``(i, j)-(i, j+1)``,
+``(nx+1) * ny``, weft spring (i, j) at ``nx*(ny+1) + i * ny + j``), then the optional shear and
+bending families, which are only built when the scene asks for them (an unused term costs nothing).
+
+Tributary width (paper Fig. 3): a warp spring carries the band of width dy around its row, half of
+it on the bottom and top rows; a weft spring the band of width dx, half on the left and right
+columns. Spring force = tension [N/m] x width [m].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import Scene, SceneError
+from .material import Table, TablePack
+
+FAMILY_WARP, FAMILY_WEFT, FAMILY_SHEAR, FAMILY_BEND_WARP, FAMILY_BEND_WEFT = 0, 1, 2, 3, 4
+
+
+@dataclass(frozen=True)
+class Model:
+    """Constant arrays of a scene (MuJoCo's model/data split: the State changes, this does not).
+
+    node_count: N. grid_shape: (nx+1, ny+1). rest_positions [m] (N,3): the flat sheet.
+    spring_nodes (S,2) int64; spring_rest_length [m] (S,); spring_width [m] (S,) tributary width
+    (force = tension [N/m] x width); spring_table (S,) int64 index into ``tables``;
+    spring_family (S,) int8 (0 warp, 1 weft, 2 shear, 3/4 bending); fixed_axes (N,3) bool;
+    prescribed_positions [m] (N,3) (the constrained coordinates' values); external_force [N]
+    (N,3) constant (gravity; zeros when off); node_area [m^2] (N,) tributary area of each node;
+    node adjacency in CSR form: adj_ptr (N+1,), adj_node, adj_spring; mold: clothsim.mold.Mold or
+    None."""
+
+    node_count: int
+    grid_shape: tuple[int, int]
+    rest_positions: np.ndarray
+    spring_nodes: np.ndarray
+    spring_rest_length: np.ndarray
+    spring_width: np.ndarray
+    spring_table: np.ndarray
+    spring_family: np.ndarray
+    tables: TablePack
+    table_list: tuple
+    fixed_axes: np.ndarray
+    prescribed_positions: np.ndarray
+    external_force: np.ndarray
+    node_area: np.ndarray
+    adj_ptr: np.ndarray
+    adj_node: np.ndarray
+    adj_spring: np.ndarray
+    mold: object = None
+    spacing: tuple[float, float] = (0.0, 0.0)
+    warp_count: int = 0
+    weft_count: int = 0
+
+    def node_index(self, i: int, j: int) -> int:
+        return i * self.grid_shape[1] + j
+
+    @property
+    def spring_count(self) -> int:
+        return int(self.spring_nodes.shape[0])
+
+    def spring_args(self) -> tuple:
+        """The spring arrays in the order the kernels take them."""
+        t = self.tables
+        return (self.spring_nodes, self.spring_rest_length, self.spring_width, self.spring_table,
+                t.x, t.y, t.cum, t.start, t.compression)
+
+    def adjacency_args(self) -> tuple:
+        t = self.tables
+        return (self.adj_ptr, self.adj_node, self.adj_spring, self.spring_rest_length,
+                self.spring_width, self.spring_table, t.x, t.y, t.cum, t.start, t.compression)
+
+
+@dataclass
+class State:
+    """What a solver changes: positions [m] (N,3), in_contact (N,) bool, iteration count."""
+
+    positions: np.ndarray
+    in_contact: np.ndarray
+    iteration: int = 0
+
+    def copy(self) -> "State":
+        return State(self.positions.copy(), self.in_contact.copy(), self.iteration)
+
+
+def select_nodes(sel, nx: int, ny: int) -> np.ndarray:
+    """Boolean mask (nx+1, ny+1) of a node selector (see config.Constraint)."""
+    m = np.zeros((nx + 1, ny + 1), bool)
+    if isinstance(sel, str):
+        if sel in ("left", "perimeter"):
+            m[0, :] = True
+        if sel in ("right", "perimeter"):
+            m[nx, :] = True
+        if sel in ("bottom", "perimeter"):
+            m[:, 0] = True
+        if sel in ("top", "perimeter"):
+            m[:, ny] = True
+        if sel in ("bottom_left", "corners"):
+            m[0, 0] = True
+        if sel in ("bottom_right", "corners"):
+            m[nx, 0] = True
+        if sel in ("top_left", "corners"):
+            m[0, ny] = True
+        if sel in ("top_right", "corners"):
+            m[nx, ny] = True
+        if sel == "all":
+            m[:] = True
+        return m
+
+    def rng(r, n, name):
+        if r is None:
+            return 0, n
+        a, b = (r, r) if isinstance(r, int) else r
+        a = a + n + 1 if a < 0 else a
+        b = b + n + 1 if b < 0 else b
+        if not (0 <= a <= b <= n):
+            raise SceneError(f"constraints: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
+        return a, b
+
+    ia, ib = rng(sel.i, nx, "i")
+    ja, jb = rng(sel.j, ny, "j")
+    m[ia:ib + 1, ja:jb + 1] = True
+    return m
+
+
+def _adjacency(n: int, spring_nodes: np.ndarray):
+    s = spring_nodes.shape[0]
+    ends = np.concatenate([spring_nodes[:, 0], spring_nodes[:, 1]])
+    others = np.concatenate([spring_nodes[:, 1], spring_nodes[:, 0]])
+    sids = np.concatenate([np.arange(s), np.arange(s)])
+    order = np.argsort(ends, kind="stable")
+    counts = np.bincount(ends, minlength=n)
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    return ptr, others[order].astype(np.int64), sids[order].astype(np.int64)
+
+
+def build_model(scene: Scene, mold=None) -> Model:
+    """Build the constant arrays of a scene. ``mold`` is a loaded clothsim.mold.Mold or None."""
+    fab = scene.fabric
+    nx, ny = fab.divisions
+    lx, ly = fab.size
+    dx, dy = lx / nx, ly / ny
+    ox, oy, oz = fab.origin
+    ii, jj = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), indexing="ij")
+    rest = np.stack([ox + ii * dx, oy + jj * dy, np.full(ii.shape, oz, float)], -1).reshape(-1, 3)
+    n = rest.shape[0]
+    idx = np.arange(n).reshape(nx + 1, ny + 1)
+
+    warp_table, weft_table = scene.tables()
+    tables = [warp_table, weft_table]
+
+    nodes, rest_len, width, table, family = [], [], [], [], []
+
+    # warp springs: (i,j)-(i+1,j), width dy (half on bottom/top rows)
+    a = idx[:-1, :].ravel()
+    b = idx[1:, :].ravel()
+    w = np.full((nx, ny + 1), dy)
+    w[:, 0] *= 0.5
+    w[:, ny] *= 0.5
+    nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, dx)); width.append(w.ravel())
+    table.append(np.zeros(a.size, np.int64)); family.append(np.full(a.size, FAMILY_WARP, np.int8))
+    # weft springs: (i,j)-(i,j+1), width dx (half on left/right columns)
+    a = idx[:, :-1].ravel()
+    b = idx[:, 1:].ravel()
+    w = np.full((nx + 1, ny), dx)
+    w[0, :] *= 0.5
+    w[nx, :] *= 0.5
+    nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, dy)); width.append(w.ravel())
+    table.append(np.ones(a.size, np.int64)); family.append(np.full(a.size, FAMILY_WEFT, np.int8))
+
+    if scene.shear is not None:
+        # both diagonals of every cell; stiffness is per width across the diagonal
+        tables.append(Table.linear(scene.shear.stiffness, compression=True))
+        tid = len(tables) - 1
+        diag = math.hypot(dx, dy)
+        wdiag = 0.5 * dx * dy / diag  # each diagonal carries half the cell, across its length
+        for a, b in ((idx[:-1, :-1], idx[1:, 1:]), (idx[1:, :-1], idx[:-1, 1:])):
+            a = a.ravel(); b = b.ravel()
+            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, diag))
+            width.append(np.full(a.size, wdiag)); table.append(np.full(a.size, tid, np.int64))
+            family.append(np.full(a.size, FAMILY_SHEAR, np.int8))
+    if scene.bending is not None:
+        tables.append(Table.linear(scene.bending.stiffness, compression=True))
+        tid = len(tables) - 1
+        if nx >= 2:
+            a = idx[:-2, :].ravel(); b = idx[2:, :].ravel()
+            w = np.full((nx - 1, ny + 1), dy); w[:, 0] *= 0.5; w[:, ny] *= 0.5
+            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, 2 * dx))
+            width.append(w.ravel()); table.append(np.full(a.size, tid, np.int64))
+            family.append(np.full(a.size, FAMILY_BEND_WARP, np.int8))
+        if ny >= 2:
+            a = idx[:, :-2].ravel(); b = idx[:, 2:].ravel()
+            w = np.full((nx + 1, ny - 1), dx); w[0, :] *= 0.5; w[nx, :] *= 0.5
+            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, 2 * dy))
+            width.append(w.ravel()); table.append(np.full(a.size, tid, np.int64))
+            family.append(np.full(a.size, FAMILY_BEND_WEFT, np.int8))
+
+    spring_nodes = np.ascontiguousarray(np.concatenate(nodes).astype(np.int64))
+    ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
+
+    # node tributary areas (for pressure and gravity)
+    wx = np.full(nx + 1, dx); wx[0] *= 0.5; wx[-1] *= 0.5
+    wy = np.full(ny + 1, dy); wy[0] *= 0.5; wy[-1] *= 0.5
+    node_area = np.outer(wx, wy).ravel()
+
+    ext = np.zeros((n, 3))
+    if scene.gravity is not None:
+        g = scene.gravity
+        d = np.asarray(g.direction, float)
+        d = d / np.linalg.norm(d)
+        ext[:] = (g.areal_density * g.g * node_area)[:, None] * d[None, :]
+
+    fixed = np.zeros((nx + 1, ny + 1, 3), bool)
+    prescribed = rest.reshape(nx + 1, ny + 1, 3).copy()
+    centre = np.array([ox + lx / 2, oy + ly / 2])
+    for c in scene.constraints:
+        m = select_nodes(c.nodes, nx, ny)
+        for ax in c.axes:
+            fixed[m, "xyz".index(ax)] = True
+        if c.stretch is not None:
+            s = np.array([c.stretch, c.stretch] if isinstance(c.stretch, (int, float)) else c.stretch, float)
+            prescribed[m, :2] = centre + (prescribed[m, :2] - centre) * s
+        if c.displacement is not None:
+            prescribed[m] += np.asarray(c.displacement, float)
+
+    return Model(
+        node_count=n,
+        grid_shape=(nx + 1, ny + 1),
+        rest_positions=rest,
+        spring_nodes=spring_nodes,
+        spring_rest_length=np.ascontiguousarray(np.concatenate(rest_len), float),
+        spring_width=np.ascontiguousarray(np.concatenate(width), float),
+        spring_table=np.ascontiguousarray(np.concatenate(table)),
+        spring_family=np.concatenate(family),
+        tables=TablePack.from_tables(tables),
+        table_list=tuple(tables),
+        fixed_axes=fixed.reshape(n, 3),
+        prescribed_positions=prescribed.reshape(n, 3),
+        external_force=ext,
+        node_area=node_area,
+        adj_ptr=ptr,
+        adj_node=adj_node,
+        adj_spring=adj_spring,
+        mold=mold,
+        spacing=(dx, dy),
+        warp_count=nx * (ny + 1),
+        weft_count=(nx + 1) * ny,
+    )

@@ -1,0 +1,111 @@
+"""The initial deformation (paper 3.1): a state that keeps the sheet off the mold.
+
+Constrained nodes start at their prescribed positions (stretch/displacement applied); the other
+nodes at the flat sheet, then ``lift`` (a smooth dome), ``wrap`` (the sheet rolled on a cylinder),
+``file`` (an earlier result) and ``perturb`` act on the free coordinates only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .config import Scene, SceneError
+from .grid import Model, State
+
+
+def _wrap_positions(scene: Scene, model: Model) -> np.ndarray:
+    w = scene.initial.wrap
+    fab = scene.fabric
+    a = np.asarray(w.axis, float)
+    a = a / np.linalg.norm(a)
+    # an orthonormal frame (e1, e2, a)
+    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = t - a * (t @ a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    rest = model.rest_positions
+    u = rest[:, 0] - fab.origin[0]
+    v = rest[:, 1] - fab.origin[1] - fab.size[1] / 2
+    theta = math.radians(w.start_angle) + u / w.radius
+    c = np.asarray(w.center, float)
+    return c + w.radius * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2) + v[:, None] * a
+
+
+def initial_state(scene: Scene, model: Model) -> State:
+    """Build the starting State; refuses a start that touches or penetrates the mold unless
+    ``initial.auto_clearance`` asks to lift it clear."""
+    ini = scene.initial
+    fixed = model.fixed_axes
+    pos = model.rest_positions.copy()
+    nx1, ny1 = model.grid_shape
+    if ini.wrap is not None:
+        pos = _wrap_positions(scene, model)
+    if ini.lift:
+        ii, jj = np.meshgrid(np.arange(nx1), np.arange(ny1), indexing="ij")
+        dome = np.sin(np.pi * ii / max(nx1 - 1, 1)) * np.sin(np.pi * jj / max(ny1 - 1, 1))
+        pos[:, 2] += ini.lift * dome.ravel()
+    if ini.file is not None:
+        path = scene.resolve(ini.file)
+        try:
+            with np.load(path) as data:
+                if "positions" not in data:
+                    raise SceneError(f"{path}: initial.file: no 'positions' array")
+                p = np.asarray(data["positions"], float)
+        except (OSError, ValueError) as exc:
+            raise SceneError(f"{path}: initial.file: cannot read ({exc})") from None
+        if p.shape != (nx1, ny1, 3):
+            raise SceneError(f"{path}: initial.file: positions have shape {p.shape}, the scene needs "
+                             f"{(nx1, ny1, 3)}")
+        if not np.isfinite(p).all():
+            raise SceneError(f"{path}: initial.file: positions are not all finite")
+        pos = p.reshape(-1, 3).copy()
+    if ini.perturb:
+        rng = np.random.default_rng(ini.seed)
+        pos += rng.uniform(-ini.perturb, ini.perturb, pos.shape)
+    # constrained coordinates take their prescribed values; a fully constrained node too
+    pos[fixed] = model.prescribed_positions[fixed]
+    full = fixed.all(axis=1)
+    pos[full] = model.prescribed_positions[full]
+    # a node selected by a stretch/displacement but free on some axes starts moved as well
+    moved = np.any(model.prescribed_positions != model.rest_positions, axis=1) & ~full & fixed.any(axis=1)
+    if ini.wrap is None and ini.file is None:
+        pos[moved] = np.where(fixed[moved], model.prescribed_positions[moved],
+                              pos[moved] + (model.prescribed_positions[moved] - model.rest_positions[moved]))
+    state = State(np.ascontiguousarray(pos), np.zeros(model.node_count, bool), 0)
+    if model.mold is not None:
+        _check_clearance(scene, model, state)
+    return state
+
+
+def _check_clearance(scene: Scene, model: Model, state: State) -> None:
+    from .mold import mold_query_many
+
+    margs = model.mold.kernel_args()
+    n = model.node_count
+    sd = np.empty(n)
+    cp = np.empty((n, 3))
+    nrm = np.empty((n, 3))
+    feat = np.empty((n, 2))
+    mold_query_many(margs, state.positions, sd, cp, nrm, feat)
+    bad = sd <= 0.0
+    if not bad.any():
+        return
+    fixed_bad = bad & model.fixed_axes.any(axis=1)
+    size = max(scene.fabric.size)
+    if not scene.initial.auto_clearance or fixed_bad.any():
+        what = "touch or penetrate"
+        extra = ("; some of them are constrained nodes, which auto_clearance cannot move"
+                 if scene.initial.auto_clearance else
+                 "; raise initial.lift, move the mold or set initial.auto_clearance: true")
+        raise SceneError(
+            f"initial: {int(bad.sum())} nodes {what} the mold at the start (deepest {-sd.min() * 1e3:.3g} mm)"
+            + extra)
+    # lift the offending nodes just clear: to the surface plus a small margin along its normal
+    margin = 1e-3 * size
+    k = np.nonzero(bad)[0]
+    state.positions[k] = cp[k] + margin * nrm[k]
+    mold_query_many(margs, state.positions, sd, cp, nrm, feat)
+    if (sd <= 0).any():
+        raise SceneError(f"initial: auto_clearance could not lift {int((sd <= 0).sum())} nodes clear of the mold")

@@ -1,0 +1,178 @@
+"""Numba kernels: pure functions of arrays (no pydantic objects, no globals that change).
+
+Per-element math lives in small functions (a table lookup, one spring's force, energy and Hessian
+block); the loop kernels call them. Every function is ``@njit(cache=True)`` so that a second run
+starts without recompiling.
+
+Spring model (paper eq. 1-3): a spring between nodes a and b with rest length l0 [m], tributary
+width w [m] and tension table T(strain) [N/m] pulls both ends towards each other with the axial
+force ``f = T(l/l0 - 1) * w`` [N]. Its energy is ``E = w * l0 * int_0^strain T(s) ds`` [J], so
+that ``-dE/dx_a = f * (x_b - x_a)/l``: forces are exact gradients of the energy (tests check this
+by finite differences).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# A spring shorter than this [m] has no defined direction: it carries no force (see
+# shared/notes/modelling.md: projection can put two nodes on the same mold vertex).
+LENGTH_EPS = 1e-14
+
+
+@njit(cache=True)
+def table_eval(x, y, cum, start, comp, t, s):
+    """Evaluate table t at strain s.
+
+    Returns (T [N/m], dT/ds [N/m], W = int_0^s T ds [N/m]). Piecewise linear between points, the
+    last segment extended beyond the table; for s <= 0 zero (tension only) unless comp[t], then
+    the first segment is extended to negative strain.
+    """
+    a = start[t]
+    b = start[t + 1]
+    if s <= 0.0:
+        if comp[t] == 0:
+            return 0.0, 0.0, 0.0
+        k0 = (y[a + 1] - y[a]) / (x[a + 1] - x[a])
+        return y[a] + k0 * s, k0, y[a] * s + 0.5 * k0 * s * s
+    # find segment m with x[m] <= s < x[m+1]; the last segment is extended beyond
+    m = a
+    while m < b - 2 and s >= x[m + 1]:
+        m += 1
+    k = (y[m + 1] - y[m]) / (x[m + 1] - x[m])
+    ds = s - x[m]
+    return y[m] + k * ds, k, cum[m] + y[m] * ds + 0.5 * k * ds * ds
+
+
+@njit(cache=True)
+def first_slope(x, y, start, t):
+    """Slope of table t's first segment [N/m per unit strain] (the stiffness a Newton matrix uses
+    at the strain-0 kink, where a tension-only spring's own tangent is 0)."""
+    a = start[t]
+    return (y[a + 1] - y[a]) / (x[a + 1] - x[a])
+
+
+@njit(cache=True)
+def spring_eval(pa, pb, l0, w, x, y, cum, start, comp, t):
+    """One spring: returns (fx, fy, fz, energy, T, dT, l) where f [N] is the force on node a
+    (towards b when in tension), energy [J], T the tension [N/m], dT its strain derivative and
+    l the current length [m]."""
+    dx = pb[0] - pa[0]
+    dy = pb[1] - pa[1]
+    dz = pb[2] - pa[2]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    s = length / l0 - 1.0
+    T, dT, W = table_eval(x, y, cum, start, comp, t, s)
+    energy = w * l0 * W
+    if length < LENGTH_EPS:
+        return 0.0, 0.0, 0.0, energy, T, dT, length
+    f = T * w / length
+    return f * dx, f * dy, f * dz, energy, T, dT, length
+
+
+@njit(cache=True)
+def forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, out):
+    """All spring forces plus the constant external force ext (N,3) [N] (gravity), into out (N,3).
+
+    Returns the total potential energy [J] (springs minus ext . pos)."""
+    n = pos.shape[0]
+    for k in range(n):
+        out[k, 0] = ext[k, 0]
+        out[k, 1] = ext[k, 1]
+        out[k, 2] = ext[k, 2]
+    energy = 0.0
+    for k in range(n):
+        energy -= ext[k, 0] * pos[k, 0] + ext[k, 1] * pos[k, 1] + ext[k, 2] * pos[k, 2]
+    for sidx in range(spring_nodes.shape[0]):
+        a = spring_nodes[sidx, 0]
+        b = spring_nodes[sidx, 1]
+        fx, fy, fz, e, T, dT, l = spring_eval(
+            pos[a], pos[b], rest[sidx], width[sidx], x, y, cum, start, comp, table[sidx]
+        )
+        energy += e
+        out[a, 0] += fx
+        out[a, 1] += fy
+        out[a, 2] += fz
+        out[b, 0] -= fx
+        out[b, 1] -= fy
+        out[b, 2] -= fz
+    return energy
+
+
+@njit(cache=True)
+def spring_strains_tensions(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, strain_out, force_out):
+    """Per-spring engineering strain and axial force [N] (tension positive, 0 when slack)."""
+    for sidx in range(spring_nodes.shape[0]):
+        a = spring_nodes[sidx, 0]
+        b = spring_nodes[sidx, 1]
+        fx, fy, fz, e, T, dT, l = spring_eval(
+            pos[a], pos[b], rest[sidx], width[sidx], x, y, cum, start, comp, table[sidx]
+        )
+        strain_out[sidx] = l / rest[sidx] - 1.0
+        force_out[sidx] = T * width[sidx]
+
+
+@njit(cache=True)
+def node_force(k, pos, ptr, nbr, sid, rest, width, table, x, y, cum, start, comp, ext, out):
+    """Resultant R (paper eq. 3) at node k from its own springs plus ext[k], into out (3,).
+
+    Returns the sum of the elongations d = l - l0 [m] of those springs, split as
+    (sum of positive elongations, sum of |elongations|) for the paper's step (eq. 4)."""
+    out[0] = ext[k, 0]
+    out[1] = ext[k, 1]
+    out[2] = ext[k, 2]
+    dpos = 0.0
+    dabs = 0.0
+    for q in range(ptr[k], ptr[k + 1]):
+        o = nbr[q]
+        s = sid[q]
+        fx, fy, fz, e, T, dT, l = spring_eval(
+            pos[k], pos[o], rest[s], width[s], x, y, cum, start, comp, table[s]
+        )
+        out[0] += fx
+        out[1] += fy
+        out[2] += fz
+        d = l - rest[s]
+        if d > 0.0:
+            dpos += d
+        dabs += abs(d)
+    return dpos, dabs
+
+
+@njit(cache=True)
+def spring_hessian_block(pa, pb, l0, w, x, y, cum, start, comp, t, kink_stiffness, out):
+    """3x3 stiffness block K = d(f_b)/d(x_b) of one spring (positive semi-definite).
+
+    K = (w/l0) T'(s) u u^T + (w T / l) (I - u u^T). The transverse term is clamped at >= 0
+    (compressed springs would make K indefinite); at and below strain 0 a tension-only spring has
+    T' = 0, and ``kink_stiffness`` (>= 0, [N/m]) is used instead for s in (-inf, 0] when > 0 (this
+    regularises the singular matrix at the undeformed state; it only changes the search direction,
+    never the forces or the residual)."""
+    dx = pb[0] - pa[0]
+    dy = pb[1] - pa[1]
+    dz = pb[2] - pa[2]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = 0.0
+    if length < LENGTH_EPS:
+        return
+    s = length / l0 - 1.0
+    T, dT, W = table_eval(x, y, cum, start, comp, t, s)
+    if s <= 0.0 and comp[t] == 0 and kink_stiffness > 0.0:
+        dT = kink_stiffness
+    u0 = dx / length
+    u1 = dy / length
+    u2 = dz / length
+    u = (u0, u1, u2)
+    ka = w / l0 * dT
+    kt = w * T / length
+    if kt < 0.0:
+        kt = 0.0
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = (ka - kt) * u[i] * u[j]
+        out[i, i] += kt

@@ -1,0 +1,187 @@
+"""Piecewise-linear tension tables: validation, evaluation, energy integral, CSV import.
+
+Why tension per width: fabric strip tests (EN 14704-1, KES-FB1, ASTM D5035) report force per
+width [N/m] against engineering strain, and a knit's "thickness" is ill defined. A table given as
+stress [Pa] is converted once, with the fabric thickness, to tension per width
+``T = sigma * thickness``; from then on a spring's axial force is ``T(strain) * width`` where width
+is its tributary width [m] (paper, Fig. 3: the associated area is thickness x width).
+
+Conventions (DESIGN.md): strain is engineering strain ``l / l0 - 1``; the table starts at strain 0,
+strictly increasing strain, non-negative non-decreasing values; beyond the last point the last
+segment is extended; at zero or negative strain a tension-only spring is slack (zero force).
+
+The tables are packed for the numba kernels as flat arrays (see :class:`TablePack`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+class MaterialError(ValueError):
+    """A material table is invalid; the message names what is wrong (and the file/line for CSV)."""
+
+
+def check_table(strain, value, value_name: str = "stress") -> None:
+    """Raise MaterialError (message without field prefix) if (strain, value) is not a valid table.
+
+    The messages are part of the user interface (tests check them verbatim)."""
+    strain = list(strain)
+    value = list(value)
+    if len(strain) != len(value):
+        raise MaterialError(
+            f"strain and {value_name} have different lengths ({len(strain)} and {len(value)})"
+        )
+    if len(strain) < 2:
+        raise MaterialError(f"needs at least 2 points (got {len(strain)})")
+    for name, seq in (("strain", strain), (value_name, value)):
+        for x in seq:
+            if not math.isfinite(float(x)):
+                raise MaterialError(f"{name}: must be finite (got {x})")
+    if float(strain[0]) != 0.0:
+        raise MaterialError(f"strain: must start at 0 (got {strain[0]})")
+    for a, b in zip(strain, strain[1:]):
+        if not float(b) > float(a):
+            raise MaterialError(f"strain: must be strictly increasing ({b} after {a})")
+    for x in value:
+        if float(x) < 0.0:
+            raise MaterialError(f"{value_name}: must be non-negative (got {x})")
+    for a, b in zip(value, value[1:]):
+        if float(b) < float(a):
+            raise MaterialError(f"{value_name}: must be non-decreasing ({b} after {a})")
+
+
+def read_table_csv(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """Read a two-column CSV table ``strain,<stress|tension>``.
+
+    The header names the second column: ``stress`` (Pa) or ``tension`` (N/m); a unit in brackets or
+    parentheses after the name is allowed (``tension [N/m]``). Strain may be given in percent with
+    a header ``strain [%]``. Returns (strain, value, kind) with kind "stress" or "tension".
+    Errors name the file and the line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise MaterialError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    return parse_table_csv(text, str(path))
+
+
+def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.ndarray, str]:
+    """Parse CSV text as in :func:`read_table_csv` (used for browser uploads too)."""
+    rows = [r for r in csv.reader(io.StringIO(text))]
+    numbered = [(n + 1, r) for n, r in enumerate(rows) if r and any(c.strip() for c in r)]
+    numbered = [(n, r) for n, r in numbered if not r[0].lstrip().startswith("#")]
+    if not numbered:
+        raise MaterialError(f"{source}: empty table")
+    line, header = numbered[0]
+    if len(header) < 2:
+        raise MaterialError(f"{source}:{line}: header needs two columns: strain,stress or strain,tension")
+    h0 = header[0].strip().lower()
+    h1 = header[1].strip().lower()
+    if not h0.startswith("strain"):
+        raise MaterialError(f"{source}:{line}: first column must be 'strain' (got '{header[0].strip()}')")
+    if h1.startswith("stress"):
+        kind = "stress"
+    elif h1.startswith("tension"):
+        kind = "tension"
+    else:
+        raise MaterialError(
+            f"{source}:{line}: second column must be 'stress' [Pa] or 'tension' [N/m] (got '{header[1].strip()}')"
+        )
+    percent = "%" in h0
+    scale1 = 1.0
+    if kind == "tension" and ("n/cm" in h1):
+        scale1 = 100.0
+    if kind == "stress" and "mpa" in h1:
+        scale1 = 1e6
+    strain, value = [], []
+    for line, row in numbered[1:]:
+        if len(row) < 2:
+            raise MaterialError(f"{source}:{line}: expected two columns, got {len(row)}")
+        try:
+            s = float(row[0])
+            v = float(row[1])
+        except ValueError:
+            raise MaterialError(f"{source}:{line}: not a number: {','.join(row)}") from None
+        if not (math.isfinite(s) and math.isfinite(v)):
+            raise MaterialError(f"{source}:{line}: must be finite: {','.join(row)}")
+        strain.append(s / 100.0 if percent else s)
+        value.append(v * scale1)
+    try:
+        check_table(strain, value, kind)
+    except MaterialError as exc:
+        raise MaterialError(f"{source}: {exc}") from None
+    return np.asarray(strain, float), np.asarray(value, float), kind
+
+
+@dataclass(frozen=True)
+class Table:
+    """One validated tension table.
+
+    strain: (P,) engineering strain, strain[0] == 0.
+    tension: (P,) tension per width [N/m] at those strains.
+    compression: if True the first segment is extended to negative strain (used for the optional
+        bending/shear springs, which resist compression); otherwise the spring is slack below 0.
+    """
+
+    strain: np.ndarray
+    tension: np.ndarray
+    compression: bool = False
+
+    @staticmethod
+    def linear(stiffness: float, compression: bool = True) -> "Table":
+        """T = stiffness * strain [N/m]; used for shear and bending springs."""
+        return Table(np.array([0.0, 1.0]), np.array([0.0, float(stiffness)]), compression)
+
+    def evaluate(self, strain):
+        """Tension [N/m] at the given strains (numpy, for tests and plots)."""
+        pack = TablePack.from_tables([self])
+        strain = np.atleast_1d(np.asarray(strain, float))
+        out = np.empty_like(strain)
+        from .kernels import table_eval
+
+        for n, s in enumerate(strain):
+            out[n] = table_eval(pack.x, pack.y, pack.cum, pack.start, pack.compression, 0, s)[0]
+        return out
+
+
+@dataclass(frozen=True)
+class TablePack:
+    """Several tables concatenated for numba.
+
+    x, y: concatenated strains and tensions [N/m]; start: (n+1,) offsets; cum: energy integral
+    int_0^x T ds at each breakpoint [N/m]; compression: (n,) bool as uint8.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    cum: np.ndarray
+    start: np.ndarray
+    compression: np.ndarray
+
+    @staticmethod
+    def from_tables(tables: list[Table]) -> "TablePack":
+        xs, ys, cums, starts, comp = [], [], [], [0], []
+        for t in tables:
+            x = np.asarray(t.strain, float)
+            y = np.asarray(t.tension, float)
+            c = np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(x))])
+            xs.append(x)
+            ys.append(y)
+            cums.append(c)
+            starts.append(starts[-1] + len(x))
+            comp.append(1 if t.compression else 0)
+        return TablePack(
+            np.concatenate(xs),
+            np.concatenate(ys),
+            np.concatenate(cums),
+            np.asarray(starts, np.int64),
+            np.asarray(comp, np.uint8),
+        )

@@ -1,0 +1,298 @@
+"""Result: what users read and export (positions, contact, strains, tensions, contact pressure).
+
+Files written by :meth:`Result.save` (each written to a temporary name, then renamed, so an
+interrupted run never leaves a half-written file):
+
+- ``result.npz``: positions (nx+1, ny+1, 3) [m]; in_contact (nx+1, ny+1) bool; strain_warp
+  (nx, ny+1); strain_weft (nx+1, ny); tension_warp / tension_weft [N per spring]; contact_force
+  (nx+1, ny+1) [N] (normal reaction); contact_pressure (nx+1, ny+1) [Pa]; residual_history [N];
+  energy_history [J].
+- ``summary.json``: converged, status, message, iterations, residual [N], relative_residual,
+  energy [J], wall_time_s (the relaxation), startup_s (mold loading, model building, JIT
+  compilation), solver, contact_count, diagnostics, clothsim version.
+- ``history.csv``: iteration, residual [N], energy [J], elapsed [s].
+- ``sheet.ply``: the deformed grid as triangles with per-vertex colours (strain or pressure).
+- ``scene.yaml``: the fully resolved scene.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .kernels import spring_strains_tensions
+
+MMHG = 133.322387415  # Pa per mmHg
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def grid_faces(nx1: int, ny1: int) -> np.ndarray:
+    """Two triangles per grid cell, (2*nx*ny, 3), counter-clockwise seen from +z."""
+    idx = np.arange(nx1 * ny1).reshape(nx1, ny1)
+    a = idx[:-1, :-1].ravel()
+    b = idx[1:, :-1].ravel()
+    c = idx[1:, 1:].ravel()
+    d = idx[:-1, 1:].ravel()
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+
+
+def deformed_node_area(pos: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
+    """Tributary area [m^2] of each node on the deformed sheet: a quarter of each adjacent cell."""
+    p = pos.reshape(nx1, ny1, 3)
+    a = p[:-1, :-1]
+    b = p[1:, :-1]
+    c = p[1:, 1:]
+    d = p[:-1, 1:]
+    cell = 0.5 * (np.linalg.norm(np.cross(b - a, c - a), axis=-1) + np.linalg.norm(np.cross(c - a, d - a), axis=-1))
+    area = np.zeros((nx1, ny1))
+    q = 0.25 * cell
+    area[:-1, :-1] += q
+    area[1:, :-1] += q
+    area[1:, 1:] += q
+    area[:-1, 1:] += q
+    return area.ravel()
+
+
+def node_fields(model, state):
+    """Per-spring strain and force, per-node contact force and pressure, and diagnostics."""
+    from .contact import contact_normals
+    from .kernels import node_force
+    from .solvers.common import model_mold_args
+
+    S = model.spring_count
+    strain = np.empty(S)
+    force = np.empty(S)
+    spring_strains_tensions(state.positions, *model.spring_args(), strain, force)
+    n = model.node_count
+    contact_force = np.zeros(n)
+    has_mold, margs = model_mold_args(model)
+    if has_mold and state.in_contact.any():
+        R = np.empty(3)
+        q = np.empty(8)
+        nb = np.empty((64, 3))
+        adj = model.adjacency_args()
+        for k in np.nonzero(state.in_contact)[0]:
+            node_force(int(k), state.positions, *adj, model.external_force, R)
+            contact_normals(state.positions[k], margs, q, nb)
+            contact_force[k] = max(0.0, -float(R @ q[3:6]))
+    nx1, ny1 = model.grid_shape
+    area = deformed_node_area(state.positions, nx1, ny1)
+    pressure = np.divide(contact_force, area, out=np.zeros(n), where=area > 0)
+    return strain, force, contact_force, pressure
+
+
+@dataclass
+class Result:
+    """A finished (or stopped) run: the scene, its model, the final state and the solve record."""
+
+    scene: object
+    model: object
+    state: object
+    solve: object  # SolveResult
+    startup_s: float = 0.0
+    _fields: tuple | None = field(default=None, repr=False)
+
+    def _f(self):
+        if self._fields is None:
+            self._fields = node_fields(self.model, self.state)
+        return self._fields
+
+    @property
+    def converged(self) -> bool:
+        return self.solve.converged
+
+    @property
+    def status(self) -> str:
+        return self.solve.status
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(nx+1, ny+1, 3) [m]."""
+        nx1, ny1 = self.model.grid_shape
+        return self.state.positions.reshape(nx1, ny1, 3)
+
+    @property
+    def in_contact(self) -> np.ndarray:
+        return self.state.in_contact.reshape(self.model.grid_shape)
+
+    def _split(self, arr):
+        m = self.model
+        nx1, ny1 = m.grid_shape
+        w = arr[: m.warp_count].reshape(nx1 - 1, ny1)
+        f = arr[m.warp_count: m.warp_count + m.weft_count].reshape(nx1, ny1 - 1)
+        return w, f
+
+    @property
+    def strain_warp(self):
+        return self._split(self._f()[0])[0]
+
+    @property
+    def strain_weft(self):
+        return self._split(self._f()[0])[1]
+
+    @property
+    def tension_warp(self):
+        """Axial force of each warp spring [N]."""
+        return self._split(self._f()[1])[0]
+
+    @property
+    def tension_weft(self):
+        return self._split(self._f()[1])[1]
+
+    @property
+    def contact_force(self):
+        """Normal contact reaction per node [N] (nx+1, ny+1)."""
+        return self._f()[2].reshape(self.model.grid_shape)
+
+    @property
+    def contact_pressure(self):
+        """Contact pressure [Pa] = reaction / deformed tributary area, (nx+1, ny+1)."""
+        return self._f()[3].reshape(self.model.grid_shape)
+
+    def node_strain(self) -> np.ndarray:
+        """Per-node strain for colouring: the larger of the mean adjacent warp and weft strains."""
+        nx1, ny1 = self.model.grid_shape
+        sw, sf = self.strain_warp, self.strain_weft
+        w = np.zeros((nx1, ny1)); cw = np.zeros((nx1, ny1))
+        w[:-1] += sw; w[1:] += sw; cw[:-1] += 1; cw[1:] += 1
+        f = np.zeros((nx1, ny1)); cf = np.zeros((nx1, ny1))
+        f[:, :-1] += sf; f[:, 1:] += sf; cf[:, :-1] += 1; cf[:, 1:] += 1
+        return np.maximum(w / np.maximum(cw, 1), f / np.maximum(cf, 1))
+
+    def diagnostics(self) -> dict:
+        """Numbers that make a degenerate result visible: slack springs, nodes held by nothing
+        (undetermined: every spring slack, not in contact, not constrained), the sheet's narrowest
+        weft extent against its rest width (a band gathering into a rope), penetration."""
+        m = self.model
+        strain, force = self._f()[0], self._f()[1]
+        slack = force <= 0.0
+        # nodes with all springs slack
+        node_taut = np.zeros(m.node_count, bool)
+        taut = ~slack
+        node_taut[m.spring_nodes[taut, 0]] = True
+        node_taut[m.spring_nodes[taut, 1]] = True
+        free = ~m.fixed_axes.all(axis=1)
+        undetermined = free & ~node_taut & ~self.state.in_contact
+        nx1, ny1 = m.grid_shape
+        p = self.positions
+        weft_len = np.linalg.norm(np.diff(p, axis=1), axis=-1).sum(axis=1)  # (nx1,)
+        rest_w = self.scene.fabric.size[1]
+        out = {
+            "slack_springs": int(slack.sum()),
+            "spring_count": int(m.spring_count),
+            "undetermined_nodes": int(undetermined.sum()),
+            "min_weft_extent_ratio": float(weft_len.min() / rest_w) if rest_w > 0 else math.nan,
+            "max_strain_warp": float(self.strain_warp.max()) if self.strain_warp.size else 0.0,
+            "max_strain_weft": float(self.strain_weft.max()) if self.strain_weft.size else 0.0,
+            "max_contact_pressure_pa": float(self.contact_pressure.max()),
+            "max_contact_pressure_mmhg": float(self.contact_pressure.max() / MMHG),
+        }
+        if m.mold is not None:
+            from .contact import max_penetration
+
+            out["max_penetration_m"] = float(max_penetration(self.state.positions, m.mold.kernel_args()))
+        return out
+
+    def undetermined_nodes(self) -> np.ndarray:
+        """(i, j) indices of free nodes held only by slack springs (no unique equilibrium)."""
+        m = self.model
+        force = self._f()[1]
+        node_taut = np.zeros(m.node_count, bool)
+        node_taut[m.spring_nodes[force > 0, 0]] = True
+        node_taut[m.spring_nodes[force > 0, 1]] = True
+        und = ~m.fixed_axes.all(axis=1) & ~node_taut & ~self.state.in_contact
+        k = np.nonzero(und)[0]
+        return np.stack(np.unravel_index(k, m.grid_shape), 1)
+
+    def summary(self) -> dict:
+        from . import __version__
+        from .solvers import pick_method
+
+        s = self.solve
+        d = {
+            "name": self.scene.name,
+            "converged": bool(s.converged),
+            "status": s.status,
+            "message": s.message,
+            "iterations": int(s.iterations),
+            "residual": float(s.residual),
+            "relative_residual": float(s.relative_residual),
+            "best_residual": float(s.best_residual),
+            "energy": float(s.energy),
+            "wall_time_s": float(s.wall_time_s),
+            "startup_s": float(self.startup_s),
+            "solver": s.method,
+            "C": float(self.scene.solver.C),
+            "e": float(self.scene.solver.e),
+            "contact_count": int(s.contact_count),
+            "node_count": int(self.model.node_count),
+            "clothsim_version": __version__,
+        }
+        d.update(self.diagnostics())
+        return d
+
+    def colored_mesh(self, field: str = "strain"):
+        """A trimesh.Trimesh of the deformed sheet with per-vertex colours (viridis) of field
+        ('strain' or 'pressure')."""
+        import trimesh
+        from matplotlib import colormaps
+
+        nx1, ny1 = self.model.grid_shape
+        values = (self.contact_pressure / MMHG if field == "pressure" else self.node_strain()).ravel()
+        lo, hi = float(values.min()), float(values.max())
+        t = (values - lo) / (hi - lo) if hi > lo else np.zeros_like(values)
+        colors = (colormaps["viridis"](t) * 255).astype(np.uint8)
+        return trimesh.Trimesh(self.state.positions.copy(), grid_faces(nx1, ny1), vertex_colors=colors,
+                               process=False)
+
+    def history_csv(self) -> str:
+        h = self.solve.history
+        lines = ["iteration,residual_N,energy_J,elapsed_s"]
+        for it, r, e, t in zip(h["iteration"], h["residual"], h["energy"], h["time"]):
+            lines.append(f"{int(it)},{r:.10e},{e:.10e},{t:.6f}")
+        return "\n".join(lines) + "\n"
+
+    def npz_bytes(self) -> bytes:
+        import io
+
+        buf = io.BytesIO()
+        np.savez_compressed(
+            buf,
+            positions=self.positions,
+            in_contact=self.in_contact,
+            strain_warp=self.strain_warp,
+            strain_weft=self.strain_weft,
+            tension_warp=self.tension_warp,
+            tension_weft=self.tension_weft,
+            contact_force=self.contact_force,
+            contact_pressure=self.contact_pressure,
+            residual_history=self.solve.history.get("residual", np.zeros(0)),
+            energy_history=self.solve.history.get("energy", np.zeros(0)),
+        )
+        return buf.getvalue()
+
+    def save(self, out_dir: str | Path, ply_field: str = "strain") -> Path:
+        """Write every output file into out_dir (created); returns out_dir."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(out / "result.npz", self.npz_bytes())
+        atomic_write_bytes(out / "history.csv", self.history_csv().encode())
+        atomic_write_bytes(out / "sheet.ply", self.colored_mesh(ply_field).export(file_type="ply"))
+        atomic_write_bytes(out / "scene.yaml", self.scene.to_yaml().encode())
+        # summary last: its presence marks a complete run folder (sweeps rely on it)
+        atomic_write_bytes(out / "summary.json", json.dumps(self.summary(), indent=2).encode())
+        return out

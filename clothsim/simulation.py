@@ -1,0 +1,311 @@
+"""Simulation: owns a scene's Model and State and runs a solver, blocking or in a background thread.
+
+This is the one code path the viewer, the headless CLI and the sweep runner all use; none of them
+contains physics. GUI callbacks only *record* edits (:meth:`Simulation.edit`); the simulation
+thread applies them between solver batches. An edit of C or e reaches a running relaxation at
+once; one that changes the Model (materials, constraints, fabric, mold) rebuilds it on
+:meth:`reset`-like application and keeps the current positions as a warm start when the grid is
+unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .config import Scene, SceneError
+from .grid import Model, State, build_model
+from .initial import initial_state
+from .results import Result
+from .solvers import SolveResult, pick_method
+from .solvers import solve as run_solver
+
+
+def prepare(scene: Scene) -> tuple[Model, State, float]:
+    """Load the mold, build the model and the initial state. Returns (model, state, seconds)."""
+    from .mold import load_mold
+
+    t0 = time.perf_counter()
+    mold = load_mold(scene.mold, scene.base_dir) if scene.mold is not None else None
+    model = build_model(scene, mold)
+    state = initial_state(scene, model)
+    return model, state, time.perf_counter() - t0
+
+
+def warm_up(model: Model, state: State, settings) -> float:
+    """Compile (or load from cache) the solver's kernels on a copy; returns seconds spent."""
+    t0 = time.perf_counter()
+    s = settings.model_copy(update={"max_iterations": 1, "time_limit_s": None})
+    run_solver(model, state.copy(), s, None)
+    return time.perf_counter() - t0
+
+
+@dataclass
+class Snapshot:
+    """A consistent copy of what the viewer shows."""
+
+    positions: np.ndarray
+    in_contact: np.ndarray
+    iteration: int
+    residual: float
+    energy: float
+    status: str
+    iterations_per_s: float
+    history_iteration: np.ndarray
+    history_residual: np.ndarray
+    version: int
+    message: str = ""
+
+
+class Simulation:
+    """A scene being solved. Thread-safe controls: start, pause, step, reset, stop, edit.
+
+    ``status``: idle, running, paused, converged, stalled, diverged, stopped, max_iterations,
+    time_limit, error."""
+
+    def __init__(self, scene: Scene, on_progress: Callable | None = None):
+        self._lock = threading.RLock()
+        self._wake = threading.Condition(self._lock)
+        self.on_progress = on_progress
+        self._edits: list[Callable[[], None]] = []
+        self._thread: threading.Thread | None = None
+        self._command: str | None = None
+        self._closing = False
+        self._pause_requested = False
+        self.version = 0
+        self._load(scene)
+
+    # ------------------------------------------------------------------ setup
+    def _load(self, scene: Scene, keep_positions: np.ndarray | None = None) -> None:
+        model, state, t = prepare(scene)
+        if keep_positions is not None and keep_positions.shape == state.positions.shape:
+            free = ~model.fixed_axes
+            state.positions[free] = keep_positions[free]
+        self.scene = scene
+        self.model = model
+        self.state = state
+        self.settings = scene.solver.model_copy()
+        self.prepare_s = t
+        self.status = "idle"
+        self.message = ""
+        self.last_result: SolveResult | None = None
+        self.hist_it: list[int] = []
+        self.hist_res: list[float] = []
+        self.hist_en: list[float] = []
+        self.hist_t: list[float] = []
+        self.total_time = 0.0
+        self.residual = math.nan
+        self.energy = math.nan
+        self.ips = 0.0
+        self.version += 1
+
+    @property
+    def method(self) -> str:
+        return pick_method(self.model, self.settings)
+
+    # ------------------------------------------------------------------ edits
+    def edit(self, fn: Callable[[], None]) -> None:
+        """Record an edit; it runs in the simulation thread between batches (or now if idle)."""
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive() and self.status == "running":
+                self._edits.append(fn)
+            else:
+                fn()
+
+    def set_solver(self, **kw) -> None:
+        """Change solver settings (validated); C, e, max_iterations apply to a running solve."""
+        new = self.settings.model_validate({**self.settings.model_dump(), **kw})
+
+        def apply():
+            for k, v in new.model_dump().items():
+                setattr(self.settings, k, v)
+            self.scene = self.scene.model_copy(update={"solver": new})
+
+        self.edit(apply)
+
+    def replace_scene(self, scene: Scene, warm_start: bool = True) -> None:
+        """Rebuild the model from a new scene (stops a running solve first)."""
+        self.pause(wait=True)
+        with self._lock:
+            keep = self.state.positions.copy() if warm_start else None
+            self._load(scene, keep)
+
+    # ------------------------------------------------------------------ running
+    def _callback(self, prog) -> bool:
+        with self._lock:
+            for fn in self._edits:
+                fn()
+            self._edits.clear()
+            self.residual = prog.residual
+            self.energy = prog.energy
+            self.ips = prog.iterations_per_s
+            stop = self._pause_requested or self._closing
+        if self.on_progress is not None:
+            self.on_progress(self)
+        return stop
+
+    def run(self, max_iterations: int | None = None) -> SolveResult:
+        """Solve in the calling thread (headless runs and sweeps), continuing from the current
+        state; returns the SolveResult and keeps the cumulative history."""
+        settings = self.settings
+        if max_iterations is not None:
+            settings = settings.model_copy(update={"max_iterations": max_iterations})
+        with self._lock:
+            self.status = "running"
+            self._pause_requested = False
+        try:
+            res = run_solver(self.model, self.state, settings, self._callback)
+        except Exception as exc:  # keep the state, report the failure
+            with self._lock:
+                self.status = "error"
+                self.message = f"{type(exc).__name__}: {exc}"
+            raise
+        with self._lock:
+            h = res.history
+            offset = self.total_time
+            self.hist_it.extend(h["iteration"].tolist())
+            self.hist_res.extend(h["residual"].tolist())
+            self.hist_en.extend(h["energy"].tolist())
+            self.hist_t.extend((h["time"] + offset).tolist())
+            self.total_time += res.wall_time_s
+            self.residual = res.residual
+            self.energy = res.energy
+            self.last_result = res
+            if res.status == "stopped" and self._pause_requested and not self._closing:
+                self.status = "paused"
+            elif res.status == "max_iterations" and max_iterations is not None:
+                self.status = "paused"
+            else:
+                self.status = res.status
+            self.message = res.message
+            self.version += 1
+        if self.on_progress is not None:
+            self.on_progress(self)
+        return res
+
+    def result(self, startup_s: float = 0.0) -> Result:
+        """The current state as a Result (cumulative history across start/pause segments)."""
+        with self._lock:
+            r = self.last_result
+            if r is None:
+                from .solvers.common import energy as energy_fn, residual as residual_fn
+
+                v, _ = residual_fn(self.model, self.state)
+                r = SolveResult(False, "idle", "not run", 0, v, math.nan, energy_fn(self.model, self.state),
+                                int(self.state.in_contact.sum()), 0.0, self.method)
+            hist = {
+                "iteration": np.asarray(self.hist_it, int),
+                "residual": np.asarray(self.hist_res),
+                "energy": np.asarray(self.hist_en),
+                "time": np.asarray(self.hist_t),
+            }
+            solve = SolveResult(r.converged, r.status, r.message, self.state.iteration, r.residual,
+                                r.relative_residual, r.energy, r.contact_count, self.total_time, r.method,
+                                hist, r.best_residual)
+            return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s)
+
+    # background thread -------------------------------------------------
+    def _worker(self) -> None:
+        while True:
+            with self._lock:
+                while self._command is None and not self._closing:
+                    self._wake.wait()
+                if self._closing:
+                    return
+                cmd, self._command = self._command, None
+            try:
+                self.run(1 if cmd == "step" else None)
+            except Exception:
+                pass  # status/message already record the failure
+
+    def _ensure_thread(self) -> None:
+        if self._thread is None or not self._thread.is_alive():
+            self._thread = threading.Thread(target=self._worker, name="clothsim-solver", daemon=True)
+            self._thread.start()
+
+    def start(self) -> None:
+        """Start (or resume) relaxing in the background thread."""
+        with self._lock:
+            self._ensure_thread()
+            if self.status != "running":
+                self._pause_requested = False
+                self._command = "run"
+                self.status = "running"
+                self._wake.notify_all()
+
+    def step(self) -> None:
+        """One iteration in the background thread (when not running)."""
+        with self._lock:
+            self._ensure_thread()
+            if self.status != "running":
+                self._command = "step"
+                self.status = "running"
+                self._wake.notify_all()
+
+    def pause(self, wait: bool = False, timeout: float = 30.0) -> None:
+        with self._lock:
+            if self.status == "running":
+                self._pause_requested = True
+        if wait:
+            t0 = time.perf_counter()
+            while self.status == "running" and time.perf_counter() - t0 < timeout:
+                time.sleep(0.005)
+
+    def reset(self) -> None:
+        """Back to the initial deformation (keeps the edited scene)."""
+        self.pause(wait=True)
+        with self._lock:
+            self._load(self.scene)
+
+    def close(self) -> None:
+        with self._lock:
+            self._closing = True
+            self._pause_requested = True
+            self._wake.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+    def wait(self, timeout: float | None = None) -> str:
+        """Block until the background run leaves 'running'; returns the status."""
+        t0 = time.perf_counter()
+        while self.status == "running":
+            if timeout is not None and time.perf_counter() - t0 > timeout:
+                break
+            time.sleep(0.01)
+        return self.status
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            return Snapshot(self.state.positions.copy(), self.state.in_contact.copy(), self.state.iteration,
+                            self.residual, self.energy, self.status, self.ips,
+                            np.asarray(self.hist_it, int), np.asarray(self.hist_res), self.version,
+                            self.message)
+
+
+def solve(scene: Scene, callback: Callable | None = None) -> Result:
+    """Headless: build, relax and return a Result (the same path the viewer uses).
+
+    ``callback(progress)`` receives clothsim.solvers.Progress after each batch; returning True
+    stops the run."""
+    t0 = time.perf_counter()
+    sim = Simulation(scene)
+    startup = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    warm_up(sim.model, sim.state, sim.settings)
+    startup += time.perf_counter() - t1
+    if callback is not None:
+        sim.on_progress = None
+        orig = sim._callback
+
+        def cb(prog):
+            stop = orig(prog)
+            return bool(callback(prog)) or stop
+
+        sim._callback = cb  # type: ignore[method-assign]
+    sim.run()
+    return sim.result(startup)

@@ -1,0 +1,221 @@
+"""The seed paper's node-by-node relaxation, faithful (Garcia, Gomez, Ruiz, Boulanger 2007, sec. 3.2-3.3).
+
+Each iteration is one sweep over the nodes in the paper's numbering order (left to right along
+warp, rows from bottom to top). At node N_ij:
+
+1. R = sum of the spring forces around it (eq. 3) plus the constant external force (gravity, when
+   the scene has it); constrained axes are zeroed (3.2.3).
+2. Step zeta = (sum of elongations d_k = l - l0 of its springs) / C (eq. 4), moved along R/|R|
+   (eq. 5). When the move does not lower the node's residual V_k, zeta is divided by C and the
+   move retried, at most ``max_retries`` times; if none helps the node stays where it was.
+3. Contact (3.2.2): a node in contact whose R points out of the mold (n.R > 0) moves freely; else
+   it moves along the tangential part R* = R - (R.n) n and is projected back onto the surface. A
+   free node whose move would cross the surface stops on it and becomes a contact node.
+4. Stop when ||V||_inf <= e (eq. 6).
+
+Choices where the paper is silent (documented because users cite this method):
+- Sign of d_k for slack springs: a slack spring carries no force, so its "elongation" must not
+  shrink the step: zeta uses the sum of *positive* elongations. If that is 0 (all springs slack,
+  the node moved only by gravity or the optional compression-resisting springs) the sum of |d_k|
+  is used, and if that is 0 too, the mean rest length of its springs.
+- "Force drops" is measured by V_k, the node's own residual entry (|R|, or |R*| on contact), so
+  that the acceptance test and the stopping criterion agree.
+- The retry limit (default 60) bounds the work per node; with C = 2 that allows steps down to
+  1e-18 of the first, far below float64 resolution of a position.
+- Residual V is evaluated after each full sweep with the same definition every solver uses.
+
+References: Garcia M., Gomez M., Ruiz O., Boulanger P., "Spring-particle model for hyperelastic
+cloth", Dyna 74 (151), 2007.
+
+Limitations: it is a coordinate-wise descent on |R|, not on the energy; its iteration count grows
+with the square of the grid's side (information crosses one node per sweep), and it converges
+linearly at best. Use ``newton`` (or ``auto``) for large grids and tight tolerances.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_vector
+from ..kernels import forces_and_energy, node_force
+from ..mold import mold_query, mold_segment_hit
+from .common import Driver, model_mold_args
+
+# After a projection onto the mold a node must not be inside by more than this [m].
+PENETRATION_TOL = 1e-12
+
+
+@njit(cache=True)
+def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
+                x, y, cum, start, comp, ext, C, max_retries, has_mold, margs, R, Rn, qbuf, nbuf, trial):
+    """Relax node k (paper 3.2). Returns 1 if it moved."""
+    dpos, dabs = node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum,
+                            start, comp, ext, R)
+    p0 = pos[k, 0]
+    p1 = pos[k, 1]
+    p2 = pos[k, 2]
+    contact0 = in_contact[k]
+    v0 = node_residual(R, fixed[k], contact0, pos[k], has_mold, margs, qbuf, nbuf)  # zeroes fixed axes of R
+    if v0 == 0.0:
+        return 0
+    tangent = False
+    if contact0 and has_mold:
+        mold_query(margs, pos[k], qbuf)
+        n0, n1, n2 = qbuf[3], qbuf[4], qbuf[5]
+        rn = R[0] * n0 + R[1] * n1 + R[2] * n2
+        if rn <= 0.0:
+            # move in the tangent plane: R* = R - (R.n) n
+            tangent = True
+            R[0] -= rn * n0
+            R[1] -= rn * n1
+            R[2] -= rn * n2
+            for a in range(3):
+                if fixed[k, a]:
+                    R[a] = 0.0
+    rlen = math.sqrt(R[0] * R[0] + R[1] * R[1] + R[2] * R[2])
+    if rlen == 0.0:
+        return 0
+    if dpos > 0.0:
+        zeta = dpos / C
+    elif dabs > 0.0:
+        zeta = dabs / C
+    else:
+        s = 0.0
+        c = 0
+        for q in range(adj_ptr[k], adj_ptr[k + 1]):
+            s += rest[adj_spring[q]]
+            c += 1
+        zeta = (s / c if c > 0 else 1.0) / C
+    d0 = R[0] / rlen
+    d1 = R[1] / rlen
+    d2 = R[2] / rlen
+    for _ in range(max_retries):
+        trial[0] = p0 + zeta * d0
+        trial[1] = p1 + zeta * d1
+        trial[2] = p2 + zeta * d2
+        contact1 = False
+        ok = True
+        if has_mold:
+            if tangent:
+                mold_query(margs, trial, qbuf)
+                for a in range(3):
+                    if not fixed[k, a]:
+                        trial[a] = qbuf[a]
+                contact1 = True
+            else:
+                t = mold_segment_hit(margs, pos[k], trial)
+                if t >= 0.0:
+                    for a in range(3):
+                        if not fixed[k, a]:
+                            trial[a] = pos[k, a] + t * (trial[a] - pos[k, a])
+                    contact1 = True
+            sd = mold_query(margs, trial, qbuf)
+            if contact1 or sd < 0.0:
+                # land exactly on the surface (the hit point is only accurate to rounding)
+                for a in range(3):
+                    if not fixed[k, a]:
+                        trial[a] = qbuf[a]
+                contact1 = True
+                sd = mold_query(margs, trial, qbuf)
+                if sd < -PENETRATION_TOL:
+                    ok = False  # fixed axes keep the node inside: reject this move
+        if ok:
+            pos[k, 0] = trial[0]
+            pos[k, 1] = trial[1]
+            pos[k, 2] = trial[2]
+            in_contact[k] = contact1
+            node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum, start,
+                       comp, ext, Rn)
+            v1 = node_residual(Rn, fixed[k], contact1, pos[k], has_mold, margs, qbuf, nbuf)
+            if v1 < v0:
+                return 1
+            pos[k, 0] = p0
+            pos[k, 1] = p1
+            pos[k, 2] = p2
+            in_contact[k] = contact0
+        zeta /= C
+    return 0
+
+
+@njit(cache=True)
+def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, rest, width, table,
+                 x, y, cum, start, comp, spring_nodes, ext, C, max_retries, has_mold, margs,
+                 n_sweeps, e, blowup, res_out, en_out, prev):
+    """Run up to n_sweeps sweeps. Returns (sweeps done, flag): flag 0 ok, 1 converged, 2 diverged
+    (positions restored to the last finite sweep), 3 no node could move."""
+    R = np.empty(3)
+    Rn = np.empty(3)
+    qbuf = np.empty(8)
+    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
+    trial = np.empty(3)
+    V = np.empty(pos.shape[0])
+    F = np.empty_like(pos)
+    prev_contact = in_contact.copy()
+    for it in range(n_sweeps):
+        prev[:] = pos
+        prev_contact[:] = in_contact
+        moved = 0
+        for kk in range(order.shape[0]):
+            moved += _relax_node(order[kk], pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest,
+                                 width, table, x, y, cum, start, comp, ext, C, max_retries, has_mold,
+                                 margs, R, Rn, qbuf, nbuf, trial)
+        vinf = residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
+                               x, y, cum, start, comp, ext, has_mold, margs, V)
+        big = 0.0
+        for k in range(pos.shape[0]):
+            for a in range(3):
+                d = abs(pos[k, a])
+                if not (d <= big):
+                    big = d if not math.isnan(d) else math.inf
+        if not math.isfinite(vinf) or big > blowup:
+            pos[:] = prev
+            in_contact[:] = prev_contact
+            return it, 2
+        res_out[it] = vinf
+        en_out[it] = forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, F)
+        if vinf <= e:
+            return it + 1, 1
+        if moved == 0:
+            return it + 1, 3
+    return n_sweeps, 0
+
+
+def paper_order(model) -> np.ndarray:
+    """Node visiting order: the paper numbers nodes left to right, rows bottom to top."""
+    nx1, ny1 = model.grid_shape
+    i = np.tile(np.arange(nx1), ny1)
+    j = np.repeat(np.arange(ny1), nx1)
+    k = i * ny1 + j
+    free = ~model.fixed_axes.all(axis=1)
+    return np.ascontiguousarray(k[free[k]].astype(np.int64))
+
+
+def blowup_limit(model) -> float:
+    """Positions beyond this [m] from the origin count as a blow-up."""
+    ext = np.ptp(model.rest_positions, axis=0).max()
+    return float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
+
+
+def solve(model, state, settings, callback=None):
+    """Relax ``state`` in place with the paper's method; returns a SolveResult."""
+    has_mold, margs = model_mold_args(model)
+    order = paper_order(model)
+    adj = model.adjacency_args()
+    limit = blowup_limit(model)
+    prev = np.empty_like(state.positions)
+    drv = Driver(model, state, settings, callback, "paper")
+
+    def advance(n):
+        res = np.empty(n)
+        en = np.empty(n)
+        done, flag = paper_sweeps(state.positions, model.fixed_axes, state.in_contact, order, *adj,
+                                  model.spring_nodes, model.external_force, float(settings.C),
+                                  int(settings.max_retries), has_mold, margs, n, float(settings.e),
+                                  limit, res, en, prev)
+        drv.record(res[:done], en[:done])
+        return done, flag
+
+    return drv.run(advance)
