@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from .kernels import node_force
-from .mold import mold_feature_normals, mold_query
+from .mold import mold_contact_normals, mold_query
 
 MAX_FEATURE_NORMALS = 64
 
@@ -82,10 +82,10 @@ def cone_distance(R, normals, m):
 
 @njit(cache=True)
 def contact_normals(p, margs, qbuf, nbuf):
-    """Query the mold at p: fills qbuf (closest point, pseudo-normal, feature) and the feature's
-    face normals into nbuf; returns (signed distance, count of normals)."""
+    """Query the mold at p: fills qbuf (closest point, pseudo-normal, feature) and the normals of
+    the faces meeting at the contact feature into nbuf; returns (signed distance, count >= 1)."""
     sd = mold_query(margs, p, qbuf)
-    m = mold_feature_normals(margs, int(qbuf[6]), int(qbuf[7]), nbuf)
+    m = mold_contact_normals(margs, p, nbuf)
     if m == 0:
         nbuf[0, 0] = qbuf[3]
         nbuf[0, 1] = qbuf[4]

@@ -130,6 +130,28 @@ def select_nodes(sel, nx: int, ny: int) -> np.ndarray:
     return m
 
 
+def place_sheet(scene: Scene, flat: np.ndarray) -> np.ndarray:
+    """Map points of the flat sheet (N,3) [m] to their initial placement in space: unchanged, or
+    rolled onto a cylinder when ``initial.wrap`` is set (warp x runs round the cylinder's axis,
+    weft y along it, centred on ``wrap.center``)."""
+    w = scene.initial.wrap
+    if w is None:
+        return flat.copy()
+    fab = scene.fabric
+    a = np.asarray(w.axis, float)
+    a = a / np.linalg.norm(a)
+    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = t - a * (t @ a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    u = flat[:, 0] - fab.origin[0]
+    v = flat[:, 1] - fab.origin[1] - fab.size[1] / 2
+    r = w.radius + (flat[:, 2] - fab.origin[2])
+    theta = math.radians(w.start_angle) + u / w.radius
+    c = np.asarray(w.center, float)
+    return c + r[:, None] * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2) + v[:, None] * a
+
+
 def _adjacency(n: int, spring_nodes: np.ndarray):
     s = spring_nodes.shape[0]
     ends = np.concatenate([spring_nodes[:, 0], spring_nodes[:, 1]])
@@ -219,7 +241,8 @@ def build_model(scene: Scene, mold=None) -> Model:
         ext[:] = (g.areal_density * g.g * node_area)[:, None] * d[None, :]
 
     fixed = np.zeros((nx + 1, ny + 1, 3), bool)
-    prescribed = rest.reshape(nx + 1, ny + 1, 3).copy()
+    flat = rest.reshape(nx + 1, ny + 1, 3).copy()
+    shift = np.zeros((nx + 1, ny + 1, 3))
     centre = np.array([ox + lx / 2, oy + ly / 2])
     for c in scene.constraints:
         m = select_nodes(c.nodes, nx, ny)
@@ -227,9 +250,12 @@ def build_model(scene: Scene, mold=None) -> Model:
             fixed[m, "xyz".index(ax)] = True
         if c.stretch is not None:
             s = np.array([c.stretch, c.stretch] if isinstance(c.stretch, (int, float)) else c.stretch, float)
-            prescribed[m, :2] = centre + (prescribed[m, :2] - centre) * s
+            flat[m, :2] = centre + (flat[m, :2] - centre) * s
         if c.displacement is not None:
-            prescribed[m] += np.asarray(c.displacement, float)
+            shift[m] += np.asarray(c.displacement, float)
+    # stretch acts in the sheet's own coordinates, then the sheet is placed (flat or wrapped),
+    # then displacements act in space
+    prescribed = place_sheet(scene, flat.reshape(-1, 3)) + shift.reshape(-1, 3)
 
     return Model(
         node_count=n,
@@ -243,7 +269,7 @@ def build_model(scene: Scene, mold=None) -> Model:
         tables=TablePack.from_tables(tables),
         table_list=tuple(tables),
         fixed_axes=fixed.reshape(n, 3),
-        prescribed_positions=prescribed.reshape(n, 3),
+        prescribed_positions=np.ascontiguousarray(prescribed),
         external_force=ext,
         node_area=node_area,
         adj_ptr=ptr,

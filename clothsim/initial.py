@@ -7,30 +7,10 @@ nodes at the flat sheet, then ``lift`` (a smooth dome), ``wrap`` (the sheet roll
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .config import Scene, SceneError
-from .grid import Model, State
-
-
-def _wrap_positions(scene: Scene, model: Model) -> np.ndarray:
-    w = scene.initial.wrap
-    fab = scene.fabric
-    a = np.asarray(w.axis, float)
-    a = a / np.linalg.norm(a)
-    # an orthonormal frame (e1, e2, a)
-    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = t - a * (t @ a)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
-    rest = model.rest_positions
-    u = rest[:, 0] - fab.origin[0]
-    v = rest[:, 1] - fab.origin[1] - fab.size[1] / 2
-    theta = math.radians(w.start_angle) + u / w.radius
-    c = np.asarray(w.center, float)
-    return c + w.radius * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2) + v[:, None] * a
+from .grid import Model, State, place_sheet
 
 
 def initial_state(scene: Scene, model: Model) -> State:
@@ -38,14 +18,14 @@ def initial_state(scene: Scene, model: Model) -> State:
     ``initial.auto_clearance`` asks to lift it clear."""
     ini = scene.initial
     fixed = model.fixed_axes
-    pos = model.rest_positions.copy()
     nx1, ny1 = model.grid_shape
-    if ini.wrap is not None:
-        pos = _wrap_positions(scene, model)
+    flat = model.rest_positions.copy()
     if ini.lift:
+        # the dome lifts along the sheet's normal (+z flat; outward when wrapped)
         ii, jj = np.meshgrid(np.arange(nx1), np.arange(ny1), indexing="ij")
         dome = np.sin(np.pi * ii / max(nx1 - 1, 1)) * np.sin(np.pi * jj / max(ny1 - 1, 1))
-        pos[:, 2] += ini.lift * dome.ravel()
+        flat[:, 2] += ini.lift * dome.ravel()
+    pos = place_sheet(scene, flat)
     if ini.file is not None:
         path = scene.resolve(ini.file)
         try:
@@ -64,15 +44,13 @@ def initial_state(scene: Scene, model: Model) -> State:
     if ini.perturb:
         rng = np.random.default_rng(ini.seed)
         pos += rng.uniform(-ini.perturb, ini.perturb, pos.shape)
-    # constrained coordinates take their prescribed values; a fully constrained node too
+    # a constrained node starts at its prescribed position (its free axes moved along with it,
+    # unless the start comes from a file); the constrained coordinates are exact
+    held = fixed.any(axis=1)
+    if ini.file is None:
+        base = place_sheet(scene, model.rest_positions)
+        pos[held] += model.prescribed_positions[held] - base[held]
     pos[fixed] = model.prescribed_positions[fixed]
-    full = fixed.all(axis=1)
-    pos[full] = model.prescribed_positions[full]
-    # a node selected by a stretch/displacement but free on some axes starts moved as well
-    moved = np.any(model.prescribed_positions != model.rest_positions, axis=1) & ~full & fixed.any(axis=1)
-    if ini.wrap is None and ini.file is None:
-        pos[moved] = np.where(fixed[moved], model.prescribed_positions[moved],
-                              pos[moved] + (model.prescribed_positions[moved] - model.rest_positions[moved]))
     state = State(np.ascontiguousarray(pos), np.zeros(model.node_count, bool), 0)
     if model.mold is not None:
         _check_clearance(scene, model, state)
