@@ -150,6 +150,15 @@ class Constraint(_Strict):
     displacement: tuple[float, float, float] | None = None
     stretch: float | tuple[float, float] | None = None
 
+    @field_validator("nodes", mode="before")
+    @classmethod
+    def _nodes(cls, v):
+        if isinstance(v, str) and v not in NODE_SETS:
+            raise ValueError(f"unknown node set '{v}' (known: {', '.join(NODE_SETS)}; or give {{i: [a, b], j: [c, d]}})")
+        if not isinstance(v, (str, dict)) and not isinstance(v, NodeRange):
+            raise ValueError(f"must be a node set name or {{i: [a, b], j: [c, d]}} (got {v!r})")
+        return v
+
     @field_validator("axes")
     @classmethod
     def _axes(cls, v):
@@ -318,6 +327,21 @@ class Scene(_Strict):
     def to_dict(self) -> dict:
         return self.model_dump(mode="json", exclude_none=True)
 
+    def resolved(self) -> "Scene":
+        """A copy whose file references (CSV tables, initial file, mold path) are absolute, so the
+        scene can be written anywhere and repeated exactly."""
+        d = self.to_dict()
+        for name in ("warp", "weft"):
+            if d["fabric"][name].get("csv"):
+                d["fabric"][name]["csv"] = str(self.resolve(d["fabric"][name]["csv"]))
+        if d.get("initial", {}).get("file"):
+            d["initial"]["file"] = str(self.resolve(d["initial"]["file"]))
+        if d.get("mold") and d["mold"].get("path"):
+            d["mold"]["path"] = str(self.resolve(d["mold"]["path"]))
+        out = Scene.model_validate(d)
+        out._source = self._source
+        return out
+
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
@@ -326,13 +350,10 @@ class Scene(_Strict):
 
 
 def _yaml_line(root: yaml.Node | None, loc: tuple) -> int | None:
-    """Line (1-based) of the YAML node at path loc, or of its deepest existing ancestor."""
+    """Line (1-based) of the YAML node at path loc, or of the key of its deepest existing ancestor."""
     node = root
-    line = None
+    line = root.start_mark.line + 1 if root is not None else None
     for key in loc:
-        if node is None:
-            break
-        line = node.start_mark.line + 1
         nxt = None
         if isinstance(node, yaml.MappingNode):
             for k, v in node.value:
@@ -342,9 +363,10 @@ def _yaml_line(root: yaml.Node | None, loc: tuple) -> int | None:
                     break
         elif isinstance(node, yaml.SequenceNode) and isinstance(key, int) and key < len(node.value):
             nxt = node.value[key]
+            line = nxt.start_mark.line + 1
+        if nxt is None:
+            break
         node = nxt
-    if node is not None:
-        line = node.start_mark.line + 1
     return line
 
 

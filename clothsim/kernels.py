@@ -144,7 +144,8 @@ def node_force(k, pos, ptr, nbr, sid, rest, width, table, x, y, cum, start, comp
 
 @njit(cache=True)
 def spring_hessian_block(pa, pb, l0, w, x, y, cum, start, comp, t, kink_stiffness, out):
-    """3x3 stiffness block K = d(f_b)/d(x_b) of one spring (positive semi-definite).
+    """3x3 stiffness block K = -d(f_b)/d(x_b) of one spring (positive semi-definite), f_b the
+    force on node b.
 
     K = (w/l0) T'(s) u u^T + (w T / l) (I - u u^T). The transverse term is clamped at >= 0
     (compressed springs would make K indefinite); at and below strain 0 a tension-only spring has

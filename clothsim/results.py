@@ -292,7 +292,7 @@ class Result:
         atomic_write_bytes(out / "result.npz", self.npz_bytes())
         atomic_write_bytes(out / "history.csv", self.history_csv().encode())
         atomic_write_bytes(out / "sheet.ply", self.colored_mesh(ply_field).export(file_type="ply"))
-        atomic_write_bytes(out / "scene.yaml", self.scene.to_yaml().encode())
+        atomic_write_bytes(out / "scene.yaml", self.scene.resolved().to_yaml().encode())
         # summary last: its presence marks a complete run folder (sweeps rely on it)
         atomic_write_bytes(out / "summary.json", json.dumps(self.summary(), indent=2).encode())
         return out

@@ -1,0 +1,52 @@
+"""Shared test helpers: small scenes built from dicts."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+STRIP = {
+    "name": "strip",
+    "fabric": {
+        "size": [0.10, 0.02],
+        "divisions": [10, 2],
+        "thickness": 0.0005,
+        "warp": {"strain": [0, 0.1, 0.3, 0.6, 1.0], "stress": [0, 5.0e4, 2.0e5, 8.0e5, 3.0e6]},
+        "weft": {"strain": [0, 0.1, 0.3, 0.6, 1.0], "tension": [0, 12, 55, 140, 300]},
+    },
+    "constraints": [
+        {"nodes": "left", "axes": "xyz"},
+        {"nodes": "right", "axes": "xyz", "displacement": [0.03, 0, 0]},
+    ],
+    "initial": {"perturb": 0.0005, "seed": 1},
+    "solver": {"method": "paper", "C": 2.0, "e": 1e-8, "max_iterations": 200000},
+}
+
+
+def scene_dict(base=STRIP, **changes):
+    """A deep copy of base with dotted-path changes applied (values as in --set)."""
+    from clothsim.config import apply_overrides
+
+    return apply_overrides(copy.deepcopy(base), changes)
+
+
+def make_scene(base=STRIP, **changes):
+    from clothsim.config import scene_from_dict
+
+    return scene_from_dict(scene_dict(base, **changes))
+
+
+def solver_methods():
+    """Every concrete solver method (auto excluded)."""
+    from clothsim.config import SOLVER_METHODS
+
+    return [m for m in SOLVER_METHODS if m != "auto"]
+
+
+@pytest.fixture
+def root():
+    return ROOT

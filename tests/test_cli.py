@@ -1,0 +1,83 @@
+"""The headless command line: output files, --set overrides, exit statuses, error messages."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import trimesh
+import yaml
+
+from conftest import ROOT, scene_dict
+
+
+def _run(*args, cwd=None):
+    return subprocess.run([sys.executable, str(ROOT / "app.py"), *args], capture_output=True, text=True,
+                          cwd=cwd or ROOT, timeout=600)
+
+
+def _write(tmp_path, d, name="s.yaml"):
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(d))
+    return p
+
+
+def test_run_writes_every_output_file(tmp_path):
+    """`app.py run scene --out dir` writes result.npz (documented arrays and shapes),
+    summary.json, history.csv, sheet.ply (readable by trimesh, with vertex colours) and a
+    scene.yaml that reproduces the run; exit status 0 when converged."""
+    scene = _write(tmp_path, scene_dict(**{"solver.e": 1e-7}))
+    out = tmp_path / "out"
+    r = _run("run", str(scene), "--out", str(out), "--set", "fabric.divisions=[8,2]")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("converged:")
+    d = np.load(out / "result.npz")
+    shapes = {k: d[k].shape for k in d.files}
+    assert shapes["positions"] == (9, 3, 3)
+    assert shapes["in_contact"] == (9, 3) and d["in_contact"].dtype == bool
+    assert shapes["strain_warp"] == (8, 3) and shapes["strain_weft"] == (9, 2)
+    assert shapes["tension_warp"] == (8, 3) and shapes["tension_weft"] == (9, 2)
+    assert shapes["contact_pressure"] == (9, 3) and shapes["contact_force"] == (9, 3)
+    assert d["residual_history"][-1] <= 1e-7
+    s = json.loads((out / "summary.json").read_text())
+    for key in ("converged", "status", "iterations", "residual", "relative_residual", "energy", "wall_time_s",
+                "startup_s", "solver", "contact_count", "clothsim_version"):
+        assert key in s
+    assert s["converged"] is True and s["residual"] <= 1e-7
+    lines = (out / "history.csv").read_text().splitlines()
+    assert lines[0] == "iteration,residual_N,energy_J,elapsed_s"
+    assert len(lines) == s["iterations"] + 1
+    mesh = trimesh.load(out / "sheet.ply")
+    assert mesh.vertices.shape == (27, 3) and len(mesh.faces) == 2 * 8 * 2
+    assert mesh.visual.vertex_colors.shape == (27, 4)
+    # the written scene repeats the run exactly
+    again = tmp_path / "again"
+    r2 = _run("run", str(out / "scene.yaml"), "--out", str(again))
+    assert r2.returncode == 0, r2.stderr
+    np.testing.assert_array_equal(np.load(again / "result.npz")["positions"], d["positions"])
+
+
+def test_exit_status_1_when_not_converged(tmp_path):
+    scene = _write(tmp_path, scene_dict(**{"solver.max_iterations": 2, "solver.e": 1e-12}))
+    r = _run("run", str(scene))
+    assert r.returncode == 1
+    assert r.stdout.startswith("max_iterations:")
+
+
+def test_exit_status_2_and_message_on_bad_scene(tmp_path):
+    """A bad scene fails before any work, naming the file, line and field; exit status 2."""
+    d = scene_dict()
+    d["fabric"]["warp"]["strain"] = [0, 0.3, 0.3, 0.6, 1.0]
+    scene = _write(tmp_path, d)
+    r = _run("run", str(scene))
+    assert r.returncode == 2
+    assert f"{scene}:" in r.stderr and "fabric.warp.strain: must be strictly increasing (0.3 after 0.3)" in r.stderr
+    r = _run("run", str(scene), "--set", "fabric.warp.strain=[0, 0.1, 0.3, 0.6, 1.0]", "--set", "solver.C=0.5")
+    assert r.returncode == 2 and "solver.C: must be greater than 1 (got 0.5)" in r.stderr
+
+
+def test_bundled_strip_config_runs(tmp_path):
+    """The README's first headless example works from the repository root."""
+    r = _run("run", "configs/uniaxial_strip.yaml", "--out", str(tmp_path / "strip"), "--set", "solver.e=1e-5")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "strip" / "summary.json").exists()
