@@ -102,7 +102,13 @@ def node_residual(R, fixed_row, contact, p, has_mold, margs, qbuf, nbuf):
             R[a] = 0.0
     if not contact or not has_mold:
         return _norm3(R[0], R[1], R[2])
-    sd, m = contact_normals(p, margs, qbuf, nbuf)
+    m = mold_contact_normals(margs, p, nbuf)
+    if m == 0:  # (the mold always gives one; kept so a zero can never mean "free")
+        sd = mold_query(margs, p, qbuf)
+        nbuf[0, 0] = qbuf[3]
+        nbuf[0, 1] = qbuf[4]
+        nbuf[0, 2] = qbuf[5]
+        m = 1
     return cone_distance(R, nbuf, m)
 
 

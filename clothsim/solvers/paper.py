@@ -100,11 +100,15 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
         ok = True
         if has_mold:
             if tangent:
-                mold_query(margs, trial, qbuf)
+                sd = mold_query(margs, trial, qbuf)
                 for a in range(3):
                     if not fixed[k, a]:
                         trial[a] = qbuf[a]
                 contact1 = True
+                if fixed[k, 0] or fixed[k, 1] or fixed[k, 2]:
+                    sd = mold_query(margs, trial, qbuf)
+                    if sd < -PENETRATION_TOL:
+                        ok = False  # fixed axes keep the node inside: reject this move
             else:
                 t = mold_segment_hit(margs, pos[k], trial)
                 if t >= 0.0:
@@ -112,16 +116,17 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
                         if not fixed[k, a]:
                             trial[a] = pos[k, a] + t * (trial[a] - pos[k, a])
                     contact1 = True
-            sd = mold_query(margs, trial, qbuf)
-            if contact1 or sd < 0.0:
+                sd = mold_query(margs, trial, qbuf)
+            if not tangent and (contact1 or sd < 0.0):
                 # land exactly on the surface (the hit point is only accurate to rounding)
                 for a in range(3):
                     if not fixed[k, a]:
                         trial[a] = qbuf[a]
                 contact1 = True
-                sd = mold_query(margs, trial, qbuf)
-                if sd < -PENETRATION_TOL:
-                    ok = False  # fixed axes keep the node inside: reject this move
+                if fixed[k, 0] or fixed[k, 1] or fixed[k, 2]:
+                    sd = mold_query(margs, trial, qbuf)
+                    if sd < -PENETRATION_TOL:
+                        ok = False  # fixed axes keep the node inside: reject this move
         if ok:
             pos[k, 0] = trial[0]
             pos[k, 1] = trial[1]
