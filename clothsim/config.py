@@ -45,13 +45,23 @@ class MaterialSpec(_Strict):
 
     Either ``strain`` with ``stress`` [Pa] (needs ``fabric.thickness``) or with ``tension`` [N/m]
     (force per width, as strip tests report), or ``csv: path`` with a header
-    ``strain,stress`` or ``strain,tension``, or ``preset: name`` (see clothsim.presets)."""
+    ``strain,stress`` or ``strain,tension``, or ``preset: name`` (see clothsim.presets).
+    ``scale`` (dimensionless, > 0; omitted = 1) multiplies the table's stress or tension values,
+    so one field varies a material's stiffness (material sweeps) whatever its source."""
 
     strain: list[float] | None = None
     stress: list[float] | None = None
     tension: list[float] | None = None
     csv: str | None = None
     preset: str | None = None
+    scale: float | None = None
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, v):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ValueError(f"must be positive and finite (got {v})")
+        return v
 
     @model_validator(mode="after")
     def _check(self):
@@ -310,7 +320,7 @@ class Scene(_Strict):
         if m.preset is not None:
             from .presets import PRESETS
             p = PRESETS[m.preset]
-            return Table(np.asarray(p.strain, float), np.asarray(getattr(p, name), float))
+            return Table(np.asarray(p.strain, float), np.asarray(getattr(p, name), float) * (m.scale or 1.0))
         if m.csv is not None:
             path = self.resolve(m.csv)
             strain, value, kind = read_table_csv(path)
@@ -322,7 +332,7 @@ class Scene(_Strict):
             if self.fabric.thickness is None:
                 raise SceneError(f"fabric.thickness: needed because {name} is given as stress [Pa]")
             value = value * self.fabric.thickness
-        return Table(strain, value)
+        return Table(strain, value * (m.scale or 1.0))
 
     def to_dict(self) -> dict:
         return self.model_dump(mode="json", exclude_none=True)

@@ -68,8 +68,11 @@ class Simulation:
     ``status``: idle, running, paused, converged, stalled, diverged, stopped, max_iterations,
     time_limit, error."""
 
-    def __init__(self, scene: Scene, on_progress: Callable | None = None):
+    def __init__(self, scene: Scene, on_progress: Callable | None = None, callback: Callable | None = None):
+        """on_progress(sim) is told after each batch (the viewer); callback(progress) may return
+        True to stop the run (scripts)."""
         self._lock = threading.RLock()
+        self.user_callback = callback
         self._wake = threading.Condition(self._lock)
         self.on_progress = on_progress
         self._edits: list[Callable[[], None]] = []
@@ -147,6 +150,8 @@ class Simulation:
             stop = self._pause_requested or self._closing
         if self.on_progress is not None:
             self.on_progress(self)
+        if self.user_callback is not None and self.user_callback(prog):
+            stop = True
         return stop
 
     def run(self, max_iterations: int | None = None) -> SolveResult:
@@ -293,19 +298,8 @@ def solve(scene: Scene, callback: Callable | None = None) -> Result:
     ``callback(progress)`` receives clothsim.solvers.Progress after each batch; returning True
     stops the run."""
     t0 = time.perf_counter()
-    sim = Simulation(scene)
-    startup = time.perf_counter() - t0
-    t1 = time.perf_counter()
+    sim = Simulation(scene, callback=callback)
     warm_up(sim.model, sim.state, sim.settings)
-    startup += time.perf_counter() - t1
-    if callback is not None:
-        sim.on_progress = None
-        orig = sim._callback
-
-        def cb(prog):
-            stop = orig(prog)
-            return bool(callback(prog)) or stop
-
-        sim._callback = cb  # type: ignore[method-assign]
+    startup = time.perf_counter() - t0
     sim.run()
     return sim.result(startup)
