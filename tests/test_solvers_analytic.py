@@ -164,3 +164,17 @@ def test_unreachable_tolerance_ends_stalled():
     assert res.status == "stalled"
     assert res.solve.best_residual < 1e-9
     assert "smallest residual" in res.solve.message
+
+
+def test_initial_file_restarts_from_an_earlier_result(tmp_path):
+    """initial.file takes the free coordinates from an earlier result.npz: restarting from a
+    converged result needs no iteration; a wrong shape is refused naming the file."""
+    scene = make_scene(**PRE, **{"solver.e": 1e-9})
+    res = clothsim.solve(scene)
+    res.save(tmp_path / "a")
+    again = clothsim.solve(make_scene(**{**PRE, "solver.e": 1e-9, "initial": {"file": str(tmp_path / "a" / "result.npz")}}))
+    assert again.converged and again.solve.iterations == 0
+    np.testing.assert_array_equal(again.positions, res.positions)
+    bad = make_scene(**{**PRE, "fabric.divisions": [3, 3], "initial": {"file": str(tmp_path / "a" / "result.npz")}})
+    with pytest.raises(clothsim.SceneError, match=r"result.npz: initial.file: positions have shape \(7, 5, 3\), the scene needs \(4, 4, 3\)"):
+        clothsim.solve(bad)
