@@ -1,0 +1,884 @@
+"""Parameter sweeps: expand a sweep file into runs, validate them all, run them on local worker
+processes or a Dask cluster, and keep every finished run.
+
+A sweep file names a base scene (relative to the sweep file), the fields to vary and the outputs
+to tabulate and plot::
+
+    base: ../sphere_cap.yaml
+    set: {solver.method: paper}          # optional: fixed overrides applied to every run
+    sweep:
+      mode: grid                         # grid = every combination; zip = element by element
+      parameters:
+        solver.C: [1.5, 2, 4, 8]
+        fabric.divisions: [[10, 10], [20, 20]]
+        constraints.0.stretch: {linspace: [1.0, 1.2, 5]}   # 5 values from 1.0 to 1.2
+        solver.e: {logspace: [1.0e-8, 1.0e-4, 5]}          # 5 values from 1e-8 to 1e-4, log-spaced
+    outputs: [iterations, wall_time_s, max_contact_pressure_mmhg]
+
+Output folder (``--out``)::
+
+    sweep.yaml                       the sweep file as run
+    run-0003-1a2b3c4d/               one folder per run: result.npz, history.csv, sheet.ply,
+                                     scene.yaml, sweep_run.json, summary.json (written last)
+    summary.csv                      one row per run, rebuilt from the run folders
+    plots/<output>__vs__<param>.png  one plot per (output, varied parameter)
+
+Design decisions (why):
+
+* **Run ids** are ``run-<index>-<8 hex of sha1(parameter values)>``: stable across reruns of the
+  same sweep file and independent of the executor or of completion order.
+* **Workers return the files' bytes; the driver writes them.** A worker runs
+  :func:`clothsim.simulation.solve`, saves the Result with :meth:`Result.save` into a private
+  temporary folder (so the files are exactly those of a single headless run) and returns their
+  bytes. The driver writes each file atomically (temporary name, then rename) into the run folder,
+  ``summary.json`` last. This works on a remote Dask cluster without a shared filesystem (only the
+  files the scenes reference, such as mold meshes, must be readable by the workers).
+* **A finished run is a folder with summary.json.** ``summary.csv`` is rebuilt from the folders,
+  so an interrupted sweep (Ctrl-C, killed driver or worker) keeps every finished run and rerunning
+  the same command runs only the rest (``--force`` reruns all). A finished run whose scene no
+  longer matches what the sweep file now expands to (the base scene was edited) is rerun.
+* **A failing run never stops the sweep.** The worker catches every exception (SceneError,
+  MoldError, unexpected ones) and reports status ``error`` with the message; a run that diverges
+  or hits a limit keeps its solver status. A worker process that dies is reported as ``crashed``
+  (a ``crashed.json`` note, no summary.json), so a rerun retries it.
+* **Everything is validated before anything runs**: the sweep file (pydantic), every expanded
+  scene and every distinct mold. An error names the run id, the field and the message.
+* The local executor uses a ``forkserver`` (``spawn`` where unavailable) process pool. numba's
+  on-disk cache (``cache=True`` kernels, stored beside the sources) is shared by all workers: each
+  worker loads the compiled kernels instead of compiling them. The worker counts numba cache hits
+  and misses per run and the driver reports them.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import itertools
+import json
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Union
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from .config import SceneError, apply_overrides, format_validation_error, scene_from_dict
+
+#: keys of Result.summary() a sweep can tabulate and plot
+SUMMARY_KEYS = (
+    "name", "converged", "status", "message", "iterations", "residual", "relative_residual",
+    "best_residual", "energy", "wall_time_s", "startup_s", "solver", "C", "e", "contact_count",
+    "node_count", "clothsim_version", "slack_springs", "spring_count", "undetermined_nodes",
+    "min_weft_extent_ratio", "max_strain_warp", "max_strain_weft", "max_contact_pressure_pa",
+    "max_contact_pressure_mmhg", "max_penetration_m",
+)
+#: outputs the sweep worker computes beside the summary (stored in sweep_run.json)
+EXTRA_KEYS = {
+    "max_z_m": "highest node's z [m] (a cap's apex height)",
+    "min_z_m": "lowest node's z [m]",
+    "run_time_s": "wall time of the whole run in the worker [s] (start-up + relaxation + files)",
+}
+#: columns that depend on timing; equal sweeps differ only in these
+TIMING_KEYS = ("wall_time_s", "startup_s", "run_time_s")
+DEFAULT_OUTPUTS = ["iterations", "residual", "energy", "wall_time_s"]
+FINISHED_FILE = "summary.json"
+
+
+class SweepError(ValueError):
+    """A sweep file or one of its runs is invalid; str is the user-facing message."""
+
+
+# ----------------------------------------------------------------------------- the sweep file
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class Space(_Strict):
+    """``{linspace: [a, b, n]}``: n evenly spaced values from a to b (inclusive);
+    ``{logspace: [a, b, n]}``: n values from a to b (inclusive, a, b > 0) evenly spaced on a log
+    scale (numpy.geomspace: the endpoints are the values, not their exponents)."""
+
+    linspace: tuple[float, float, int] | None = None
+    logspace: tuple[float, float, int] | None = None
+
+    @model_validator(mode="after")
+    def _one(self):
+        given = [k for k in ("linspace", "logspace") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give a list of values, {linspace: [a, b, n]} or {logspace: [a, b, n]}")
+        a, b, n = getattr(self, given[0])
+        if n < 1:
+            raise ValueError(f"{given[0]}: n must be at least 1 (got {n})")
+        if not (math.isfinite(a) and math.isfinite(b)):
+            raise ValueError(f"{given[0]}: a and b must be finite")
+        if given[0] == "logspace" and not (a > 0 and b > 0):
+            raise ValueError(f"logspace: a and b must be positive (got {a}, {b})")
+        return self
+
+    def values(self) -> list[float]:
+        import numpy as np
+
+        if self.linspace is not None:
+            a, b, n = self.linspace
+            v = np.linspace(a, b, n)
+        else:
+            a, b, n = self.logspace
+            v = np.geomspace(a, b, n)
+        # 12 significant digits: 1.15 rather than 1.1500000000000001 in ids, tables and scenes
+        return [float(f"{x:.12g}") for x in v]
+
+
+class SweepBlock(_Strict):
+    """mode: grid (every combination, first parameter slowest) or zip (element by element; all
+    lists the same length). parameters: scene field path -> list of values or a Space."""
+
+    mode: Literal["grid", "zip"] = "grid"
+    parameters: dict[str, Union[list[Any], Space]]
+
+    @field_validator("parameters")
+    @classmethod
+    def _params(cls, v):
+        if not v:
+            raise ValueError("give at least one parameter to vary")
+        for k, vals in v.items():
+            if not k or any(not p for p in k.split(".")):
+                raise ValueError(f"'{k}' is not a field path like solver.C or constraints.0.stretch")
+            if isinstance(vals, list) and not vals:
+                raise ValueError(f"{k}: the list of values is empty")
+        return v
+
+    def expanded(self) -> dict[str, list]:
+        return {k: (v.values() if isinstance(v, Space) else list(v)) for k, v in self.parameters.items()}
+
+    @model_validator(mode="after")
+    def _zip_lengths(self):
+        if self.mode == "zip":
+            lens = {k: len(v) for k, v in self.expanded().items()}
+            if len(set(lens.values())) > 1:
+                detail = ", ".join(f"{k} has {n}" for k, n in lens.items())
+                raise ValueError(f"parameters: zip mode needs the same number of values for every parameter ({detail})")
+        return self
+
+
+class SweepFile(_Strict):
+    """A sweep: base scene (path relative to the sweep file), fixed overrides (``set``), the
+    parameters to vary and the outputs to tabulate and plot (keys of summary.json, or max_z_m,
+    min_z_m, run_time_s)."""
+
+    name: str | None = None
+    base: str
+    fixed: dict[str, Any] = Field(default_factory=dict, alias="set")
+    sweep: SweepBlock
+    outputs: list[str] = Field(default_factory=lambda: list(DEFAULT_OUTPUTS))
+
+    @field_validator("outputs")
+    @classmethod
+    def _outputs(cls, v):
+        known = set(SUMMARY_KEYS) | set(EXTRA_KEYS)
+        for i, name in enumerate(v):
+            if name not in known:
+                raise ValueError(f"unknown output '{name}' (known: {', '.join(sorted(known))})")
+        if len(set(v)) != len(v):
+            raise ValueError("an output is listed twice")
+        return v
+
+
+@dataclass
+class Run:
+    """One expanded run: its index, stable id, parameter values and the raw scene dict."""
+
+    index: int
+    run_id: str
+    params: dict[str, Any]
+    scene: dict = field(repr=False)
+    scene_hash: str = ""
+
+
+@dataclass
+class Sweep:
+    spec: SweepFile
+    path: Path
+    base_path: Path
+    runs: list[Run]
+
+    @property
+    def varied(self) -> list[str]:
+        return list(self.spec.sweep.parameters)
+
+
+def _canonical(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def run_id_for(index: int, params: dict) -> str:
+    h = hashlib.sha1(_canonical(params).encode()).hexdigest()[:8]
+    return f"run-{index:04d}-{h}"
+
+
+def load_sweep(path: str | Path) -> Sweep:
+    """Read and validate a sweep file and expand it into runs (not yet validated as scenes)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SweepError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        root = yaml.compose(text)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise SweepError(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    if not isinstance(data, dict):
+        raise SweepError(f"{path}: a sweep file must be a mapping with base, sweep and outputs")
+    try:
+        spec = SweepFile.model_validate(data)
+    except ValidationError as exc:
+        raise SweepError(format_validation_error(exc, str(path), root)) from None
+    base_path = (path.parent / spec.base).resolve()
+    if not base_path.is_file():
+        raise SweepError(f"{path}: base: no such scene file {base_path}")
+    return Sweep(spec, path.resolve(), base_path, expand(spec, base_path))
+
+
+def expand(spec: SweepFile, base_path: Path) -> list[Run]:
+    """The runs of a sweep, in a deterministic order (grid: first parameter slowest)."""
+    try:
+        base = yaml.safe_load(base_path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise SweepError(f"{base_path}: cannot read the base scene ({exc})") from None
+    if not isinstance(base, dict):
+        raise SweepError(f"{base_path}: the base scene must be a mapping")
+    values = spec.sweep.expanded()
+    names = list(values)
+    if spec.sweep.mode == "grid":
+        combos = list(itertools.product(*(values[n] for n in names)))
+    else:
+        combos = list(zip(*(values[n] for n in names)))
+    runs = []
+    for i, combo in enumerate(combos):
+        params = dict(zip(names, combo))
+        runs.append(Run(i, run_id_for(i, params), params, {}))
+    # fixed overrides first, then the varied ones (a varied field wins)
+    for run in runs:
+        try:
+            run.scene = apply_overrides(apply_overrides(base, spec.fixed), run.params)
+        except SceneError as exc:
+            run.scene = {"__error__": str(exc).replace("--set ", "")}
+    return runs
+
+
+def _fmt(v) -> str:
+    return json.dumps(v) if isinstance(v, (list, dict, tuple)) else str(v)
+
+
+def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
+    """Validate every expanded scene and every distinct mold; returns error lines (empty = ok).
+
+    Each line names the run, its parameter values, the field and the message."""
+    from .mold import MoldError, load_mold
+
+    errors: list[str] = []
+    molds: dict[str, str | None] = {}
+    n_bad = 0
+    for run in sweep.runs:
+        label = f"{run.run_id} ({', '.join(f'{k}={_fmt(v)}' for k, v in run.params.items())})"
+        msg = run.scene.get("__error__") if isinstance(run.scene, dict) else None
+        scene = None
+        if msg is None:
+            try:
+                scene = scene_from_dict(run.scene, None)
+            except SceneError as exc:
+                msg = "; ".join(line.split(": ", 1)[1] if line.startswith("<scene>: ") else line
+                                for line in str(exc).splitlines())
+        if scene is not None:
+            scene._source = sweep.base_path
+            run.scene_hash = hashlib.sha1(_canonical(scene.to_dict()).encode()).hexdigest()[:16]
+            if scene.mold is not None:
+                key = _canonical([scene.mold, str(scene.base_dir)])
+                if key not in molds:
+                    try:
+                        load_mold(scene.mold, scene.base_dir)
+                        molds[key] = None
+                    except (MoldError, SceneError, OSError, ValueError) as exc:
+                        molds[key] = f"mold: {exc}"
+                msg = molds[key]
+        if msg is not None:
+            n_bad += 1
+            if len(errors) < max_errors:
+                errors.append(f"{label}: {msg}")
+    if n_bad > len(errors):
+        errors.append(f"... and {n_bad - len(errors)} more invalid runs")
+    return errors
+
+
+# ----------------------------------------------------------------------------- the worker
+
+
+def _numba_counts() -> tuple[int, int]:
+    """(cache hits, cache misses = compilations) summed over clothsim's numba kernels so far in
+    this process."""
+    try:
+        from numba.core.dispatcher import Dispatcher
+    except ImportError:  # pragma: no cover
+        return 0, 0
+    hits = misses = 0
+    seen = set()
+    for name, mod in list(sys.modules.items()):
+        if not name.startswith("clothsim") or mod is None:
+            continue
+        for obj in list(vars(mod).values()):
+            if isinstance(obj, Dispatcher) and id(obj) not in seen:
+                seen.add(id(obj))
+                st = obj.stats
+                hits += sum(st.cache_hits.values())
+                misses += sum(st.cache_misses.values())
+    return hits, misses
+
+
+def run_one(task: dict) -> dict:
+    """Run one scene in a worker and return its files' bytes (never raises for a bad run).
+
+    task: run_id, index, params, scene (raw dict), source (the base scene path, for relative
+    paths), scene_hash. Returns {"run_id", "files": {name: bytes}, "record": dict}."""
+    t0 = time.perf_counter()
+    h0, m0 = _numba_counts()
+    record = {"run_id": task["run_id"], "index": task["index"], "params": task["params"],
+              "scene_hash": task.get("scene_hash", ""), "pid": os.getpid(), "host": _hostname()}
+    files: dict[str, bytes] = {}
+    try:
+        from .simulation import solve
+
+        scene = scene_from_dict(task["scene"], task["source"])
+        result = solve(scene)
+        with tempfile.TemporaryDirectory(prefix="clothsim-run-") as td:
+            result.save(td)
+            for p in sorted(Path(td).iterdir()):
+                if p.is_file() and not p.name.startswith("."):
+                    files[p.name] = p.read_bytes()
+        z = result.positions[..., 2]
+        record["extra"] = {"max_z_m": float(z.max()), "min_z_m": float(z.min())}
+    except Exception as exc:  # a failing run is recorded, never raised
+        summary = {"converged": False, "status": "error", "message": f"{type(exc).__name__}: {exc}"}
+        files = {
+            "scene.yaml": yaml.safe_dump(task["scene"], sort_keys=False).encode(),
+            "error.txt": traceback.format_exc().encode(),
+            "summary.json": json.dumps(summary, indent=2).encode(),
+        }
+        record["extra"] = {}
+    h1, m1 = _numba_counts()
+    record["numba_cache_hits"] = h1 - h0
+    record["numba_compiled"] = m1 - m0
+    record["extra"]["run_time_s"] = time.perf_counter() - t0
+    return {"run_id": task["run_id"], "files": files, "record": record}
+
+
+def warm_cache(task: dict) -> dict:
+    """Compile (or load) the kernels one run needs, in a worker, before the sweep fans out: with
+    a cold on-disk cache this makes one worker compile while the others wait, instead of every
+    worker compiling the same kernels at once; with a warm cache it costs a cache load."""
+    t0 = time.perf_counter()
+    h0, m0 = _numba_counts()
+    try:
+        from .simulation import prepare, warm_up
+
+        scene = scene_from_dict(task["scene"], task["source"])
+        model, state, _ = prepare(scene)
+        warm_up(model, state, scene.solver)
+    except Exception:  # the run itself will report it
+        pass
+    h1, m1 = _numba_counts()
+    return {"numba_cache_hits": h1 - h0, "numba_compiled": m1 - m0, "seconds": time.perf_counter() - t0}
+
+
+def _warm_tasks(todo: list[Run], sweep: Sweep) -> list[dict]:
+    """One warm-up task per distinct (solver method, mold kind): the smallest such run."""
+    picked: dict[str, Run] = {}
+    for r in todo:
+        mold = r.scene.get("mold") or {}
+        key = _canonical([r.scene.get("solver", {}).get("method", "auto"), sorted(mold) if isinstance(mold, dict) else str(mold)])
+        div = r.scene.get("fabric", {}).get("divisions", [1, 1])
+        size = math.prod(div) if isinstance(div, (list, tuple)) and div else 0
+        if key not in picked or size < math.prod(picked[key].scene["fabric"]["divisions"]):
+            picked[key] = r
+    return [_task(r, sweep) for r in picked.values()]
+
+
+def _hostname() -> str:
+    import socket
+
+    return socket.gethostname()
+
+
+# ----------------------------------------------------------------------------- run folders
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    from .results import atomic_write_bytes
+
+    atomic_write_bytes(path, data)
+
+
+def write_run(out: Path, payload: dict) -> None:
+    """Write a worker's files into out/<run_id>/, each atomically, summary.json last."""
+    d = out / payload["run_id"]
+    d.mkdir(parents=True, exist_ok=True)
+    # an older result must not look finished while the new files replace it
+    for stale in (FINISHED_FILE, "crashed.json", "error.txt"):
+        (d / stale).unlink(missing_ok=True)
+    for tmp in d.glob(".*.tmp*"):  # left by a write that was killed half-way
+        tmp.unlink(missing_ok=True)
+    files = payload["files"]
+    for name, data in files.items():
+        if name != FINISHED_FILE:
+            _atomic_write(d / name, data)
+    _atomic_write(d / "sweep_run.json", json.dumps(payload["record"], indent=2, default=str).encode())
+    _atomic_write(d / FINISHED_FILE, files[FINISHED_FILE])
+
+
+def write_crashed(out: Path, run: Run, message: str) -> None:
+    d = out / run.run_id
+    d.mkdir(parents=True, exist_ok=True)
+    (d / FINISHED_FILE).unlink(missing_ok=True)
+    _atomic_write(d / "crashed.json", json.dumps({"status": "crashed", "message": message}, indent=2).encode())
+
+
+def finished(out: Path, run: Run) -> bool:
+    """True if out/<run_id> holds a complete run of this very scene."""
+    d = out / run.run_id
+    if not (d / FINISHED_FILE).is_file():
+        return False
+    try:
+        rec = json.loads((d / "sweep_run.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return rec.get("scene_hash") == run.scene_hash
+
+
+def read_row(out: Path, run: Run) -> dict:
+    """The summary of one run from its folder: summary.json + the sweep worker's extras."""
+    d = out / run.run_id
+    row: dict[str, Any] = {}
+    try:
+        row.update(json.loads((d / FINISHED_FILE).read_text()))
+        rec = json.loads((d / "sweep_run.json").read_text())
+        row.update(rec.get("extra", {}))
+    except (OSError, ValueError):
+        try:
+            row.update(json.loads((d / "crashed.json").read_text()))
+        except (OSError, ValueError):
+            row.update({"status": "pending", "message": "not run yet"})
+    return row
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, (list, tuple, dict)):
+        return json.dumps(v)
+    return str(v)
+
+
+def build_summary(sweep: Sweep, out: Path) -> list[dict]:
+    """Rebuild out/summary.csv from the run folders; returns the rows (dicts of raw values)."""
+    outputs = [o for o in sweep.spec.outputs if o != "status"]
+    header = ["run_id", *sweep.varied, "status", *outputs, "message"]
+    rows = []
+    for run in sweep.runs:
+        r = read_row(out, run)
+        row = {"run_id": run.run_id, **run.params, "status": r.get("status", "error")}
+        for o in outputs:
+            row[o] = r.get(o)
+        row["message"] = "" if row["status"] == "converged" else (r.get("message") or "")
+        rows.append(row)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for row in rows:
+        w.writerow([_cell(row.get(h)) for h in header])
+    _atomic_write(out / "summary.csv", buf.getvalue().encode())
+    return rows
+
+
+# ----------------------------------------------------------------------------- plots
+
+
+def _axis_values(values: list) -> tuple[list[float] | None, str]:
+    """Numeric x positions for parameter values, or None for categorical ones, and an axis note."""
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return [float(v) for v in values], ""
+    if all(isinstance(v, (list, tuple)) and v and all(isinstance(x, (int, float)) for x in v)
+           and len(set(v)) == 1 for v in values):
+        return [float(v[0]) for v in values], " (n of [n, n])"
+    return None, ""
+
+
+def _label(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return _fmt(v)
+
+
+def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
+    """One PNG per (numeric output, varied parameter): out/plots/<output>__vs__<param>.png.
+
+    grid mode with several parameters: one line per combination of the other parameters (up to
+    10, with a legend), otherwise points. zip mode: one line. Runs that did not converge are
+    drawn hollow; failed runs (no value) are left out and counted in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    outputs = [o for o in sweep.spec.outputs
+               if any(isinstance(r.get(o), (int, float)) and not isinstance(r.get(o), bool) for r in rows)]
+    pdir = out / "plots"
+    pdir.mkdir(parents=True, exist_ok=True)
+    written = []
+    varied = sweep.varied
+    spaces = sweep.spec.sweep.parameters
+    for param in varied:
+        all_vals = []
+        for r in rows:
+            if r[param] not in all_vals:
+                all_vals.append(r[param])
+        xs_num, note = _axis_values(all_vals)
+        others = [p for p in varied if p != param] if sweep.spec.sweep.mode == "grid" else []
+        groups: dict[str, list[dict]] = {}
+        for r in rows:
+            key = ", ".join(f"{p}={_label(r[p])}" for p in others)
+            groups.setdefault(key, []).append(r)
+        logx = isinstance(spaces[param], Space) and spaces[param].logspace is not None
+        if xs_num is not None and not logx and min(xs_num) > 0 and max(xs_num) / min(xs_num) >= 16 and len(xs_num) >= 4:
+            logx = True
+        for o in outputs:
+            fig, ax = plt.subplots(figsize=(7, 4.5), dpi=110)
+            n_missing = 0
+            as_lines = len(groups) <= 10
+            cmap = plt.get_cmap("viridis" if len(groups) > 10 else "tab10")
+            for gi, (key, grp) in enumerate(groups.items()):
+                pts = []
+                for r in grp:
+                    y = r.get(o)
+                    if not isinstance(y, (int, float)) or isinstance(y, bool) or not math.isfinite(y):
+                        n_missing += 1
+                        continue
+                    x = xs_num[all_vals.index(r[param])] if xs_num is not None else all_vals.index(r[param])
+                    pts.append((x, float(y), r["status"] == "converged"))
+                if not pts:
+                    continue
+                pts.sort()
+                color = cmap(gi / max(1, len(groups) - 1)) if len(groups) > 10 else cmap(gi % 10)
+                if as_lines:
+                    ax.plot([p[0] for p in pts], [p[1] for p in pts], "-", color=color, lw=1.4,
+                            label=key or None)
+                for x, y, ok in pts:
+                    ax.plot([x], [y], "o", ms=5, color=color, mfc=color if ok else "none",
+                            alpha=1.0 if as_lines else 0.6)
+            if xs_num is None:
+                ax.set_xticks(range(len(all_vals)))
+                ax.set_xticklabels([_label(v) for v in all_vals], rotation=30 if len(all_vals) > 6 else 0)
+            elif logx:
+                from matplotlib.ticker import NullFormatter
+
+                ax.set_xscale("log")
+                ticks = sorted(set(xs_num))
+                if len(ticks) <= 12:  # label the swept values themselves, not powers of ten
+                    ax.set_xticks(ticks)
+                    ax.set_xticklabels([f"{t:.4g}" for t in ticks])
+                    ax.xaxis.set_minor_formatter(NullFormatter())
+            ys = [r.get(o) for r in rows if isinstance(r.get(o), (int, float)) and not isinstance(r.get(o), bool)]
+            pos = [y for y in ys if math.isfinite(y) and y > 0]
+            if pos and len(pos) == len(ys) and max(pos) / min(pos) > 1e3:
+                ax.set_yscale("log")
+            ax.set_xlabel(param + note)
+            ax.set_ylabel(o)
+            title = f"{sweep.spec.name or sweep.path.stem}: {o} against {param}"
+            sub = []
+            if any(r["status"] != "converged" for r in rows if isinstance(r.get(o), (int, float))):
+                sub.append("hollow = did not converge")
+            if n_missing:
+                sub.append(f"{n_missing} runs without a value (failed or pending)")
+            if not as_lines:
+                sub.append(f"{len(groups)} combinations of {', '.join(others)} as points")
+            ax.set_title(title + ("\n" + "; ".join(sub) if sub else ""), fontsize=10)
+            ax.grid(True, alpha=0.3, which="both")
+            if as_lines and others:
+                ax.legend(fontsize=8, title=None, loc="best", framealpha=0.8)
+            fig.tight_layout()
+            safe = f"{o}__vs__{param}".replace("/", "_")
+            p = pdir / f"{safe}.png"
+            buf = io.BytesIO()
+            fig.savefig(buf, format="png")
+            plt.close(fig)
+            _atomic_write(p, buf.getvalue())
+            written.append(p)
+    return written
+
+
+# ----------------------------------------------------------------------------- executors
+
+
+class _Progress:
+    """A progress bar over runs on stderr: redrawn in place on a terminal, one line per finished
+    run otherwise (logs, CI)."""
+
+    def __init__(self, total: int, done: int, stream=sys.stderr):
+        self.total, self.done, self.failed = total, done, 0
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.t0 = time.perf_counter()
+        self.n_new = 0
+
+    def update(self, run_id: str, status: str) -> None:
+        self.done += 1
+        self.n_new += 1
+        if status != "converged":
+            self.failed += 1
+        el = time.perf_counter() - self.t0
+        left = self.total - self.done
+        eta = el / self.n_new * left if self.n_new else 0.0
+        frac = self.done / self.total if self.total else 1.0
+        bar = "#" * int(frac * 24)
+        text = (f"[{bar:<24}] {self.done}/{self.total} runs, {self.failed} not converged, "
+                f"{_hms(el)} elapsed, ~{_hms(eta)} left  {run_id} {status}")
+        if self.tty:
+            self.stream.write("\r" + text[:160].ljust(160))
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _hms(s: float) -> str:
+    s = int(s)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+def _task(run: Run, sweep: Sweep) -> dict:
+    return {"run_id": run.run_id, "index": run.index, "params": run.params, "scene": run.scene,
+            "source": str(sweep.base_path), "scene_hash": run.scene_hash}
+
+
+_THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def _local_pool(workers: int):
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    # one thread per worker process (as Dask's nanny does), inherited by the spawned workers
+    for k in _THREAD_ENV:
+        os.environ.setdefault(k, "1")
+    methods = mp.get_all_start_methods()
+    if "forkserver" in methods:
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["clothsim.simulation", "clothsim.sweep"])
+    else:
+        ctx = mp.get_context("spawn")
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+
+
+def _run_local(todo, sweep, out, workers, on_done, on_warm):
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    pool = _local_pool(workers)
+    futs = {}
+    try:
+        for t in _warm_tasks(todo, sweep):
+            on_warm(pool.submit(warm_cache, t).result())
+        futs = {pool.submit(run_one, _task(r, sweep)): r for r in todo}
+        for fut in as_completed(futs):
+            run = futs[fut]
+            try:
+                payload = fut.result()
+            except BrokenProcessPool:
+                write_crashed(out, run, "a worker process died (out of memory or killed?); rerun to retry")
+                on_done(run, {"status": "crashed"})
+                continue
+            except Exception as exc:  # pickling or other infrastructure failure
+                write_crashed(out, run, f"{type(exc).__name__}: {exc}")
+                on_done(run, {"status": "crashed"})
+                continue
+            write_run(out, payload)
+            on_done(run, payload)
+    except BaseException:
+        for f in futs:
+            f.cancel()
+        pool.shutdown(wait=False, cancel_futures=True)
+        _terminate_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _terminate_pool(pool) -> None:
+    """Stop our own worker processes at once (Ctrl-C): only the pool's processes, by id."""
+    procs = getattr(pool, "_processes", None) or {}
+    for p in list(procs.values()):
+        try:
+            p.terminate()
+        except Exception:
+            pass
+
+
+def _run_dask(todo, sweep, out, workers, address, on_done, on_warm):
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if address == "local":
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=50)
+        client = Client(cluster)
+    else:
+        client = Client(address, timeout="30s")
+    try:
+        for t in _warm_tasks(todo, sweep):
+            on_warm(client.submit(warm_cache, t, pure=False).result())
+        futs = {}
+        for r in todo:
+            f = client.submit(run_one, _task(r, sweep), key=f"clothsim-{r.run_id}-{os.getpid()}-{time.time_ns()}",
+                              pure=False)
+            futs[f.key] = (f, r)
+        for f in as_completed([f for f, _ in futs.values()]):
+            run = futs[f.key][1]
+            try:
+                payload = f.result()
+            except Exception as exc:  # KilledWorker, lost connection, ...
+                write_crashed(out, run, f"{type(exc).__name__}: {exc}; rerun to retry")
+                on_done(run, {"status": "crashed"})
+                f.release()
+                continue
+            f.release()
+            write_run(out, payload)
+            on_done(run, payload)
+    finally:
+        try:
+            client.close()
+        finally:
+            if cluster is not None:
+                cluster.close()
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, dask: str | None = None,
+              force: bool = False, stream=sys.stderr, plots: bool = True) -> dict:
+    """Validate, run (what is not finished) and summarize a sweep. Returns a report dict:
+    total, ran, skipped, not_converged, statuses, numba_compiled, numba_cache_hits, seconds.
+
+    Raises SweepError for bad input (nothing has run then)."""
+    sweep = load_sweep(path)
+    errors = validate_runs(sweep)
+    if errors:
+        raise SweepError(f"{len(sweep.runs)} runs expanded from {path}; invalid runs (nothing was run):\n"
+                         + "\n".join("  " + e for e in errors))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _atomic_write(out / "sweep.yaml", sweep.path.read_bytes())
+    todo = [r for r in sweep.runs if force or not finished(out, r)]
+    skipped = len(sweep.runs) - len(todo)
+    known = {r.run_id for r in sweep.runs}
+    strays = [p.name for p in out.iterdir() if p.is_dir() and p.name.startswith("run-") and p.name not in known]
+    n_workers = workers or os.cpu_count() or 1
+    where = (f"Dask cluster at {dask}" if dask and dask != "local" else
+             f"a Dask LocalCluster of {n_workers} workers" if dask else f"{min(n_workers, max(1, len(todo)))} local worker processes")
+    stream.write(f"sweep {sweep.path.name}: {len(sweep.runs)} runs ({sweep.spec.sweep.mode} over "
+                 f"{', '.join(sweep.varied)}); {skipped} already finished (skipped), {len(todo)} to run on {where}\n")
+    if strays:
+        stream.write(f"  note: {len(strays)} run folders in {out} belong to no run of this sweep (left alone)\n")
+    stream.flush()
+    report = {"total": len(sweep.runs), "ran": 0, "skipped": skipped, "numba_compiled": 0,
+              "numba_cache_hits": 0, "pids": set(),
+              "warm_compiled": 0, "warm_s": 0.0}
+    t0 = time.perf_counter()
+    prog = _Progress(len(sweep.runs), skipped, stream)
+    last_csv = [time.perf_counter()]
+
+    def on_done(run: Run, payload: dict) -> None:
+        rec = payload.get("record", {})
+        status = json.loads(payload["files"]["summary.json"])["status"] if "files" in payload else payload["status"]
+        report["ran"] += 1
+        report["numba_compiled"] += rec.get("numba_compiled", 0)
+        report["numba_cache_hits"] += rec.get("numba_cache_hits", 0)
+        if "pid" in rec:
+            report["pids"].add((rec.get("host"), rec["pid"]))
+        prog.update(run.run_id, status)
+        if time.perf_counter() - last_csv[0] > 10.0:  # a live table for long sweeps
+            build_summary(sweep, out)
+            last_csv[0] = time.perf_counter()
+
+    def on_warm(rec: dict) -> None:
+        report["warm_compiled"] += rec["numba_compiled"]
+        report["warm_s"] += rec["seconds"]
+
+    interrupted = False
+    try:
+        if todo:
+            if dask:
+                _run_dask(todo, sweep, out, n_workers, dask, on_done, on_warm)
+            else:
+                _run_local(todo, sweep, out, min(n_workers, len(todo)), on_done, on_warm)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        prog.close()
+        rows = build_summary(sweep, out)
+    if plots:
+        make_plots(sweep, rows, out)
+    statuses: dict[str, int] = {}
+    for r in rows:
+        statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+    report.update(seconds=time.perf_counter() - t0, statuses=statuses, interrupted=interrupted,
+                  not_converged=sum(n for s, n in statuses.items() if s != "converged"),
+                  workers_used=len(report["pids"]))
+    del report["pids"]
+    return report
+
+
+def main(args) -> int:
+    """``python app.py sweep FILE --out DIR [--workers N] [--dask local|tcp://host:8786] [--force]``.
+
+    Exit status: 0 all runs converged, 1 some did not converge or failed (the count is printed),
+    2 bad input (nothing run), 130 interrupted (finished runs are kept; rerun to continue)."""
+    if args.workers is not None and args.workers < 1:
+        print("error: --workers must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        rep = run_sweep(args.sweep, args.out, workers=args.workers, dask=args.dask, force=args.force)
+    except SweepError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    st = ", ".join(f"{n} {s}" for s, n in sorted(rep["statuses"].items(), key=lambda kv: -kv[1]))
+    print(f"{rep['total']} runs: {st}; ran {rep['ran']} in {rep['seconds']:.1f} s, skipped {rep['skipped']} "
+          f"finished; wrote {out}/summary.csv and {out}/plots/")
+    if rep["ran"]:
+        print(f"  numba: cache warm-up compiled {rep['warm_compiled']} kernels ({rep['warm_s']:.1f} s); "
+              f"then the runs loaded {rep['numba_cache_hits']} from the on-disk cache and compiled "
+              f"{rep['numba_compiled']}")
+    if rep["interrupted"]:
+        print(f"interrupted: {rep['total'] - rep['statuses'].get('pending', 0) - rep['statuses'].get('crashed', 0)} "
+              f"of {rep['total']} runs finished and kept; rerun the same command to continue", file=sys.stderr)
+        return 130
+    if rep["not_converged"]:
+        print(f"{rep['not_converged']} of {rep['total']} runs did not converge or failed (see {out}/summary.csv)")
+        return 1
+    return 0
