@@ -259,6 +259,11 @@ class SolverSettings(_Strict):
     time_limit_s: float | None = None
     max_retries: int = 60
     stall_iterations: int = 2000
+    # newton only: stiffness used at and below strain 0 on tension-only springs, as a fraction of
+    # the table's first slope (regularises the singular Hessian of slack springs; shapes the
+    # search direction only, never the forces); and whether to solve coarser grids first
+    newton_kink: float = Field(default=1.0, ge=0.0, le=1e3)
+    newton_sequencing: bool = True
 
     @field_validator("C")
     @classmethod
