@@ -1,0 +1,115 @@
+"""Helpers for the browser tests: a real headless Chromium (Debian's ``chromium`` package) driven by
+Playwright's sync API, with the flags that give software WebGL2 (see shared/notes/viser.md).
+
+Never run ``playwright install`` here: the client comes from pip, the browser from apt."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = os.environ.get("CLOTHSIM_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+# JavaScript: copy the largest canvas (the 3D view; viser keeps its drawing buffer) into a 2D
+# canvas and count pixels that differ from the corner pixel (the background).
+COUNT_JS = """() => {
+  const cs = [...document.querySelectorAll('canvas')];
+  if (!cs.length) return {w: 0, h: 0, n: 0};
+  const c = cs.reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
+  const w = c.width, h = c.height;
+  if (!w || !h) return {w, h, n: 0};
+  const o = document.createElement('canvas'); o.width = w; o.height = h;
+  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
+  const d = ctx.getImageData(0, 0, w, h).data;
+  const r0 = d[0], g0 = d[1], b0 = d[2];
+  let n = 0, colored = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    const dr = Math.abs(d[i] - r0), dg = Math.abs(d[i+1] - g0), db = Math.abs(d[i+2] - b0);
+    if (dr + dg + db > 30) {
+      n++;
+      const mx = Math.max(d[i], d[i+1], d[i+2]), mn = Math.min(d[i], d[i+1], d[i+2]);
+      if (mx - mn > 40) colored++;
+    }
+  }
+  return {w, h, n, colored};
+}"""
+
+
+def require_chromium():
+    """Skip without a browser locally; fail in CI (the CI image must have it)."""
+    if Path(CHROMIUM).exists():
+        return
+    if os.environ.get("CI"):
+        pytest.fail(f"{CHROMIUM} is missing in CI: install Debian's chromium package")
+    pytest.skip(f"{CHROMIUM} not installed")
+
+
+def launch(playwright):
+    return playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+
+
+def canvas_pixels(page) -> dict:
+    return page.evaluate(COUNT_JS)
+
+
+def wait_for_render(page, min_pixels: int = 2000, timeout: float = 60.0) -> dict:
+    """Wait until the 3D canvas shows something (the first software-rendered frame takes 7-10 s
+    while shaders compile)."""
+    t0 = time.time()
+    last = {}
+    while time.time() - t0 < timeout:
+        last = canvas_pixels(page)
+        if last.get("n", 0) >= min_pixels:
+            return last
+        page.wait_for_timeout(500)
+    return last
+
+
+def close_notifications(page) -> None:
+    for b in page.locator(".mantine-Notification-closeButton").all():
+        try:
+            b.click(timeout=1000)
+        except Exception:
+            pass
+
+
+def status_text(page) -> str:
+    """The status line (the markdown holding 'residual ... N')."""
+    loc = page.locator("p", has_text=re.compile(r"iteration \d+ · residual")).first
+    return loc.inner_text(timeout=10_000)
+
+
+def shown_residual(page) -> float:
+    m = re.search(r"residual ([0-9.eE+-]+|n/a) N", status_text(page))
+    assert m, "no residual in the status line"
+    return float(m.group(1)) if m.group(1) != "n/a" else float("nan")
+
+
+def shown_iteration(page) -> int:
+    m = re.search(r"iteration (\d+)", status_text(page))
+    return int(m.group(1))
+
+
+def text_area_for(page, label: str):
+    """The textarea of a viser text input labelled ``label`` (they have no id: find the row holding
+    the label, then its textarea or input)."""
+    lab = page.locator("label", has_text=label).first
+    target = lab.get_attribute("for")
+    if target:
+        el = page.locator(f"[id='{target}']")
+        if el.count():
+            return el.first
+    row = lab.locator("xpath=ancestor::div[.//textarea or .//input][1]")
+    ta = row.locator("textarea")
+    return ta.first if ta.count() else row.locator("input").first
+
+
+def have_browser() -> bool:
+    return Path(CHROMIUM).exists() or shutil.which("chromium") is not None

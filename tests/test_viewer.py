@@ -1,0 +1,406 @@
+"""Server-level tests of the viser app (no browser): start/stop, a full run through the app's own
+API, what the scene nodes received, validation of edits, upload limits, concurrent edits, and the
+helpers (GLB writer, per-node fields) against independent references."""
+
+from __future__ import annotations
+
+import io
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser")
+
+from clothsim.config import scene_from_dict  # noqa: E402
+from clothsim.viewer import ViewerApp, parse_table_text  # noqa: E402
+from clothsim.viewer_glb import GlbMeshWriter, colormap, read_glb_positions  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+SMALL = {
+    "name": "small-cap",
+    "fabric": {"size": [0.1, 0.1], "divisions": [10, 10],
+               "warp": {"strain": [0, 1], "tension": [0, 250]},
+               "weft": {"strain": [0, 1], "tension": [0, 250]}},
+    "constraints": [{"nodes": "perimeter", "axes": "xyz", "stretch": 1.1}],
+    "initial": {"lift": 0.03},
+    "mold": {"sphere": {"center": [0.05, 0.05, -0.02], "radius": 0.04}},
+    "solver": {"method": "paper", "C": 2.0, "e": 1e-6},
+}
+
+
+def small_scene(**solver):
+    d = {**SMALL, "solver": {**SMALL["solver"], **solver}}
+    return scene_from_dict(d)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def app():
+    a = ViewerApp(small_scene(), port=free_port())
+    a.wait_idle(20)
+    yield a
+    a.close()
+
+
+def settle(app, t: float = 0.15):
+    """Let the update loop run the posted tasks and show the (still) state."""
+    app.wait_idle(20)
+    time.sleep(t)
+    app.wait_idle(20)
+    t0 = time.time()
+    while app.sim.status != "running" and app.pushed_iteration != app.sim.state.iteration and time.time() - t0 < 10:
+        time.sleep(0.02)
+
+
+def test_starts_on_free_port_and_stops_cleanly():
+    """A busy port is not an error: the app takes the next free one and reports it; it serves the
+    page; close() stops the server, the update loop and the solver thread within seconds."""
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen(1)
+    port = busy.getsockname()[1]
+    try:
+        a = ViewerApp(small_scene(), port=port)
+        try:
+            assert a.port != port
+            assert a.url == f"http://127.0.0.1:{a.port}"
+            with urllib.request.urlopen(a.url, timeout=10) as r:
+                assert r.status == 200
+                assert b"<html" in r.read().lower()
+        finally:
+            t0 = time.perf_counter()
+            a.close()
+            stop_s = time.perf_counter() - t0
+        assert stop_s < 5
+        assert not a._thread.is_alive()
+        with pytest.raises(OSError):
+            urllib.request.urlopen(a.url, timeout=2)
+    finally:
+        busy.close()
+
+
+def test_full_run_converges_and_scene_gets_final_positions(app):
+    """Start through the app's API on a 10 x 10 sphere cap: the solver converges (residual <= e),
+    and the sheet node's GLB, the constrained-node point cloud, the status line and the plot all
+    show the final state (the GLB positions are decoded and compared with the solver's)."""
+    app.start(wait=True)
+    assert app.sim.wait(120) == "converged"
+    settle(app)
+    sim = app.sim
+    assert sim.residual <= sim.settings.e
+    assert app.pushed_iteration == sim.state.iteration > 0
+    shown = read_glb_positions(app.h_cloth.glb_data)
+    np.testing.assert_allclose(shown, sim.state.positions, atol=1e-6)
+    fixed = sim.model.fixed_axes.any(axis=1)
+    np.testing.assert_allclose(app.h_fixed.points, sim.state.positions[fixed], atol=1e-6)
+    assert "converged" in app.gui["status"].content
+    assert f"iteration {sim.state.iteration}" in app.gui["status"].content
+    x, y, e = app.gui["plot"].data
+    assert x[-1] == sim.state.iteration and y[-1] <= sim.settings.e and np.all(e == sim.settings.e)
+    # the mold (a sphere) is shown
+    assert app.h_mold is not None and app.h_mold.visible
+
+
+def test_step_pause_reset(app):
+    """Step advances one iteration; Reset returns to the initial deformation."""
+    p0 = app.sim.state.positions.copy()
+    app.step(wait=True)
+    t0 = time.time()
+    while app.sim.state.iteration < 1 and time.time() - t0 < 30:
+        time.sleep(0.02)
+    app.sim.wait(30)
+    assert app.sim.state.iteration == 1 and app.sim.status == "paused"
+    app.reset()
+    settle(app)
+    assert app.sim.state.iteration == 0
+    np.testing.assert_allclose(app.sim.state.positions, p0)
+
+
+def test_solver_edits_validated_and_live(app):
+    """C and e reach the running relaxation's settings; an invalid C shows an error and changes
+    nothing."""
+    app.gui["C"].value = 0.5
+    settle(app)
+    assert app.sim.settings.C == 2.0
+    assert "greater than 1" in app.errors["solver"]
+    app.gui["C"].value = 3.0
+    app.gui["e"].value = "2e-6"
+    settle(app)
+    assert app.sim.settings.C == 3.0 and app.sim.settings.e == 2e-6
+    assert app.errors["solver"] == ""
+    app.gui["e"].value = "abc"
+    settle(app)
+    assert app.sim.settings.e == 2e-6 and "not a number" in app.errors["solver"]
+
+
+def test_material_constraint_fabric_edits(app):
+    """An invalid material table is refused with the table checker's message and leaves the draft
+    as it was; valid edits of materials, constraints and divisions wait in the draft until Apply,
+    which rebuilds the model."""
+    before = app.draft["fabric"]["warp"]
+    app.gui["warp_text"].value = "0, 0\n0.5, 10\n0.3, 20"
+    settle(app)
+    assert "strictly increasing" in app.errors["material"]
+    assert app.draft["fabric"]["warp"] == before and not app.pending
+    app.gui["warp_text"].value = "0, 0\n0.2, 40\n1.0, 400"
+    settle(app)
+    assert app.errors["material"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 40, 400]
+    app.gui["weft_unit"].value = "Pa (stress)"  # no thickness: refused
+    settle(app)
+    assert "thickness" in app.errors["material"]
+    app.gui["weft_unit"].value = "N/m (tension)"
+    app.gui["preset"].value = "powernet_est"
+    settle(app)
+    assert app.draft["fabric"]["warp"] == {"preset": "powernet_est"}
+    # constraints: add corners fixed in z only
+    app.gui["c_select"].value = "+ new constraint"
+    settle(app)
+    app.gui["c_nodes"].value = "corners"
+    app.gui["c_axes"].value = "z"
+    app.post(app._save_constraint, "constraints")
+    app.gui["nx"].value = 12
+    settle(app)
+    assert app.draft["constraints"][-1] == {"nodes": "corners", "axes": "z"}
+    assert app.draft["fabric"]["divisions"] == [12, 10]
+    app.gui["nx"].value = 0
+    settle(app)
+    assert "at least 1" in app.errors["fabric"] and app.draft["fabric"]["divisions"] == [12, 10]
+    assert app.sim.model.grid_shape == (11, 11)
+    app.apply()
+    settle(app)
+    assert app.errors["run"] == "", app.errors
+    assert app.sim.model.grid_shape == (13, 11) and not app.pending
+    assert len(read_glb_positions(app.h_cloth.glb_data)) == 13 * 11
+
+
+def test_mold_upload_limits_and_formats(tmp_path):
+    """A valid STL upload becomes the draft's mold (stored in the app's private temp folder under
+    its own name); an unknown format is refused with the loader's message; an upload over the
+    limit is refused when announced (its transfer state dropped) and again on arrival."""
+    import trimesh
+    from viser import _messages
+
+    a = ViewerApp(small_scene(), port=free_port(), upload_limit_mb=0.05)
+    try:
+        a.wait_idle(20)
+        box = trimesh.creation.box(extents=(0.02, 0.02, 0.02))
+        box.apply_translation((0.05, 0.05, -0.011))
+        data = box.export(file_type="stl")
+        a.post(lambda: a._mold_uploaded("../../evil name.stl", data), "mold")
+        settle(a)
+        assert a.errors["mold"] == ""
+        path = Path(a.draft["mold"]["path"])
+        assert path.parent == a._tmpdir and path.name == "mold_upload_1.stl"
+        assert oct(a._tmpdir.stat().st_mode & 0o777) == "0o700"
+        assert a.gui["mold"].value.startswith("upload: ")
+        assert a.h_mold is not None  # the pending mold is previewed
+        a.apply(wait=True)
+        settle(a)
+        assert a.sim.model.mold.kind_name == "mesh"
+        # unknown format
+        a.post(lambda: a._mold_uploaded("notes.xyz", b"\x00\x01garbage" * 10), "mold")
+        settle(a)
+        assert "unknown mold format" in a.errors["mold"]
+        assert Path(a.draft["mold"]["path"]) == path
+        # over the limit, announced by the browser
+        a.server.gui._current_file_upload_states["t1"] = {"parts": {}}
+        msg = _messages.FileTransferStartUpload(
+            source_component_uuid=a.gui["mold_upload"]._impl.uuid, transfer_uuid="t1", filename="big.stl",
+            mime_type="model/stl", size_bytes=10 * 2**20, part_count=10)
+        a._on_upload_start("no-such-client", msg)
+        settle(a)
+        assert "t1" not in a.server.gui._current_file_upload_states
+        assert "over the upload limit" in a.errors["mold"]
+        # over the limit on arrival (a client that lied about its size)
+        from viser import UploadedFile
+
+        a.gui["mold_upload"]._impl.value = UploadedFile("big.stl", b"x" * (a.upload_limit + 1))
+        a._upload_cb(a.gui["mold_upload"], a._mold_uploaded, "mold")(None)
+        settle(a)
+        assert "over the upload limit" in a.errors["mold"]
+        tmp = a._tmpdir
+    finally:
+        a.close()
+    assert not tmp.exists()
+
+
+def test_concurrent_edits_cannot_crash(app):
+    """Eight threads (like eight tabs) hammer the app with valid and invalid edits and controls
+    while it runs; afterwards the app, its update loop and the solver are alive and a final run
+    still converges."""
+    stop = time.time() + 2.0
+    errors = []
+
+    def worker(seed):
+        rng = np.random.default_rng(seed)
+        try:
+            while time.time() < stop:
+                k = rng.integers(8)
+                if k == 0:
+                    app.gui["C"].value = float(rng.choice([0.5, 1.5, 2.0, 3.0]))
+                elif k == 1:
+                    app.gui["e"].value = str(rng.choice(["1e-6", "x", "-1", "2e-6"]))
+                elif k == 2:
+                    app.gui["warp_text"].value = str(rng.choice(["0,0\n1,250", "0,0\n1,-3", "bad"]))
+                elif k == 3:
+                    app.gui["field"].value = str(rng.choice(list(app.gui["field"].options)))
+                elif k == 4:
+                    [app.start, app.pause, app.step][int(rng.integers(3))]()
+                elif k == 5:
+                    app.gui["nx"].value = int(rng.choice([0, 8, 10]))
+                elif k == 6:
+                    app.apply()
+                else:
+                    app.reset()
+                time.sleep(float(rng.uniform(0, 0.01)))
+        except Exception as exc:  # pragma: no cover - the assertion below reports it
+            errors.append(exc)
+
+    threads = [threading.Thread(target=worker, args=(s,)) for s in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    settle(app, 0.3)
+    app.sim.pause(wait=True)
+    assert app._thread.is_alive()
+    app.gui["C"].value = 2.0
+    app.gui["e"].value = "1e-6"
+    app.gui["warp_text"].value = "0,0\n1,250"
+    app.gui["nx"].value = 10
+    settle(app)
+    app.reset()
+    settle(app)
+    app.start(wait=True)
+    assert app.sim.wait(120) == "converged", app.sim.message
+
+
+def test_scene_yaml_download_roundtrip(app):
+    """The downloaded YAML loads back into the same scene (paths made absolute)."""
+    import yaml
+
+    text = app.scene_yaml()
+    again = scene_from_dict(yaml.safe_load(text))
+    assert again.to_dict() == scene_from_dict(app.draft).to_dict()
+
+
+def test_node_fields_match_result(app):
+    """The viewer's whole-array per-node fields equal results.Result's (strain, pressure)."""
+    from clothsim.results import MMHG
+    from clothsim.viewer_fields import node_field
+
+    app.start(wait=True)
+    assert app.sim.wait(120) == "converged"
+    r = app.sim.result()
+    m, s = app.sim.model, app.sim.state
+    p = node_field(m, s.positions, s.in_contact, "pressure")
+    np.testing.assert_allclose(p, r.contact_pressure.ravel() / MMHG, rtol=1e-9, atol=1e-12)
+    assert p.max() > 0
+    w = node_field(m, s.positions, s.in_contact, "strain_warp").reshape(m.grid_shape)
+    np.testing.assert_allclose(w[1:-1], 0.5 * (r.strain_warp[1:] + r.strain_warp[:-1]), rtol=1e-12)
+    np.testing.assert_allclose(np.maximum(w, node_field(m, s.positions, s.in_contact, "strain_weft")
+                                          .reshape(m.grid_shape)), r.node_strain(), rtol=1e-12)
+
+
+def test_glb_writer_reads_back_in_trimesh():
+    """The hand-written GLB is valid glTF: trimesh loads it with the same vertices and faces."""
+    import trimesh
+
+    from clothsim.results import grid_faces
+
+    rng = np.random.default_rng(0)
+    P = rng.random((12, 3))
+    F = grid_faces(3, 4)
+    w = GlbMeshWriter(F)
+    glb = w.build(P, colormap(P[:, 0], 0, 1), None, opacity=0.5)
+    assert len(glb) % 4 == 0
+    np.testing.assert_allclose(read_glb_positions(glb), P, rtol=1e-6)
+    m = trimesh.load(io.BytesIO(glb), file_type="glb", force="mesh", process=False)
+    assert len(m.vertices) == 12 and len(m.faces) == len(F)
+
+
+def test_parse_table_text():
+    assert parse_table_text("# strain, N/m\n0, 0\n0.5;10\n1 30  # end\n") == ([0, 0.5, 1], [0, 10, 30])
+    with pytest.raises(ValueError, match="line 2"):
+        parse_table_text("0,0\n0.5\n")
+
+
+def test_core_does_not_import_viser():
+    """Only clothsim/viewer*.py may import viser."""
+    for p in (ROOT / "clothsim").rglob("*.py"):
+        if p.name.startswith("viewer"):
+            continue
+        assert not re.search(r"^\s*(import|from)\s+viser\b", p.read_text(), re.M), p
+
+
+def test_cli_view_prints_url_and_warns_off_loopback():
+    """``python app.py view scene --host 0.0.0.0 --no-browser`` prints the real URL and a warning
+    that others on the network can drive it; Ctrl+C stops it with status 0."""
+    port = free_port()
+    cfg = ROOT / "configs" / "sphere_cap.yaml"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "app.py"), "view", str(cfg), "--host", "0.0.0.0",
+                             "--port", str(port), "--no-browser"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        line = ""
+        t0 = time.time()
+        while "clothsim viewer:" not in line and time.time() - t0 < 60:
+            line = proc.stdout.readline()
+            if not line and proc.poll() is not None:
+                break
+        assert f"http://127.0.0.1:{port}" in line, line + proc.stderr.read()
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10) as r:
+            assert r.status == 200
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, err = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+    assert "warning: binding 0.0.0.0" in err
+    assert proc.returncode == 0, err
+
+
+def test_downloads_build_valid_files(app):
+    """Save scene / export npz, ply, csv: each reaches the asking tab's send_file_download and is a
+    valid file of its kind (loaded back with yaml, numpy, trimesh)."""
+    import trimesh
+    import yaml
+
+    sent = {}
+
+    class FakeClient:
+        def send_file_download(self, name, content, save_immediately=False):
+            sent[name] = content
+
+    class Event:
+        client = FakeClient()
+
+    app.start(wait=True)
+    assert app.sim.wait(120) == "converged"
+    for kind in ("yaml", "npz", "ply", "csv"):
+        app._download(Event(), kind)
+    settle(app)
+    assert set(sent) == {"small-cap.yaml", "result.npz", "sheet.ply", "history.csv"}, app.errors
+    assert scene_from_dict(yaml.safe_load(sent["small-cap.yaml"])).fabric.divisions == (10, 10)
+    z = np.load(io.BytesIO(sent["result.npz"]))
+    np.testing.assert_allclose(z["positions"].reshape(-1, 3), app.sim.state.positions)
+    assert len(trimesh.load(io.BytesIO(sent["sheet.ply"]), file_type="ply").vertices) == 121
+    assert sent["history.csv"].decode().startswith("iteration,residual_N")
