@@ -95,6 +95,38 @@ def node_fields(model, state):
     return strain, force, contact_force, pressure
 
 
+def _undetermined(model, force, in_contact) -> np.ndarray:
+    taut = force > 0.0
+    node_taut = np.zeros(model.node_count, bool)
+    node_taut[model.spring_nodes[taut, 0]] = True
+    node_taut[model.spring_nodes[taut, 1]] = True
+    return ~model.fixed_axes.all(axis=1) & ~node_taut & ~in_contact
+
+
+def sheet_health(model, positions, in_contact, force=None) -> dict:
+    """Diagnostics that make a degenerate equilibrium visible instead of hiding it.
+
+    slack_springs: springs carrying no force; undetermined_nodes: free nodes held only by slack
+    springs and not touching the mold (their position is not unique); min_weft_extent_ratio: the
+    narrowest length of the sheet along weft (over all warp positions i) over its rest width — a
+    band that gathers into a rope (tension-only weft springs resist no compression) shows here."""
+    if force is None:
+        S = model.spring_count
+        strain = np.empty(S)
+        force = np.empty(S)
+        spring_strains_tensions(positions, *model.spring_args(), strain, force)
+    nx1, ny1 = model.grid_shape
+    p = positions.reshape(nx1, ny1, 3)
+    weft_len = np.linalg.norm(np.diff(p, axis=1), axis=-1).sum(axis=1)
+    rest_w = (ny1 - 1) * model.spacing[1]
+    return {
+        "slack_springs": int((force <= 0.0).sum()),
+        "spring_count": int(model.spring_count),
+        "undetermined_nodes": int(_undetermined(model, force, in_contact).sum()),
+        "min_weft_extent_ratio": float(weft_len.min() / rest_w) if rest_w > 0 else math.nan,
+    }
+
+
 @dataclass
 class Result:
     """A finished (or stopped) run: the scene, its model, the final state and the solve record."""
@@ -174,49 +206,26 @@ class Result:
         return np.maximum(w / np.maximum(cw, 1), f / np.maximum(cf, 1))
 
     def diagnostics(self) -> dict:
-        """Numbers that make a degenerate result visible: slack springs, nodes held by nothing
-        (undetermined: every spring slack, not in contact, not constrained), the sheet's narrowest
-        weft extent against its rest width (a band gathering into a rope), penetration."""
-        m = self.model
-        strain, force = self._f()[0], self._f()[1]
-        slack = force <= 0.0
-        # nodes with all springs slack
-        node_taut = np.zeros(m.node_count, bool)
-        taut = ~slack
-        node_taut[m.spring_nodes[taut, 0]] = True
-        node_taut[m.spring_nodes[taut, 1]] = True
-        free = ~m.fixed_axes.all(axis=1)
-        undetermined = free & ~node_taut & ~self.state.in_contact
-        nx1, ny1 = m.grid_shape
-        p = self.positions
-        weft_len = np.linalg.norm(np.diff(p, axis=1), axis=-1).sum(axis=1)  # (nx1,)
-        rest_w = self.scene.fabric.size[1]
-        out = {
-            "slack_springs": int(slack.sum()),
-            "spring_count": int(m.spring_count),
-            "undetermined_nodes": int(undetermined.sum()),
-            "min_weft_extent_ratio": float(weft_len.min() / rest_w) if rest_w > 0 else math.nan,
+        """Numbers that make a degenerate result visible (see :func:`sheet_health`), the peak
+        strains and pressures, and the deepest penetration into the mold."""
+        out = sheet_health(self.model, self.state.positions, self.state.in_contact,
+                           force=self._f()[1])
+        out.update({
             "max_strain_warp": float(self.strain_warp.max()) if self.strain_warp.size else 0.0,
             "max_strain_weft": float(self.strain_weft.max()) if self.strain_weft.size else 0.0,
             "max_contact_pressure_pa": float(self.contact_pressure.max()),
             "max_contact_pressure_mmhg": float(self.contact_pressure.max() / MMHG),
-        }
-        if m.mold is not None:
+        })
+        if self.model.mold is not None:
             from .contact import max_penetration
 
-            out["max_penetration_m"] = float(max_penetration(self.state.positions, m.mold.kernel_args()))
+            out["max_penetration_m"] = float(max_penetration(self.state.positions, self.model.mold.kernel_args()))
         return out
 
     def undetermined_nodes(self) -> np.ndarray:
         """(i, j) indices of free nodes held only by slack springs (no unique equilibrium)."""
-        m = self.model
-        force = self._f()[1]
-        node_taut = np.zeros(m.node_count, bool)
-        node_taut[m.spring_nodes[force > 0, 0]] = True
-        node_taut[m.spring_nodes[force > 0, 1]] = True
-        und = ~m.fixed_axes.all(axis=1) & ~node_taut & ~self.state.in_contact
-        k = np.nonzero(und)[0]
-        return np.stack(np.unravel_index(k, m.grid_shape), 1)
+        und = _undetermined(self.model, self._f()[1], self.state.in_contact)
+        return np.stack(np.unravel_index(np.nonzero(und)[0], self.model.grid_shape), 1)
 
     def summary(self) -> dict:
         from . import __version__

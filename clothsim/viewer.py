@@ -51,7 +51,7 @@ from .config import NODE_SETS, SOLVER_METHODS, Scene, SceneError, load_scene, sc
 from .material import MaterialError, check_table, parse_table_csv
 from .mold import MoldError, load_mold, load_mold_bytes
 from .presets import PRESETS
-from .results import grid_faces
+from .results import grid_faces, sheet_health
 from .simulation import Simulation
 from .viewer_fields import FIELDS, node_field
 from .viewer_glb import GlbMeshWriter, colorbar_image, colormap, grid_normals
@@ -1150,9 +1150,27 @@ class ViewerApp:
                 f"(e = {_fmt(sim.settings.e, 2)} N) · {contact} contact nodes · {ips:,.0f} it/s · {sim.method}")
         if sim.message and status not in ("running", "idle", "paused"):
             text += f"  \n<small>{html.escape(sim.message)}</small>"
+        if not running and self._last_frame is not None:
+            text += "  \n" + self._health_text(self._last_frame)
         if text != self._status_text:
             self._status_text = text
             self.gui["status"].content = text
+
+    def _health_text(self, f: Frame) -> str:
+        """Slack springs, undetermined nodes and the sheet's narrowest weft extent: a band that
+        gathers into a rope or a region held by nothing is shown, not hidden."""
+        key = (id(f.model), f.iteration, id(f.positions))
+        if getattr(self, "_health_key", None) != key:
+            h = sheet_health(f.model, f.positions, f.in_contact)
+            warn = h["min_weft_extent_ratio"] < 0.5 or h["undetermined_nodes"] > 0
+            txt = (f"{h['slack_springs']} of {h['spring_count']} springs slack · "
+                   f"{h['undetermined_nodes']} undetermined nodes · narrowest weft extent "
+                   f"{h['min_weft_extent_ratio']:.0%} of the rest width")
+            if h["min_weft_extent_ratio"] < 0.5:
+                txt += " (the sheet gathers: nothing holds its width)"
+            self._health = f"<small>{'⚠ ' if warn else ''}{txt}</small>"
+            self._health_key = key
+        return self._health
 
     def _initial_residual(self) -> float:
         key = (id(self.sim.model), self.sim.state.iteration, self.sim.version)

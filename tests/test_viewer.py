@@ -404,3 +404,28 @@ def test_downloads_build_valid_files(app):
     np.testing.assert_allclose(z["positions"].reshape(-1, 3), app.sim.state.positions)
     assert len(trimesh.load(io.BytesIO(sent["sheet.ply"]), file_type="ply").vertices) == 121
     assert sent["history.csv"].decode().startswith("iteration,residual_N")
+
+
+def test_status_shows_a_gathering_sheet_and_slack_springs():
+    """A strip whose free edges are pulled together by nothing but slack weft springs is shown as
+    such: after a run the status line reports the slack springs, the undetermined nodes and the
+    narrowest weft extent, with a warning when the sheet has gathered below half its width."""
+    d = {"name": "slack", "fabric": {"size": [0.1, 0.1], "divisions": [6, 6],
+                                     "warp": {"strain": [0, 1], "tension": [0, 250]},
+                                     "weft": {"strain": [0, 1], "tension": [0, 250]}},
+         "constraints": [{"nodes": "left", "axes": "xyz"},
+                         {"nodes": "right", "axes": "xyz", "displacement": [0.01, 0, 0], "stretch": [1.0, 0.3]}],
+         "solver": {"method": "paper", "e": 1e-6}}
+    a = ViewerApp(scene_from_dict(d), port=free_port())
+    try:
+        a.wait_idle(20)
+        a.start(wait=True)
+        assert a.sim.wait(60) in ("converged", "stalled")
+        settle(a, 0.5)
+        text = a.gui["status"].content
+        m = re.search(r"(\d+) of (\d+) springs slack · (\d+) undetermined nodes · narrowest weft extent (\d+)%", text)
+        assert m, repr(text)
+        assert int(m.group(1)) > 0 and int(m.group(4)) < 50
+        assert "the sheet gathers" in text
+    finally:
+        a.close()
