@@ -262,7 +262,7 @@ class SolverSettings(_Strict):
     # newton only: stiffness used at and below strain 0 on tension-only springs, as a fraction of
     # the table's first slope (regularises the singular Hessian of slack springs; shapes the
     # search direction only, never the forces); and whether to solve coarser grids first
-    newton_kink: float = Field(default=1.0, ge=0.0, le=1e3)
+    newton_kink: float = Field(default=1e-3, ge=0.0, le=1e3)
     newton_sequencing: bool = True
 
     @field_validator("C")

@@ -145,7 +145,7 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, rest, width, table,
                  x, y, cum, start, comp, spring_nodes, ext, C, max_retries, has_mold, margs,
                  n_sweeps, e, blowup, res_out, en_out, prev):
