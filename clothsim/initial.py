@@ -65,7 +65,7 @@ def _check_clearance(scene: Scene, model: Model, state: State) -> None:
     sd = np.empty(n)
     cp = np.empty((n, 3))
     nrm = np.empty((n, 3))
-    feat = np.empty((n, 2))
+    feat = np.empty((n, 2), np.int64)
     mold_query_many(margs, state.positions, sd, cp, nrm, feat)
     bad = sd <= 0.0
     if not bad.any():
