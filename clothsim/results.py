@@ -67,31 +67,62 @@ def deformed_node_area(pos: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
     return area.ravel()
 
 
-def node_fields(model, state):
-    """Per-spring strain and force, per-node contact force and pressure, and diagnostics."""
-    from .contact import contact_normals
-    from .kernels import node_force
-    from .solvers.common import model_mold_args
+def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
+    """Per-node normal contact reaction [N] and contact pressure [Pa], both (N,): the reaction is
+    max(0, -R . n), R the resultant of the node's springs and external force, n the mold's outward
+    (pseudo-)normal at the closest point; the pressure divides it by the node's tributary area on
+    the deformed sheet. Zero off contact. Whole-array kernels (the viewer calls it 25 times a second)."""
+    n = model.node_count
+    force = np.zeros(n)
+    pressure = np.zeros(n)
+    if model.mold is None or not in_contact.any():
+        return force, pressure
+    from .kernels import forces_and_energy
+    from .mold import mold_query_many
 
+    F = np.empty((n, 3))
+    forces_and_energy(positions, *model.spring_args(), model.external_force, F)
+    k = np.nonzero(in_contact)[0]
+    m = len(k)
+    sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
+    mold_query_many(model.mold.kernel_args(), np.ascontiguousarray(positions[k]), sd, cp, nrm,
+                    np.empty((m, 2), np.int64))
+    force[k] = np.maximum(0.0, -np.einsum("ij,ij->i", F[k], nrm))
+    nx1, ny1 = model.grid_shape
+    area = deformed_node_area(positions, nx1, ny1)
+    np.divide(force, area, out=pressure, where=area > 0)
+    return force, pressure
+
+
+def spread_warp(v: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
+    """Mean of the warp-spring values (nx, ny+1) at each node (nx+1, ny+1)."""
+    s = np.zeros((nx1, ny1))
+    c = np.zeros((nx1, ny1))
+    s[:-1] += v
+    s[1:] += v
+    c[:-1] += 1
+    c[1:] += 1
+    return s / np.maximum(c, 1)
+
+
+def spread_weft(v: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
+    """Mean of the weft-spring values (nx+1, ny) at each node (nx+1, ny+1)."""
+    s = np.zeros((nx1, ny1))
+    c = np.zeros((nx1, ny1))
+    s[:, :-1] += v
+    s[:, 1:] += v
+    c[:, :-1] += 1
+    c[:, 1:] += 1
+    return s / np.maximum(c, 1)
+
+
+def node_fields(model, state):
+    """Per-spring strain and force, per-node contact force and pressure."""
     S = model.spring_count
     strain = np.empty(S)
     force = np.empty(S)
     spring_strains_tensions(state.positions, *model.spring_args(), strain, force)
-    n = model.node_count
-    contact_force = np.zeros(n)
-    has_mold, margs = model_mold_args(model)
-    if has_mold and state.in_contact.any():
-        R = np.empty(3)
-        q = np.empty(8)
-        nb = np.empty((64, 3))
-        adj = model.adjacency_args()
-        for k in np.nonzero(state.in_contact)[0]:
-            node_force(int(k), state.positions, *adj, model.external_force, R)
-            contact_normals(state.positions[k], margs, q, nb)
-            contact_force[k] = max(0.0, -float(R @ q[3:6]))
-    nx1, ny1 = model.grid_shape
-    area = deformed_node_area(state.positions, nx1, ny1)
-    pressure = np.divide(contact_force, area, out=np.zeros(n), where=area > 0)
+    contact_force, pressure = contact_reaction(model, state.positions, state.in_contact)
     return strain, force, contact_force, pressure
 
 
@@ -198,12 +229,7 @@ class Result:
     def node_strain(self) -> np.ndarray:
         """Per-node strain for colouring: the larger of the mean adjacent warp and weft strains."""
         nx1, ny1 = self.model.grid_shape
-        sw, sf = self.strain_warp, self.strain_weft
-        w = np.zeros((nx1, ny1)); cw = np.zeros((nx1, ny1))
-        w[:-1] += sw; w[1:] += sw; cw[:-1] += 1; cw[1:] += 1
-        f = np.zeros((nx1, ny1)); cf = np.zeros((nx1, ny1))
-        f[:, :-1] += sf; f[:, 1:] += sf; cf[:, :-1] += 1; cf[:, 1:] += 1
-        return np.maximum(w / np.maximum(cw, 1), f / np.maximum(cf, 1))
+        return np.maximum(spread_warp(self.strain_warp, nx1, ny1), spread_weft(self.strain_weft, nx1, ny1))
 
     def diagnostics(self) -> dict:
         """Numbers that make a degenerate result visible (see :func:`sheet_health`), the peak
