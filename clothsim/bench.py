@@ -1,0 +1,367 @@
+"""Speed-against-error benchmark: every solver on every benchmark scene, a table and a plot.
+
+``python app.py bench [--quick] [--out docs]`` writes ``<out>/benchmarks.md`` (machine, date,
+versions, one row per solver and scene) and ``<out>/speed_vs_error.png`` (node-position error
+against time, log-log, one curve per solver and scene).
+
+For each (scene, solver) run, in a fresh child process (so that peak memory and JIT compilation
+belong to that run alone):
+- compile_s: the first call (one iteration) compiles the numba kernels or loads them from the
+  on-disk cache; it is timed apart and not counted in the solve times;
+- the solve from the scene's initial state to e = 1e-9 N (or the run's time limit): the time
+  [s] at which ||V||_inf first fell below each level 1e-2 ... 1e-9 N (from the recorded
+  history), iterations, final status and residual;
+- peak_rss_mb: the child's peak resident memory (ru_maxrss, includes Python, numba and the
+  libraries, about 200 MB);
+- the error of the node positions (max norm over nodes [m]) at each level against a reference
+  solve taken 1000 times tighter than 1e-9 N (newton, e = 1e-12 N), or to its float64 floor
+  (its own residual is reported). For paper, positions are captured at the end of the batch
+  in which the level was crossed (a little later, so if anything its errors look smaller).
+The paper solver is capped by a time limit (its sweep count grows with the square of the grid's
+side); levels it did not reach are reported as "not reached".
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import resource
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+LEVELS = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
+TARGET_E = 1e-9
+REFERENCE_E = 1e-12
+
+
+@dataclass
+class Case:
+    """One benchmark scene: a config with overrides, and per-solver time limits [s]."""
+
+    name: str
+    config: str
+    overrides: list[str] = field(default_factory=list)
+    solvers: tuple[str, ...] = ("newton", "paper")
+    time_limit: dict = field(default_factory=dict)  # solver -> s
+    group: str = "main"
+
+
+def cases(quick: bool) -> list[Case]:
+    """The benchmark scenes (quick: small grids and short caps, under a minute in all)."""
+    sc = "configs/sphere_cap.yaml"
+    hard = sorted((ROOT / "configs" / "hard").glob("*.yaml"))
+    if quick:
+        out = [
+            Case("sphere cap 41^2", sc, [], time_limit={"paper": 3, "newton": 20}),
+            Case("sphere cap 101^2", sc, ["fabric.divisions=[100,100]"], ("newton",), {"newton": 20}),
+        ]
+        if (ROOT / "configs" / "thermoform.yaml").exists():
+            out.append(Case("thermoform 41^2", "configs/thermoform.yaml", [], time_limit={"paper": 3, "newton": 20}))
+        for label, ov in _optional_terms()[::2]:
+            out.append(Case(f"sphere cap 21^2 {label}", sc, ["fabric.divisions=[20,20]", *ov], ("newton",),
+                            {"newton": 10}, group="terms"))
+        return out
+    out = [
+        Case("sphere cap 41^2", sc, [], time_limit={"paper": 120, "newton": 60}),
+        Case("sphere cap 201^2", sc, ["fabric.divisions=[200,200]"], time_limit={"paper": 60, "newton": 60}),
+        Case("sphere cap 501^2", sc, ["fabric.divisions=[500,500]"], time_limit={"paper": 30, "newton": 120}),
+    ]
+    for cfg, label in (("thermoform.yaml", "thermoform 41^2"), ("torso_band.yaml", "torso band 41x11"),
+                       ("torso_band_held.yaml", "torso band held 41x11")):
+        if (ROOT / "configs" / cfg).exists():
+            out.append(Case(label, f"configs/{cfg}", [], time_limit={"paper": 120, "newton": 60}))
+    for h in hard:
+        out.append(Case(f"hard: {h.stem}", str(h.relative_to(ROOT)), [], time_limit={"paper": 60, "newton": 60},
+                        group="hard"))
+    for label, ov in _optional_terms():
+        out.append(Case(f"sphere cap 41^2 {label}", sc, ov, time_limit={"paper": 60, "newton": 60}, group="terms"))
+    return out
+
+
+def _optional_terms():
+    return [
+        ("(stretch only)", []),
+        ("+ gravity", ["gravity={areal_density: 0.2}"]),
+        ("+ shear", ["shear={stiffness: 20}"]),
+        ("+ bending", ["bending={stiffness: 1}"]),
+        ("+ all three", ["gravity={areal_density: 0.2}", "shear={stiffness: 20}", "bending={stiffness: 1}"]),
+    ]
+
+
+# ------------------------------------------------------------------------------------------------
+# one run (in a child process)
+# ------------------------------------------------------------------------------------------------
+
+
+def _load(case: Case, solver: str, e: float, time_limit: float | None, max_iterations: int | None = None):
+    from .config import load_scene
+    from .simulation import prepare
+
+    scene = load_scene(ROOT / case.config, list(case.overrides))
+    upd: dict[str, Any] = {"method": solver, "e": e, "time_limit_s": time_limit}
+    if max_iterations is not None:
+        upd["max_iterations"] = max_iterations
+    settings = scene.solver.model_copy(update=upd)
+    model, state, _ = prepare(scene)
+    return model, state, settings
+
+
+def run_reference(case: Case) -> dict:
+    """Newton to e = REFERENCE_E (or its floor): the positions every run is compared with."""
+    from .solvers import solve
+
+    model, state, settings = _load(case, "newton", REFERENCE_E, 600.0)
+    solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1}))
+    res = solve(model, state, settings.model_copy(update={"stall_iterations": 200}))
+    return {"positions": state.positions.copy(), "residual": res.residual, "status": res.status}
+
+
+def run_case(case: Case, solver: str, ref_positions: np.ndarray | None) -> dict:
+    """One (scene, solver) measurement; returns a JSON-able dict."""
+    from .solvers import solve
+
+    limit = case.time_limit.get(solver)
+    model, state, settings = _load(case, solver, TARGET_E, limit)
+    t0 = time.perf_counter()
+    solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
+    compile_s = time.perf_counter() - t0
+    snaps: dict[float, np.ndarray] = {}
+
+    def cb(prog):
+        for lv in LEVELS:
+            if lv not in snaps and prog.residual <= lv:
+                snaps[lv] = prog.state.positions.copy()
+        return False
+
+    res = solve(model, state, settings, callback=cb)
+    h = res.history
+    times = {}
+    for lv in LEVELS:
+        hit = np.nonzero(h["residual"] <= lv)[0] if len(h["residual"]) else []
+        times[lv] = float(h["time"][hit[0]]) if len(hit) else None
+    err = {}
+    if ref_positions is not None:
+        for lv, p in snaps.items():
+            err[lv] = float(np.abs(p - ref_positions).max())
+        err_final = float(np.abs(state.positions - ref_positions).max())
+    else:
+        err_final = None
+    curve_t = h["time"].tolist() if len(h["time"]) else []
+    curve_r = h["residual"].tolist() if len(h["residual"]) else []
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
+    return {
+        "case": case.name, "group": case.group, "solver": solver, "nodes": int(model.node_count),
+        "status": res.status, "iterations": int(res.iterations), "residual": float(res.residual),
+        "wall_time_s": float(res.wall_time_s), "compile_s": compile_s, "time_limit_s": limit,
+        "times": {str(k): v for k, v in times.items()},
+        "errors": {str(k): v for k, v in err.items()}, "error_final": err_final,
+        "peak_rss_mb": peak, "curve_time": curve_t, "curve_residual": curve_r,
+        "energy": float(res.energy),
+    }
+
+
+def _child_reference(case):
+    r = run_reference(case)
+    return {"positions": r["positions"], "residual": r["residual"], "status": r["status"]}
+
+
+def _in_child(fn, *args):
+    import multiprocessing as mp
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as ex:
+        return ex.submit(fn, *args).result()
+
+
+# ------------------------------------------------------------------------------------------------
+# report
+# ------------------------------------------------------------------------------------------------
+
+
+def machine_info() -> dict:
+    import numba
+    import scipy
+
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        from . import __version__
+    except ImportError:  # pragma: no cover
+        __version__ = "?"
+    return {
+        "date": _dt.datetime.now().strftime("%Y-%m-%d %H:%M"),
+        "cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(),
+        "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
+        "scipy": scipy.__version__, "clothsim": __version__,
+        "load_average": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+    }
+
+
+def _fmt_t(v):
+    if v is None:
+        return "not reached"
+    return f"{v:.3g}"
+
+
+def _fmt_e(v):
+    return "-" if v is None else f"{v:.1e}"
+
+
+def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: float) -> None:
+    info = machine_info()
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# Benchmarks: speed against error", "",
+             f"Generated by `python app.py bench{' --quick' if quick else ''}` on {info['date']} "
+             f"({elapsed:.0f} s in all).", "",
+             f"Machine: {info['cpu']}, {info['cores']} cores, {info['platform']}; load average at the end "
+             f"{info['load_average']:.2f} (other jobs shared the machine: times are wall-clock and noisy)." if
+             info["load_average"] is not None else f"Machine: {info['cpu']}, {info['cores']} cores.", "",
+             f"Versions: Python {info['python']}, numpy {info['numpy']}, numba {info['numba']}, scipy {info['scipy']}, "
+             f"clothsim {info['clothsim']}.", "",
+             "Columns: time [s] after JIT warm-up until ||V||_inf (eq. 6) first fell below each level; "
+             "`compile` = the first call (numba compile or cache load), not counted in the times; "
+             "`err@1e-6` / `err end` = max node-position error [m] against the reference "
+             f"(newton to {REFERENCE_E:g} N, or its float64 floor); `RSS` = peak resident memory of the "
+             "run's process [MB]. The paper solver is capped by the time limit shown; "
+             "\"not reached\" means it did not get there within it.", ""]
+    head = ("| scene | nodes | solver | status | iters | compile s | " + " | ".join(f"{lv:.0e}" for lv in LEVELS)
+            + " | final residual N | err@1e-6 m | err end m | RSS MB |")
+    sep = "|" + "---|" * (10 + len(LEVELS))
+    for group, title in (("main", "Benchmark scenes"), ("hard", "Hard cases"),
+                         ("terms", "Cost of the optional terms of eq. (1) (same scene with and without)")):
+        g = [r for r in rows if r["group"] == group]
+        if not g:
+            continue
+        lines += [f"## {title}", "", head, sep]
+        for r in g:
+            cap = f" (cap {r['time_limit_s']:g} s)" if r["time_limit_s"] else ""
+            lines.append(
+                f"| {r['case']} | {r['nodes']} | {r['solver']}{cap} | {r['status']} | {r['iterations']} | "
+                f"{r['compile_s']:.2f} | " + " | ".join(_fmt_t(r["times"][str(lv)]) for lv in LEVELS)
+                + f" | {r['residual']:.1e} | {_fmt_e(r['errors'].get(str(1e-6)))} | {_fmt_e(r['error_final'])} | "
+                f"{r['peak_rss_mb']:.0f} |")
+        lines.append("")
+    # speed-ups
+    sp_lines = []
+    by = {(r["case"], r["solver"]): r for r in rows}
+    for (case, solver), r in by.items():
+        if solver != "newton" or (case, "paper") not in by:
+            continue
+        p = by[(case, "paper")]
+        best = None
+        for lv in LEVELS:
+            tn, tp = r["times"][str(lv)], p["times"][str(lv)]
+            if tn is not None and tp is not None and tn > 0:
+                best = (lv, tp / tn, tp, tn)
+        if best:
+            sp_lines.append(f"| {case} | {best[0]:.0e} | {best[2]:.3g} | {best[3]:.3g} | {best[1]:.0f}x |")
+    if sp_lines:
+        lines += ["## newton against paper", "",
+                  "At the tightest level both reached (paper capped by its time limit):", "",
+                  "| scene | level N | paper s | newton s | speed-up |", "|---|---|---|---|---|", *sp_lines, ""]
+    lines += ["## References", "", "| scene | reference status | reference residual N |", "|---|---|---|"]
+    for case, ref in refs.items():
+        lines.append(f"| {case} | {ref['status']} | {ref['residual']:.1e} |")
+    lines += ["", "![error against time](speed_vs_error.png)", ""]
+    (out / "benchmarks.md").write_text("\n".join(lines))
+    (out / "benchmarks.json").write_text(json.dumps({"machine": info, "rows": [
+        {k: v for k, v in r.items() if not k.startswith("curve")} for r in rows]}, indent=1))
+    _plot(rows, out / "speed_vs_error.png")
+
+
+def _plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+    ax, ax2 = axes
+    for r in rows:
+        if r["group"] == "terms":
+            continue
+        ls = "-" if r["solver"] == "newton" else "--"
+        pts = [(r["times"][str(lv)], r["errors"].get(str(lv))) for lv in LEVELS]
+        pts = [(t, e) for t, e in pts if t is not None and e is not None and t > 0 and e > 0]
+        if pts:
+            t, e = zip(*pts)
+            ax.loglog(t, e, ls, marker="o", ms=3, label=f"{r['case']} / {r['solver']}")
+        ct = np.asarray(r["curve_time"])
+        cr = np.asarray(r["curve_residual"])
+        ok = (ct > 0) & (cr > 0)
+        if ok.any():
+            ax2.loglog(ct[ok], cr[ok], ls, lw=1, label=f"{r['case']} / {r['solver']}")
+    ax.set_xlabel("time after warm-up [s]")
+    ax.set_ylabel("max node-position error vs reference [m]")
+    ax.set_title("error against time (points: residual levels 1e-2 ... 1e-9 N)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax2.set_xlabel("time after warm-up [s]")
+    ax2.set_ylabel("||V||_inf [N]")
+    ax2.set_title("residual against time")
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(fontsize=6, ncol=1, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(quick: bool = False, out: str | Path = "docs", log=None) -> list[dict]:
+    """Run the benchmark and write the report; returns the rows."""
+    t0 = time.perf_counter()
+    rows, refs = [], {}
+    for case in cases(quick):
+        try:
+            ref = _in_child(_child_reference, case)
+        except Exception as exc:  # keep going: a missing scene must not sink the whole benchmark
+            if log:
+                log(f"{case.name}: reference failed: {exc}")
+            ref = None
+        if ref is not None:
+            refs[case.name] = {"status": ref["status"], "residual": ref["residual"]}
+        for solver in case.solvers:
+            try:
+                r = _in_child(run_case, case, solver, None if ref is None else ref["positions"])
+            except Exception as exc:
+                if log:
+                    log(f"{case.name} / {solver}: failed: {exc}")
+                continue
+            rows.append(r)
+            if log:
+                t7 = r["times"][str(1e-7)]
+                log(f"{case.name:32s} {solver:7s} {r['status']:15s} it {r['iterations']:7d} "
+                    f"res {r['residual']:.1e}  t(1e-7) {_fmt_t(t7):>11s}  compile {r['compile_s']:.1f}s  "
+                    f"RSS {r['peak_rss_mb']:.0f} MB")
+    write_report(rows, refs, Path(out), quick, time.perf_counter() - t0)
+    return rows
+
+
+def main(args) -> int:
+    """CLI entry (``python app.py bench``): args.quick, args.out."""
+    quick = bool(getattr(args, "quick", False))
+    out = getattr(args, "out", "docs") or "docs"
+    run(quick, out, log=lambda s: print(s, flush=True))
+    print(f"wrote {Path(out) / 'benchmarks.md'} and {Path(out) / 'speed_vs_error.png'}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    p = argparse.ArgumentParser()
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--out", default="docs")
+    sys.exit(main(p.parse_args()))
