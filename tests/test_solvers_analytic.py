@@ -178,3 +178,24 @@ def test_initial_file_restarts_from_an_earlier_result(tmp_path):
     bad = make_scene(**{**PRE, "fabric.divisions": [3, 3], "initial": {"file": str(tmp_path / "a" / "result.npz")}})
     with pytest.raises(clothsim.SceneError, match=r"result.npz: initial.file: positions have shape \(7, 5, 3\), the scene needs \(4, 4, 3\)"):
         clothsim.solve(bad)
+
+
+def test_auto_hands_a_stalled_newton_run_to_the_paper_relaxation(monkeypatch):
+    """When newton stalls, auto continues with the paper's relaxation from the same state within
+    the remaining budget: the run converges, says so (method newton+paper) and its history covers
+    both phases with contiguous iteration numbers."""
+    from clothsim.solvers import newton, paper
+
+    def stalled(model, state, settings, callback=None):
+        r = paper.solve(model, state, settings.model_copy(update={"max_iterations": 3}), callback)
+        r.status, r.converged, r.method = "stalled", False, "newton"
+        return r
+
+    monkeypatch.setattr(newton, "solve", stalled)
+    res = clothsim.solve(make_scene(**PRE, **{"solver.method": "auto", "solver.e": 1e-9}))
+    assert res.converged and res.solve.method == "newton+paper"
+    assert "newton stalled" in res.solve.message
+    it = res.solve.history["iteration"]
+    np.testing.assert_array_equal(it, np.arange(1, len(it) + 1))
+    assert res.solve.iterations == len(it) > 3
+    assert np.all(np.diff(res.solve.history["time"]) >= 0)
