@@ -162,12 +162,16 @@ def _height_field(n=20, size=0.1, h=0.015, z0=0.0):
 
 def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     """An open surface pushes the sheet from below; the same surface in millimetres with
-    scale 0.001 gives the same result; extra degenerate triangles are dropped with a warning."""
+    scale 0.001 gives the same result (to 1e-9 m); extra degenerate triangles are dropped with a
+    warning."""
     V, F = _height_field(z0=-0.005)
     trimesh.Trimesh(V, F, process=False).export(tmp_path / "open_m.stl")
     Fd = np.concatenate([F, [[0, 0, 1], [5, 6, 5]]])
     trimesh.Trimesh(V * 1000, Fd, process=False).export(tmp_path / "open_mm.ply")
-    base = scene_dict(SPHERE, **{"fabric.divisions": [12, 12], "initial": {"lift": 0.03}})
+    # paper's relaxation follows the same path on both files (newton may settle in another of the
+    # nearby equilibria a faceted mold has, depending on rounding: see shared/notes/modelling.md)
+    base = scene_dict(SPHERE, **{"fabric.divisions": [12, 12], "initial": {"lift": 0.03},
+                                 "solver.method": "paper"})
     a = clothsim.solve(clothsim.scene_from_dict(dict(base, mold={"path": str(tmp_path / "open_m.stl")})))
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
