@@ -79,6 +79,8 @@ PENETRATION_TOL = 1e-10
 STALL_NEWTON = 100
 # relative energy change below which the energy cannot tell two states apart
 ENERGY_RESOLUTION = 1e-13
+# a contact node moved farther than this [m] off the surface may leave it (see _trial_positions)
+RELEASE_GAP = 1e-12
 
 
 # ----------------------------------------------------------------------------------------------
@@ -777,7 +779,7 @@ def _face_exit(margs, f, p0, d):
 
 
 @njit(cache=True)
-def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, out, contact_out):
+def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, F0, out, contact_out):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
     are projected onto the surface. sd0 (N,) [m]: the nodes' signed distances before the step
@@ -825,6 +827,18 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                             p[a] = pos0[k, a] + t * (p[a] - pos0[k, a])
                     hit = True
             sd = mold_query(margs, p, q)
+            if c and sd > RELEASE_GAP:
+                # a contact node whose move took it off the surface (past a convex edge or
+                # vertex, or tangentially off a curved surface): it is put back onto the surface
+                # only if its resultant pulls it there (R . (p - q) < 0); otherwise it has slid
+                # off the feature into free space (a node pulled over a box's edge) and is free
+                dot = 0.0
+                for a in range(3):
+                    if not fixed[k, a]:
+                        dot += F0[k, a] * (p[a] - q[a])
+                if dot > 0.0:
+                    hit = False
+                    c = False
             if hit or sd < 0.0:
                 for a in range(3):
                     if not fixed[k, a]:
@@ -1286,7 +1300,7 @@ class NewtonLevel:
             self.ls_trials += 1
             self.ls_alpha = alpha
             pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                   self.clip_faces, self.trial, self.trial_contact)
+                                   self.clip_faces, self.F, self.trial, self.trial_contact)
             if pen <= PENETRATION_TOL:
                 E1 = self.energy_forces(self.trial, Ft)
                 if not math.isfinite(E1):
