@@ -81,3 +81,18 @@ def test_bundled_strip_config_runs(tmp_path):
     r = _run("run", "configs/uniaxial_strip.yaml", "--out", str(tmp_path / "strip"), "--set", "solver.e=1e-5")
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "strip" / "summary.json").exists()
+
+
+def test_bench_quick_writes_table_and_plot(tmp_path):
+    """`app.py bench --quick` measures every solver on small scenes and writes the markdown table
+    (machine, versions, one row per solver and scene with times per residual level) and the
+    speed-against-error plot."""
+    r = _run("bench", "--quick", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr[-2000:]
+    md = (tmp_path / "benchmarks.md").read_text()
+    assert "Machine:" in md and "numba" in md
+    rows = [line for line in md.splitlines() if line.startswith("| sphere cap")]
+    assert any("| newton" in line and "| converged |" in line for line in rows)
+    assert any("| paper" in line for line in rows)
+    png = (tmp_path / "speed_vs_error.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
