@@ -118,10 +118,14 @@ def _load(case: Case, solver: str, e: float, time_limit: float | None, max_itera
 
 
 def run_reference(case: Case) -> dict:
-    """Newton to e = REFERENCE_E (or its floor): the positions every run is compared with."""
+    """Newton to e = REFERENCE_E (or its floor): the positions every run is compared with.
+
+    It runs without grid sequencing, so its path differs from the measured newton runs (which
+    sequence): a newton run is not compared with its own trajectory."""
     from .solvers import solve
 
     model, state, settings = _load(case, "newton", REFERENCE_E, 600.0)
+    settings = settings.model_copy(update={"newton_sequencing": False})
     solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1}))
     res = solve(model, state, settings.model_copy(update={"stall_iterations": 200}))
     return {"positions": state.positions.copy(), "residual": res.residual, "status": res.status}
@@ -336,7 +340,9 @@ def run(quick: bool = False, out: str | Path = "docs", log=None) -> list[dict]:
             refs[case.name] = {"status": ref["status"], "residual": ref["residual"]}
         for solver in case.solvers:
             try:
-                r = _in_child(run_case, case, solver, None if ref is None else ref["positions"])
+                # a reference that did not converge is no reference: no error column then
+                good = ref is not None and ref["status"] == "converged"
+                r = _in_child(run_case, case, solver, ref["positions"] if good else None)
             except Exception as exc:
                 if log:
                     log(f"{case.name} / {solver}: failed: {exc}")

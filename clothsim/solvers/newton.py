@@ -1294,28 +1294,32 @@ class NewtonLevel:
         if big > 0 and alpha * big > 0.5 * self.blowup:
             alpha = 0.5 * self.blowup / big
         Ft = np.empty_like(self.F)
-        fallback = None
         self.ls_trials = 0
+        self.ls_clipped = False
+        mesh = self.has_mold and self.margs[0][0] == MOLD_MESH and contact.any()
         for _ in range(40):
-            self.ls_trials += 1
             self.ls_alpha = alpha
-            pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                   self.clip_faces, self.F, self.trial, self.trial_contact)
-            if pen <= PENETRATION_TOL:
+            # the straight step (contact nodes projected back onto the surface); on a mesh mold,
+            # when it fails, the same step with contact nodes stopped at their face's border
+            for clip in ((False, True) if mesh else (False,)):
+                self.ls_trials += 1
+                pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
+                                       clip, self.F, self.trial, self.trial_contact)
+                if not (pen <= PENETRATION_TOL):
+                    continue
                 E1 = self.energy_forces(self.trial, Ft)
                 if not math.isfinite(E1):
-                    alpha *= 0.5
                     continue
                 resolution = ENERGY_RESOLUTION * max(abs(E0), abs(E1), 1e-300) + 1e-300
                 if E1 <= E0 + 1e-4 * alpha * slope and E1 < E0 - resolution:
+                    self.ls_clipped = clip
                     return self._accept(state, E1, F=Ft)
                 if abs(E1 - E0) <= 10 * resolution:
                     # below the energy's resolution: judge by the residual
                     v1 = self.residual(self.trial, self.trial_contact, Ft)
                     if v1 < v_base:
+                        self.ls_clipped = clip
                         return self._accept(state, E1, v1, Ft)
-                    if fallback is None:
-                        fallback = alpha
             alpha *= 0.5
             if alpha * np.abs(dx).max() < 1e-17:
                 break
