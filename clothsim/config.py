@@ -211,7 +211,10 @@ class Initial(_Strict):
     file: an earlier result's positions (nx+1, ny+1, 3) provide the free coordinates.
     wrap: the sheet rolled onto a cylinder. perturb [m] with seed: a random perturbation of the
     free coordinates (tests start from perturbed states). auto_clearance: lift the sheet just
-    clear of the mold if it touches it, instead of refusing the scene."""
+    clear of the mold if it touches it, instead of refusing the scene. interpolate (default true):
+    free nodes start with the in-plane stretch of the constrained ones spread smoothly over the
+    sheet (harmonic interpolation), a far better start than the paper's literal one (constrained
+    nodes moved alone), which ``interpolate: false`` restores."""
 
     lift: float = 0.0
     file: str | None = None
@@ -219,6 +222,7 @@ class Initial(_Strict):
     perturb: float = 0.0
     seed: int = 0
     auto_clearance: bool = False
+    interpolate: bool = True
 
     @field_validator("lift", "perturb")
     @classmethod

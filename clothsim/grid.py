@@ -32,7 +32,9 @@ class Model:
     spring_nodes (S,2) int64; spring_rest_length [m] (S,); spring_width [m] (S,) tributary width
     (force = tension [N/m] x width); spring_table (S,) int64 index into ``tables``;
     spring_family (S,) int8 (0 warp, 1 weft, 2 shear, 3/4 bending); fixed_axes (N,3) bool;
-    prescribed_positions [m] (N,3) (the constrained coordinates' values); external_force [N]
+    prescribed_positions [m] (N,3) (the constrained coordinates' values); prescribed_flat [m]
+    (N,3) the same in the flat sheet's own coordinates before placement and displacement (stretch
+    only; used to build the initial guess); external_force [N]
     (N,3) constant (gravity; zeros when off); node_area [m^2] (N,) tributary area of each node;
     node adjacency in CSR form: adj_ptr (N+1,), adj_node, adj_spring; mold: clothsim.mold.Mold or
     None."""
@@ -56,6 +58,7 @@ class Model:
     adj_spring: np.ndarray
     mold: object = None
     spacing: tuple[float, float] = (0.0, 0.0)
+    prescribed_flat: np.ndarray | None = None
     warp_count: int = 0
     weft_count: int = 0
 
@@ -270,6 +273,7 @@ def build_model(scene: Scene, mold=None) -> Model:
         table_list=tuple(tables),
         fixed_axes=fixed.reshape(n, 3),
         prescribed_positions=np.ascontiguousarray(prescribed),
+        prescribed_flat=flat.reshape(-1, 3),
         external_force=ext,
         node_area=node_area,
         adj_ptr=ptr,

@@ -20,6 +20,8 @@ def initial_state(scene: Scene, model: Model) -> State:
     fixed = model.fixed_axes
     nx1, ny1 = model.grid_shape
     flat = model.rest_positions.copy()
+    if ini.interpolate and ini.file is None:
+        flat[:, :2] += _spread_in_plane(scene, model)
     if ini.lift:
         # the dome lifts along the sheet's normal (+z flat; outward when wrapped)
         ii, jj = np.meshgrid(np.arange(nx1), np.arange(ny1), indexing="ij")
@@ -55,6 +57,38 @@ def initial_state(scene: Scene, model: Model) -> State:
     if model.mold is not None:
         _check_clearance(scene, model, state)
     return state
+
+
+def _spread_in_plane(scene: Scene, model: Model) -> np.ndarray:
+    """In-plane displacement (N,2) [m] of every node in the sheet's own coordinates: the
+    constrained nodes' stretch (and, on a flat sheet, their in-plane displacement) held, the rest
+    harmonic (discrete Laplace on the grid), so a strip pulled at one end starts uniformly
+    stretched and a wrapped band pulled round starts evenly pulled. Zero when nothing moves."""
+    held = model.fixed_axes.any(axis=1)
+    rest = model.rest_positions
+    target = model.prescribed_positions if scene.initial.wrap is None else model.prescribed_flat
+    u_held = (target[:, :2] - rest[:, :2])[held]
+    if not held.any() or not np.any(np.abs(u_held) > 0) or held.all():
+        return np.zeros((model.node_count, 2))
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    nx1, ny1 = model.grid_shape
+    idx = np.arange(model.node_count).reshape(nx1, ny1)
+    a = np.concatenate([idx[:-1, :].ravel(), idx[:, :-1].ravel()])
+    b = np.concatenate([idx[1:, :].ravel(), idx[:, 1:].ravel()])
+    n = model.node_count
+    W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
+    L = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+    free = ~held
+    Lff = L[free][:, free].tocsc()
+    Lfh = L[free][:, held]
+    u = np.zeros((n, 2))
+    u[held] = u_held
+    solve = spla.factorized(Lff)
+    for c in range(2):
+        u[free, c] = solve(-(Lfh @ u_held[:, c]))
+    return u
 
 
 def _check_clearance(scene: Scene, model: Model, state: State) -> None:
