@@ -162,7 +162,8 @@ def _height_field(n=20, size=0.1, h=0.015, z0=0.0):
 
 def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     """An open surface pushes the sheet from below; the same surface in millimetres with
-    scale 0.001 gives the same result (to 1e-9 m); extra degenerate triangles are dropped with a
+    scale 0.001 is the same mold (vertices to float32 precision) and gives the same result within
+    the spread of a faceted mold's nearby equilibria; extra degenerate triangles are dropped with a
     warning."""
     V, F = _height_field(z0=-0.005)
     trimesh.Trimesh(V, F, process=False).export(tmp_path / "open_m.stl")
@@ -170,7 +171,9 @@ def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     trimesh.Trimesh(V * 1000, Fd, process=False).export(tmp_path / "open_mm.ply")
     # paper's relaxation follows the same path on both files (newton may settle in another of the
     # nearby equilibria a faceted mold has, depending on rounding: see shared/notes/modelling.md)
-    base = scene_dict(SPHERE, **{"fabric.divisions": [12, 12], "initial": {"lift": 0.03},
+    # 13 divisions: no node starts exactly above the bump's peak vertex, where rounding alone picks
+    # which of the peak's faces it slides down (a genuine choice between nearby equilibria)
+    base = scene_dict(SPHERE, **{"fabric.divisions": [13, 13], "initial": {"lift": 0.03},
                                  "solver.method": "paper"})
     a = clothsim.solve(clothsim.scene_from_dict(dict(base, mold={"path": str(tmp_path / "open_m.stl")})))
     with warnings.catch_warnings(record=True) as w:
@@ -180,8 +183,13 @@ def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     assert any("degenerate" in str(x.message) for x in w)
     assert a.converged and b.converged
     assert a.in_contact.sum() > 3
-    assert a.positions[6, 6, 2] == pytest.approx(0.01, abs=1e-3)  # on the bump's top
-    np.testing.assert_allclose(a.positions, b.positions, atol=1e-9)
+    assert 0.007 < a.positions[6:8, 6:8, 2].max() <= 0.01 + 1e-12  # lifted by the bump (top z = 0.01)
+    # the same mold: vertices agree to float32 storage precision (STL and PLY store float32)
+    np.testing.assert_allclose(a.model.mold.vertices, b.model.mold.vertices, atol=1e-8)
+    # the same answer up to the nearby equilibria a faceted mold has (shared/notes/modelling.md:
+    # ~1e-5 m apart, energies ~1e-8 relative): rounding alone moves the relaxation between them
+    np.testing.assert_allclose(a.positions, b.positions, atol=2e-5)
+    assert a.solve.energy == pytest.approx(b.solve.energy, rel=1e-6)
 
 
 @pytest.mark.parametrize("method", ["paper", "auto"])

@@ -11,7 +11,14 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    out of the mold (projection = origin, i.e. n.R > 0 on a face) is released; otherwise the
    normals carrying a positive multiplier become constraints. With the constrained axes they
    define a per-node projector Pi_k onto the directions the node may move in (3 for a free node,
-   2 on a face: the tangent plane, 1 along a concave edge, 0 in a corner).
+   2 on a face: the tangent plane, 1 along a concave edge, 0 in a corner). A node pressed onto a
+   convex edge or vertex of a mesh (R inside the cone of several normals) satisfies eq. 6 but is
+   not at an energy minimum: it keeps only the face it slides down (``_ridge_face``).
+   After the linear solve, a node on an edge or vertex whose step would leave the feature's
+   tangent cone through an inactive face (into a groove's other face) gets that face's normal
+   added and the system is solved again (``_block_infeasible``, blocking constraints): otherwise
+   the projection back onto the surface bends the path at first order and no step length lowers
+   the energy (the stall on the torso mesh).
 2. Linear system: (Pi K Pi + mu Pi + (I - Pi)) dx = Pi f, where K = d^2E/dx^2 is assembled from
    ``kernels.spring_hessian_block`` (transverse term clamped >= 0 so K is positive semi-definite;
    at and below strain 0 the first segment's slope times ``newton_kink`` replaces the zero
@@ -24,7 +31,12 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
 3. Line search on the energy along x + a dx with the paper's contact rules applied to every
    trial: a free node's move is clipped where it would enter the mold (``mold_segment_hit``) and
    it becomes a contact node; contact nodes are projected back onto the surface
-   (``mold_query``); no node ever ends inside. Backtracking (Armijo, halving). When the energy
+   (``mold_query``); no node ever ends inside. A contact node carried past a convex edge or
+   vertex into free space (its closest point is that edge or vertex and its resultant pulls it
+   away from it) becomes free instead of being pulled back onto the ridge (a node pulled over a
+   box's edge). On a mesh mold, when the straight trial fails, the same step with contact nodes
+   stopped at their face's border (so a node whose equilibrium is on an edge lands on it) is
+   tried too. Backtracking (Armijo, halving). When the energy
    difference is below float64 resolution (close to the solution) the step is accepted if it
    lowers the residual instead; when neither can be lowered even with a large Levenberg shift,
    the run stops with flag 3 (``stalled``), keeping the best state.
@@ -79,6 +91,8 @@ PENETRATION_TOL = 1e-10
 STALL_NEWTON = 100
 # relative energy change below which the energy cannot tell two states apart
 ENERGY_RESOLUTION = 1e-13
+# seconds after which an iteration stops retrying with larger Levenberg shifts (flag 3)
+ITERATE_BUDGET_S = 1.0
 # a contact node moved farther than this [m] off the surface may leave it (see _trial_positions)
 RELEASE_GAP = 1e-12
 
@@ -661,11 +675,50 @@ def _cone_active(R, normals, m, act):
 
 
 @njit(cache=True)
-def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi):
+def _ridge_face(x, R, normals, m, margs, probe, act, na):
+    """A node pressed onto a convex edge or vertex (its resultant inside the cone of several face
+    normals) satisfies eq. 6 but is not at a minimum of the energy: sliding down one of the
+    faces lowers it (the springs cut the corner). Among the faces it presses on (R.n_i < 0), the
+    one whose tangential pull R - (R.n_i) n_i is largest (ties to the first) and leads along the surface (a probe
+    point a short way along it is not inside the mold: not a groove) becomes the only active
+    constraint (act[0] = i, returns 1). Otherwise (groove, or no such face) returns na."""
+    p = np.empty(3)
+    q = np.empty(8)
+    best = 0.0
+    ib = -1
+    for i in range(m):
+        rn = R[0] * normals[i, 0] + R[1] * normals[i, 1] + R[2] * normals[i, 2]
+        if not (rn < 0.0):
+            continue
+        t0 = R[0] - rn * normals[i, 0]
+        t1 = R[1] - rn * normals[i, 1]
+        t2 = R[2] - rn * normals[i, 2]
+        tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        # near-ties (a node exactly on a symmetric peak) go to the first face in the feature's
+        # order, so that rounding (a mold in other units) cannot pick a different equilibrium
+        if not (tn > best * (1.0 + 1e-6)):
+            continue
+        p[0] = x[0] + probe * t0 / tn
+        p[1] = x[1] + probe * t1 / tn
+        p[2] = x[2] + probe * t2 / tn
+        sd = mold_query(margs, p, q)
+        if sd < -1e-3 * probe:
+            continue
+        best = tn
+        ib = i
+    if ib < 0:
+        return na
+    act[0] = ib
+    return 1
+
+
+@njit(cache=True)
+def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
     """Active set and per-node projectors Pi (n,3,3) onto the allowed directions.
 
     Releases contact nodes whose resultant points out of the mold (in_contact updated in place).
-    Returns the number of released nodes."""
+    With ``probe`` > 0 [m], a node pressed onto a convex edge or vertex keeps only the face it
+    slides down (``_ridge_face``). Returns the number of released nodes."""
     qbuf = np.empty(8)
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     act = np.empty(3, np.int64)
@@ -686,6 +739,8 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
             sd, m = contact_normals(pos[k], margs, qbuf, nbuf)
             na = _cone_active(R, nbuf, m, act)
+            if na >= 2 and qbuf[6] != 0.0 and probe > 0.0:
+                na = _ridge_face(pos[k], R, nbuf, m, margs, probe, act, na)
             if na == 0:
                 in_contact[k] = False
                 released += 1
@@ -721,6 +776,75 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi):
                 for c in range(3):
                     Pi[k, r, c] -= Q[u, r] * Q[u, c]
     return released
+
+
+@njit(cache=True)
+def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
+    """Blocking constraints at edges and vertices. The active set (``_projectors``) keeps the
+    normals that carry a positive multiplier; the Newton step of a node on an edge or vertex can
+    still leave the feature's tangent cone through another face (in a groove: into the face
+    beside the active one), and the projection back onto the surface then bends the path at
+    first order, so no step length lowers the energy. A node whose step direction enters the
+    mold within ``probe`` [m] gets the face normal it violates most added to its constraints
+    (Pi updated in place). Returns how many nodes were blocked."""
+    if not has_mold:
+        return 0
+    q = np.empty(8)
+    p = np.empty(3)
+    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
+    blocked = 0
+    for k in range(pos.shape[0]):
+        if not contact[k]:
+            continue
+        d0 = dx[3 * k]
+        d1 = dx[3 * k + 1]
+        d2 = dx[3 * k + 2]
+        dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if dn == 0.0:
+            continue
+        mold_query(margs, pos[k], q)
+        if q[6] == 0.0:
+            continue
+        p[0] = pos[k, 0] + probe * d0 / dn
+        p[1] = pos[k, 1] + probe * d1 / dn
+        p[2] = pos[k, 2] + probe * d2 / dn
+        sd = mold_query(margs, p, q)
+        if not (sd < -1e-3 * probe):
+            continue
+        sd, m = contact_normals(pos[k], margs, q, nbuf)
+        best = 0.0
+        jb = -1
+        for j in range(m):
+            # the normal's part in the still-allowed directions
+            a0 = Pi[k, 0, 0] * nbuf[j, 0] + Pi[k, 0, 1] * nbuf[j, 1] + Pi[k, 0, 2] * nbuf[j, 2]
+            a1 = Pi[k, 1, 0] * nbuf[j, 0] + Pi[k, 1, 1] * nbuf[j, 1] + Pi[k, 1, 2] * nbuf[j, 2]
+            a2 = Pi[k, 2, 0] * nbuf[j, 0] + Pi[k, 2, 1] * nbuf[j, 1] + Pi[k, 2, 2] * nbuf[j, 2]
+            if math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) < 1e-6:
+                continue
+            dd = (d0 * nbuf[j, 0] + d1 * nbuf[j, 1] + d2 * nbuf[j, 2]) / dn
+            if dd < best:
+                best = dd
+                jb = j
+        if jb < 0:
+            continue
+        a0 = Pi[k, 0, 0] * nbuf[jb, 0] + Pi[k, 0, 1] * nbuf[jb, 1] + Pi[k, 0, 2] * nbuf[jb, 2]
+        a1 = Pi[k, 1, 0] * nbuf[jb, 0] + Pi[k, 1, 1] * nbuf[jb, 1] + Pi[k, 1, 2] * nbuf[jb, 2]
+        a2 = Pi[k, 2, 0] * nbuf[jb, 0] + Pi[k, 2, 1] * nbuf[jb, 1] + Pi[k, 2, 2] * nbuf[jb, 2]
+        an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        a0 /= an
+        a1 /= an
+        a2 /= an
+        Pi[k, 0, 0] -= a0 * a0
+        Pi[k, 0, 1] -= a0 * a1
+        Pi[k, 0, 2] -= a0 * a2
+        Pi[k, 1, 0] -= a1 * a0
+        Pi[k, 1, 1] -= a1 * a1
+        Pi[k, 1, 2] -= a1 * a2
+        Pi[k, 2, 0] -= a2 * a0
+        Pi[k, 2, 1] -= a2 * a1
+        Pi[k, 2, 2] -= a2 * a2
+        blocked += 1
+    return blocked
 
 
 @njit(cache=True)
@@ -827,11 +951,12 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                             p[a] = pos0[k, a] + t * (p[a] - pos0[k, a])
                     hit = True
             sd = mold_query(margs, p, q)
-            if c and sd > RELEASE_GAP:
-                # a contact node whose move took it off the surface (past a convex edge or
-                # vertex, or tangentially off a curved surface): it is put back onto the surface
-                # only if its resultant pulls it there (R . (p - q) < 0); otherwise it has slid
-                # off the feature into free space (a node pulled over a box's edge) and is free
+            if c and sd > RELEASE_GAP and q[6] != 0.0:
+                # a contact node whose move took it off the surface past a convex edge or vertex
+                # (the closest point is on that edge or vertex): it is put back there only if its
+                # resultant pulls it there (R . (p - q) < 0); otherwise it has slid off the
+                # feature into free space (a node pulled over a box's edge) and is free. (Past a
+                # face's curvature it is always projected back: a face keeps its nodes.)
                 dot = 0.0
                 for a in range(3):
                     if not fixed[k, a]:
@@ -1170,7 +1295,9 @@ class NewtonLevel:
         ext = np.ptp(model.rest_positions, axis=0).max()
         self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
         self.cg_iterations = 0
-        self.clip_faces = False  # measured: clipping at face borders slows fine meshes down
+        # step probed for leaving an edge's or vertex's tangent cone [m] (_block_infeasible)
+        self.probe = 1e-6 * float(min(model.spacing))
+        self.clip_faces = False  # unused: the line search tries the clipped step itself when the straight one fails
         self._cache = None
         self.sd0 = np.full(n, np.inf)
         self.ls_trials = 0
@@ -1247,7 +1374,7 @@ class NewtonLevel:
         _mold_distances(pos, self.has_mold, self.margs, self.sd0)
         contact = state.in_contact
         contact_before = contact.copy()
-        _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi)
+        _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe)
         v_base = self.residual(pos, contact) if not np.array_equal(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
@@ -1265,11 +1392,24 @@ class NewtonLevel:
         dmean = dsum / dcount if dcount else 1.0
         if not (dmean > 0.0):
             dmean = 1.0
+        t_start = time.perf_counter()
         for attempt in range(8):
+            if attempt and time.perf_counter() - t_start > ITERATE_BUDGET_S:
+                # failed attempts near float64's floor can each cost hundreds of CG iterations:
+                # keep one iteration (and so the driver's batches) short
+                break
             mu_abs = self.lm * dmean
             tol = min(1e-2, max(forcing, 1e-12))
             dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
             self.cg_iterations += cg_it
+            for _ in range(3):
+                if not (self.has_mold and np.all(np.isfinite(dx))):
+                    break
+                if _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi) == 0:
+                    break
+                _apply_pi(self.Pi, f, rhs)
+                dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
+                self.cg_iterations += cg_it
             if not np.all(np.isfinite(dx)):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
