@@ -498,24 +498,30 @@ def scene_from_dict(data: dict, source: str | Path | None = None, root: yaml.Nod
     return scene
 
 
-def load_scene(path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Scene:
-    """Read and validate a scene YAML file, applying ``--set`` style overrides."""
+def read_yaml(path: str | Path, error: type[Exception] = SceneError) -> tuple[Any, yaml.Node | None]:
+    """(data, node tree) of a YAML file; the tree gives line numbers for error messages. Failures
+    raise ``error`` naming the file (and the line of a syntax error)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise SceneError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
-        root = yaml.compose(text)
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text), yaml.compose(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise SceneError(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        raise error(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+
+
+def load_scene(path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Scene:
+    """Read and validate a scene YAML file, applying ``--set`` style overrides."""
+    path = Path(path)
+    data, root = read_yaml(path)
     if data is None:
         raise SceneError(f"{path}: empty scene file")
     data = apply_overrides(data, overrides)
-    return scene_from_dict(data, path, root if not overrides else root)
+    return scene_from_dict(data, path, root)
 
 
 def dump_scene(scene: Scene, path: str | Path) -> None:

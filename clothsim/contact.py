@@ -28,20 +28,24 @@ def _norm3(a0, a1, a2):
 
 
 @njit(cache=True)
-def cone_distance(R, normals, m):
-    """Distance from the vector R (3,) to the cone {-sum(l_i n_i), l_i >= 0} of the first m rows of
-    normals (unit vectors). Projection onto a polyhedral cone in 3-D lies on the origin, a ray or a
-    2-D face spanned by two generators, or R is inside (then 0)."""
-    best = _norm3(R[0], R[1], R[2])
-    if m == 0:
-        return best
+def cone_active(R, normals, m, act):
+    """Active generators of the projection of R onto the cone {-sum l_i n_i, l_i >= 0}.
+
+    Writes their indices into act and returns how many (0: R points out of the mold, release;
+    1: a ray; 2: a wedge face; 3: R is inside the cone of three normals)."""
+    best = math.sqrt(R[0] * R[0] + R[1] * R[1] + R[2] * R[2])
+    cnt = 0
     for i in range(m):
-        g0, g1, g2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
-        t = R[0] * g0 + R[1] * g1 + R[2] * g2
+        t = -(R[0] * normals[i, 0] + R[1] * normals[i, 1] + R[2] * normals[i, 2])
         if t > 0.0:
-            d = _norm3(R[0] - t * g0, R[1] - t * g1, R[2] - t * g2)
+            d0 = R[0] + t * normals[i, 0]
+            d1 = R[1] + t * normals[i, 1]
+            d2 = R[2] + t * normals[i, 2]
+            d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
             if d < best:
                 best = d
+                cnt = 1
+                act[0] = i
     for i in range(m):
         for j in range(i + 1, m):
             a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
@@ -56,15 +60,20 @@ def cone_distance(R, normals, m):
                 continue
             la = (bb * ar - ab * br) / det
             lb = (aa * br - ab * ar) / det
-            if la >= 0.0 and lb >= 0.0:
-                d = _norm3(R[0] - la * a0 - lb * b0, R[1] - la * a1 - lb * b1, R[2] - la * a2 - lb * b2)
-                if d < best:
+            if la > 0.0 and lb > 0.0:
+                d0 = R[0] - la * a0 - lb * b0
+                d1 = R[1] - la * a1 - lb * b1
+                d2 = R[2] - la * a2 - lb * b2
+                d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                if d < best * (1.0 - 1e-12):
                     best = d
+                    cnt = 2
+                    act[0] = i
+                    act[1] = j
     if m >= 3 and best > 0.0:
         for i in range(m):
             for j in range(i + 1, m):
                 for k in range(j + 1, m):
-                    # solve [g_i g_j g_k] l = R by Cramer's rule
                     a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
                     b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
                     c0, c1, c2 = -normals[k, 0], -normals[k, 1], -normals[k, 2]
@@ -76,8 +85,42 @@ def cone_distance(R, normals, m):
                     l2 = (a0 * (r1 * c2 - r2 * c1) - r0 * (a1 * c2 - a2 * c1) + c0 * (a1 * r2 - a2 * r1)) / det
                     l3 = (a0 * (b1 * r2 - b2 * r1) - b0 * (a1 * r2 - a2 * r1) + r0 * (a1 * b2 - a2 * b1)) / det
                     if l1 >= 0.0 and l2 >= 0.0 and l3 >= 0.0:
-                        return 0.0
-    return best
+                        act[0] = i
+                        act[1] = j
+                        act[2] = k
+                        return 3
+    return cnt
+
+
+@njit(cache=True)
+def cone_distance(R, normals, m):
+    """Distance from the vector R (3,) to the cone {-sum(l_i n_i), l_i >= 0} of the first m rows of
+    normals (unit vectors): the contact residual of eq. (6) generalised to edges and vertices. The
+    projection onto a polyhedral cone in 3-D lies on the origin, a ray or a 2-D face spanned by two
+    generators, or R is inside (then 0); :func:`cone_active` says which."""
+    act = np.empty(3, np.int64)
+    cnt = cone_active(R, normals, m, act)
+    if cnt == 0:
+        return _norm3(R[0], R[1], R[2])
+    if cnt == 3:
+        return 0.0
+    # least-squares residual of R + sum l_i n_i over the active generators
+    if cnt == 1:
+        i = act[0]
+        t = -(R[0] * normals[i, 0] + R[1] * normals[i, 1] + R[2] * normals[i, 2])
+        return _norm3(R[0] + t * normals[i, 0], R[1] + t * normals[i, 1], R[2] + t * normals[i, 2])
+    i, j = act[0], act[1]
+    a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
+    b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
+    aa = a0 * a0 + a1 * a1 + a2 * a2
+    bb = b0 * b0 + b1 * b1 + b2 * b2
+    ab = a0 * b0 + a1 * b1 + a2 * b2
+    ar = a0 * R[0] + a1 * R[1] + a2 * R[2]
+    br = b0 * R[0] + b1 * R[1] + b2 * R[2]
+    det = aa * bb - ab * ab
+    la = (bb * ar - ab * br) / det
+    lb = (aa * br - ab * ar) / det
+    return _norm3(R[0] - la * a0 - lb * b0, R[1] - la * a1 - lb * b1, R[2] - la * a2 - lb * b2)
 
 
 @njit(cache=True)

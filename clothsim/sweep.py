@@ -70,7 +70,7 @@ from typing import Any, Literal, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from .config import SceneError, apply_overrides, format_validation_error, scene_from_dict
+from .config import SceneError, apply_overrides, format_validation_error, read_yaml, scene_from_dict
 
 #: keys of Result.summary() a sweep can tabulate and plot
 SUMMARY_KEYS = (
@@ -228,17 +228,7 @@ def run_id_for(index: int, params: dict) -> str:
 def load_sweep(path: str | Path) -> Sweep:
     """Read and validate a sweep file and expand it into runs (not yet validated as scenes)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise SweepError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    try:
-        root = yaml.compose(text)
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise SweepError(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    data, root = read_yaml(path, SweepError)
     if not isinstance(data, dict):
         raise SweepError(f"{path}: a sweep file must be a mapping with base, sweep and outputs")
     try:

@@ -76,7 +76,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, cone_distance, contact_normals
+from ..contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, contact_normals
 from ..kernels import LENGTH_EPS, first_slope, table_eval
 from ..mold import MOLD_MESH, mold_query, mold_segment_hit
 from .common import Driver, model_mold_args
@@ -610,71 +610,6 @@ def _bsr_matvec(indptr, indices, data, xv, out):
 
 
 @njit(cache=True)
-def _cone_active(R, normals, m, act):
-    """Active generators of the projection of R onto the cone {-sum l_i n_i, l_i >= 0}.
-
-    Writes their indices into act and returns how many (0: R points out of the mold, release;
-    1: a ray; 2: a wedge face; 3: R is inside the cone of three normals)."""
-    best = math.sqrt(R[0] * R[0] + R[1] * R[1] + R[2] * R[2])
-    cnt = 0
-    for i in range(m):
-        t = -(R[0] * normals[i, 0] + R[1] * normals[i, 1] + R[2] * normals[i, 2])
-        if t > 0.0:
-            d0 = R[0] + t * normals[i, 0]
-            d1 = R[1] + t * normals[i, 1]
-            d2 = R[2] + t * normals[i, 2]
-            d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            if d < best:
-                best = d
-                cnt = 1
-                act[0] = i
-    for i in range(m):
-        for j in range(i + 1, m):
-            a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
-            b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
-            aa = a0 * a0 + a1 * a1 + a2 * a2
-            bb = b0 * b0 + b1 * b1 + b2 * b2
-            ab = a0 * b0 + a1 * b1 + a2 * b2
-            ar = a0 * R[0] + a1 * R[1] + a2 * R[2]
-            br = b0 * R[0] + b1 * R[1] + b2 * R[2]
-            det = aa * bb - ab * ab
-            if det <= 1e-14:
-                continue
-            la = (bb * ar - ab * br) / det
-            lb = (aa * br - ab * ar) / det
-            if la > 0.0 and lb > 0.0:
-                d0 = R[0] - la * a0 - lb * b0
-                d1 = R[1] - la * a1 - lb * b1
-                d2 = R[2] - la * a2 - lb * b2
-                d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                if d < best * (1.0 - 1e-12):
-                    best = d
-                    cnt = 2
-                    act[0] = i
-                    act[1] = j
-    if m >= 3 and best > 0.0:
-        for i in range(m):
-            for j in range(i + 1, m):
-                for k in range(j + 1, m):
-                    a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
-                    b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
-                    c0, c1, c2 = -normals[k, 0], -normals[k, 1], -normals[k, 2]
-                    det = a0 * (b1 * c2 - b2 * c1) - b0 * (a1 * c2 - a2 * c1) + c0 * (a1 * b2 - a2 * b1)
-                    if abs(det) < 1e-12:
-                        continue
-                    r0, r1, r2 = R[0], R[1], R[2]
-                    l1 = (r0 * (b1 * c2 - b2 * c1) - b0 * (r1 * c2 - r2 * c1) + c0 * (r1 * b2 - r2 * b1)) / det
-                    l2 = (a0 * (r1 * c2 - r2 * c1) - r0 * (a1 * c2 - a2 * c1) + c0 * (a1 * r2 - a2 * r1)) / det
-                    l3 = (a0 * (b1 * r2 - b2 * r1) - b0 * (a1 * r2 - a2 * r1) + r0 * (a1 * b2 - a2 * b1)) / det
-                    if l1 >= 0.0 and l2 >= 0.0 and l3 >= 0.0:
-                        act[0] = i
-                        act[1] = j
-                        act[2] = k
-                        return 3
-    return cnt
-
-
-@njit(cache=True)
 def _ridge_face(x, R, normals, m, margs, probe, act, na):
     """A node pressed onto a convex edge or vertex (its resultant inside the cone of several face
     normals) satisfies eq. 6 but is not at a minimum of the energy: sliding down one of the
@@ -738,7 +673,7 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
             sd, m = contact_normals(pos[k], margs, qbuf, nbuf)
-            na = _cone_active(R, nbuf, m, act)
+            na = cone_active(R, nbuf, m, act)
             if na >= 2 and qbuf[6] != 0.0 and probe > 0.0:
                 na = _ridge_face(pos[k], R, nbuf, m, margs, probe, act, na)
             if na == 0:
