@@ -156,15 +156,18 @@ def node_residual(R, fixed_row, contact, p, has_mold, margs, qbuf, nbuf):
 
 
 @njit(cache=True)
-def residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
-                    x, y, cum, start, comp, ext, has_mold, margs, V):
-    """Fill V (N,) with eq. (6)'s entries; return ||V||_inf (nan if any entry is not finite)."""
+def residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V):
+    """Fill V (N,) with eq. (6)'s entries from the nodal resultants F (N,3): constrained axes
+    removed, the cone distance at contact nodes. Returns ||V||_inf (nan if any entry is not
+    finite)."""
     R = np.empty(3)
     qbuf = np.empty(8)
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     vmax = 0.0
     for k in range(pos.shape[0]):
-        node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum, start, comp, ext, R)
+        R[0] = F[k, 0]
+        R[1] = F[k, 1]
+        R[2] = F[k, 2]
         v = node_residual(R, fixed[k], in_contact[k], pos[k], has_mold, margs, qbuf, nbuf)
         V[k] = v
         if not (v <= vmax):
@@ -172,6 +175,19 @@ def residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest,
                 return math.nan
             vmax = v
     return vmax
+
+
+@njit(cache=True)
+def residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
+                    x, y, cum, start, comp, ext, has_mold, margs, V):
+    """Fill V (N,) with eq. (6)'s entries; return ||V||_inf (nan if any entry is not finite).
+
+    Every solver reports this residual (the Newton solver, which has the resultants already,
+    calls :func:`residual_from_forces` directly)."""
+    F = np.empty_like(pos)
+    for k in range(pos.shape[0]):
+        node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum, start, comp, ext, F[k])
+    return residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V)
 
 
 @njit(cache=True)

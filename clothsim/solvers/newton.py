@@ -76,7 +76,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, contact_normals
+from ..contact import MAX_FEATURE_NORMALS, cone_active, contact_normals
+from ..contact import residual_from_forces as _residual_from_forces
 from ..kernels import LENGTH_EPS, first_slope, table_eval
 from ..mold import MOLD_MESH, mold_query, mold_segment_hit
 from .common import Driver, model_mold_args
@@ -200,35 +201,6 @@ def _forces_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp
         out[b, 1] -= f * dy
         out[b, 2] -= f * dz
     return energy
-
-
-@njit(cache=True)
-def _residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V):
-    """Eq. (6) from the nodal resultants F (N,3) (same definition as contact.residual_vector:
-    constrained axes removed, cone distance at contact nodes). Returns ||V||_inf (nan if any
-    entry is not finite)."""
-    R = np.empty(3)
-    qbuf = np.empty(8)
-    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
-    vmax = 0.0
-    for k in range(pos.shape[0]):
-        r0 = 0.0 if fixed[k, 0] else F[k, 0]
-        r1 = 0.0 if fixed[k, 1] else F[k, 1]
-        r2 = 0.0 if fixed[k, 2] else F[k, 2]
-        if in_contact[k] and has_mold:
-            R[0] = r0
-            R[1] = r1
-            R[2] = r2
-            sd, m = contact_normals(pos[k], margs, qbuf, nbuf)
-            v = cone_distance(R, nbuf, m)
-        else:
-            v = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        V[k] = v
-        if not (v <= vmax):
-            if math.isnan(v):
-                return math.nan
-            vmax = v
-    return vmax
 
 
 @njit(cache=True)
