@@ -28,6 +28,23 @@ def _norm3(a0, a1, a2):
 
 
 @njit(cache=True)
+def _wedge(R, normals, i, j):
+    """Least-squares coefficients (la, lb) of R on the generators -n_i, -n_j, and the Gram
+    determinant (<= 1e-14: the two normals are parallel)."""
+    a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
+    b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
+    aa = a0 * a0 + a1 * a1 + a2 * a2
+    bb = b0 * b0 + b1 * b1 + b2 * b2
+    ab = a0 * b0 + a1 * b1 + a2 * b2
+    ar = a0 * R[0] + a1 * R[1] + a2 * R[2]
+    br = b0 * R[0] + b1 * R[1] + b2 * R[2]
+    det = aa * bb - ab * ab
+    if det <= 1e-14:
+        return 0.0, 0.0, det
+    return (bb * ar - ab * br) / det, (aa * br - ab * ar) / det, det
+
+
+@njit(cache=True)
 def cone_active(R, normals, m, act):
     """Active generators of the projection of R onto the cone {-sum l_i n_i, l_i >= 0}.
 
@@ -48,22 +65,13 @@ def cone_active(R, normals, m, act):
                 act[0] = i
     for i in range(m):
         for j in range(i + 1, m):
-            a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
-            b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
-            aa = a0 * a0 + a1 * a1 + a2 * a2
-            bb = b0 * b0 + b1 * b1 + b2 * b2
-            ab = a0 * b0 + a1 * b1 + a2 * b2
-            ar = a0 * R[0] + a1 * R[1] + a2 * R[2]
-            br = b0 * R[0] + b1 * R[1] + b2 * R[2]
-            det = aa * bb - ab * ab
+            la, lb, det = _wedge(R, normals, i, j)
             if det <= 1e-14:
                 continue
-            la = (bb * ar - ab * br) / det
-            lb = (aa * br - ab * ar) / det
             if la > 0.0 and lb > 0.0:
-                d0 = R[0] - la * a0 - lb * b0
-                d1 = R[1] - la * a1 - lb * b1
-                d2 = R[2] - la * a2 - lb * b2
+                d0 = R[0] + la * normals[i, 0] + lb * normals[j, 0]
+                d1 = R[1] + la * normals[i, 1] + lb * normals[j, 1]
+                d2 = R[2] + la * normals[i, 2] + lb * normals[j, 2]
                 d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
                 if d < best * (1.0 - 1e-12):
                     best = d
@@ -110,17 +118,9 @@ def cone_distance(R, normals, m):
         t = -(R[0] * normals[i, 0] + R[1] * normals[i, 1] + R[2] * normals[i, 2])
         return _norm3(R[0] + t * normals[i, 0], R[1] + t * normals[i, 1], R[2] + t * normals[i, 2])
     i, j = act[0], act[1]
-    a0, a1, a2 = -normals[i, 0], -normals[i, 1], -normals[i, 2]
-    b0, b1, b2 = -normals[j, 0], -normals[j, 1], -normals[j, 2]
-    aa = a0 * a0 + a1 * a1 + a2 * a2
-    bb = b0 * b0 + b1 * b1 + b2 * b2
-    ab = a0 * b0 + a1 * b1 + a2 * b2
-    ar = a0 * R[0] + a1 * R[1] + a2 * R[2]
-    br = b0 * R[0] + b1 * R[1] + b2 * R[2]
-    det = aa * bb - ab * ab
-    la = (bb * ar - ab * br) / det
-    lb = (aa * br - ab * ar) / det
-    return _norm3(R[0] - la * a0 - lb * b0, R[1] - la * a1 - lb * b1, R[2] - la * a2 - lb * b2)
+    la, lb, det = _wedge(R, normals, i, j)
+    return _norm3(R[0] + la * normals[i, 0] + lb * normals[j, 0], R[1] + la * normals[i, 1] + lb * normals[j, 1],
+                  R[2] + la * normals[i, 2] + lb * normals[j, 2])
 
 
 @njit(cache=True)

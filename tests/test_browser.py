@@ -33,20 +33,12 @@ from browser_util import (  # noqa: E402
 )
 
 from clothsim.config import load_scene, scene_from_dict  # noqa: E402
+from test_viewer import SMALL as SMALL_CAP  # noqa: E402  (one small scene for both)
 from clothsim.viewer import ViewerApp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
-SMALL = {
-    "name": "browser-cap",
-    "fabric": {"size": [0.1, 0.1], "divisions": [10, 10],
-               "warp": {"strain": [0, 1], "tension": [0, 250]},
-               "weft": {"strain": [0, 1], "tension": [0, 250]}},
-    "constraints": [{"nodes": "perimeter", "axes": "xyz", "stretch": 1.1}],
-    "initial": {"lift": 0.03},
-    "mold": {"sphere": {"center": [0.05, 0.05, -0.02], "radius": 0.04}},
-    "solver": {"method": "paper", "C": 2.0, "e": 1e-6},
-}
+SMALL = {**SMALL_CAP, "name": "browser-cap"}
 
 # orange of a mold that is uploaded but not yet applied (viewer: (235, 140, 50)), lit: any shade
 ORANGE_JS = """() => {

@@ -144,28 +144,17 @@ def _bsr_pattern(n, spring_nodes):
         indptr[i + 1] = m
     indices = out[:m].copy()
 
-    def find(i, j):
-        lo = indptr[i]
-        hi = indptr[i + 1]
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if indices[mid] < j:
-                lo = mid + 1
-            else:
-                hi = mid
-        return lo
-
     slot = np.empty((s_count, 4), np.int64)
     for s in range(s_count):
         a = spring_nodes[s, 0]
         b = spring_nodes[s, 1]
-        slot[s, 0] = find(a, a)
-        slot[s, 1] = find(b, b)
-        slot[s, 2] = find(a, b)
-        slot[s, 3] = find(b, a)
+        slot[s, 0] = _find_block(indptr, indices, a, a)
+        slot[s, 1] = _find_block(indptr, indices, b, b)
+        slot[s, 2] = _find_block(indptr, indices, a, b)
+        slot[s, 3] = _find_block(indptr, indices, b, a)
     diag = np.empty(n, np.int64)
     for i in range(n):
-        diag[i] = find(i, i)
+        diag[i] = _find_block(indptr, indices, i, i)
     return indptr, indices, slot, diag
 
 
