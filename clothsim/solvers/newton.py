@@ -1160,6 +1160,10 @@ def _pcg(matvec, prec, b, tol, maxiter):
 # ----------------------------------------------------------------------------------------------
 
 
+LM_ALPHA_LOW = 0.1
+LM_MAX = 1e4
+
+
 class NewtonLevel:
     """Newton iterations for one Model (the fine grid, or a coarse grid of the sequencing)."""
 
@@ -1315,7 +1319,13 @@ class NewtonLevel:
                 continue
             accepted = self._line_search(state, dx, E0, slope, v_base)
             if accepted is not None:
-                self.lm = max(self.lm / 10.0, 1e-12)
+                # Levenberg-Marquardt shift as a trust region: a step the line search had to cut
+                # hard means the quadratic model is poor at that length (slack springs leave
+                # directions nearly free; contact nodes leave their faces), so shift more
+                if self.ls_alpha < LM_ALPHA_LOW:
+                    self.lm = min(max(self.lm * 10.0, 1e-8), LM_MAX)
+                elif self.ls_alpha >= 1.0:
+                    self.lm = max(self.lm / 10.0, 1e-12)
                 return accepted
             self.lm = max(self.lm * 100.0, 1e-6)
         return v_base, E0, 3
