@@ -69,6 +69,9 @@ def cmd_run(args) -> int:
     if s.get("min_weft_extent_ratio", 1.0) < 0.5:
         print(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
               f"(it gathers: nothing holds its width)")
+    if s.get("gathered_contact_nodes"):
+        print(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
+              f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak")
     if out is not None:
         print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
     if args.json:

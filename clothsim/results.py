@@ -67,11 +67,17 @@ def deformed_node_area(pos: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
     return area.ravel()
 
 
+#: a contact node whose deformed tributary area is below this fraction of its rest area has
+#: gathered: its pressure is reported as inf (see contact_reaction)
+GATHERED_AREA_RATIO = 1e-2
+
+
 def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     """Per-node normal contact reaction [N] and contact pressure [Pa], both (N,): the reaction is
     max(0, -R . n), R the resultant of the node's springs and external force, n the mold's outward
     (pseudo-)normal at the closest point; the pressure divides it by the node's tributary area on
-    the deformed sheet. Zero off contact. Whole-array kernels (the viewer calls it 25 times a second)."""
+    the deformed sheet. Zero off contact; inf where a loaded node's area has shrunk below
+    GATHERED_AREA_RATIO of its rest area (the sheet gathered into a rope: a line load). Whole-array kernels (the viewer calls it 25 times a second)."""
     n = model.node_count
     force = np.zeros(n)
     pressure = np.zeros(n)
@@ -91,6 +97,10 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     nx1, ny1 = model.grid_shape
     area = deformed_node_area(positions, nx1, ny1)
     np.divide(force, area, out=pressure, where=area > 0)
+    # where the sheet has gathered (a band pulled into a rope) its area is gone and the reaction
+    # is a line load: the pressure there is unbounded (inf), not a huge finite number
+    rest_area = deformed_node_area(model.rest_positions, nx1, ny1)
+    pressure[(force > 0.0) & (area < GATHERED_AREA_RATIO * rest_area)] = np.inf
     return force, pressure
 
 
@@ -223,7 +233,8 @@ class Result:
 
     @property
     def contact_pressure(self):
-        """Contact pressure [Pa] = reaction / deformed tributary area, (nx+1, ny+1)."""
+        """Contact pressure [Pa] = reaction / deformed tributary area, (nx+1, ny+1); inf where
+        the sheet has gathered into a rope (see contact_reaction)."""
         return self._f()[3].reshape(self.model.grid_shape)
 
     def node_strain(self) -> np.ndarray:
@@ -236,11 +247,16 @@ class Result:
         strains and pressures, and the deepest penetration into the mold."""
         out = sheet_health(self.model, self.state.positions, self.state.in_contact,
                            force=self._f()[1])
+        p = self.contact_pressure
+        finite = p[np.isfinite(p)]
+        # the peak over nodes whose pressure is defined (gathered nodes are counted apart)
+        pmax = float(finite.max()) if finite.size else 0.0
         out.update({
             "max_strain_warp": float(self.strain_warp.max()) if self.strain_warp.size else 0.0,
             "max_strain_weft": float(self.strain_weft.max()) if self.strain_weft.size else 0.0,
-            "max_contact_pressure_pa": float(self.contact_pressure.max()),
-            "max_contact_pressure_mmhg": float(self.contact_pressure.max() / MMHG),
+            "max_contact_pressure_pa": pmax,
+            "max_contact_pressure_mmhg": pmax / MMHG,
+            "gathered_contact_nodes": int(np.isinf(p).sum()),
         })
         if self.model.mold is not None:
             from .contact import max_penetration
@@ -288,8 +304,11 @@ class Result:
 
         nx1, ny1 = self.model.grid_shape
         values = (self.contact_pressure / MMHG if field == "pressure" else self.node_strain()).ravel()
-        lo, hi = float(values.min()), float(values.max())
-        t = (values - lo) / (hi - lo) if hi > lo else np.zeros_like(values)
+        finite = values[np.isfinite(values)]
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+        t = (values - lo) / (hi - lo) if hi > lo else np.where(np.isposinf(values), 1.0, 0.0)
+        # gathered nodes (pressure inf) take the top colour
+        t = np.clip(np.nan_to_num(t, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
         colors = (colormaps["viridis"](t) * 255).astype(np.uint8)
         return trimesh.Trimesh(self.state.positions.copy(), grid_faces(nx1, ny1), vertex_colors=colors,
                                process=False)
