@@ -252,6 +252,36 @@ class SpringTerm(_Strict):
     stiffness: float = Field(gt=0)
 
 
+class Seam(_Strict):
+    """A sewn seam (eq. 1, F_seams): node line ``a`` is sewn to node line ``b`` of the same sheet,
+    node by node in index order (``reverse: true`` pairs a's first node with b's last). Each pair
+    is joined by a zero-length linear spring, the sewing force ``k * gap`` [N] pulling the two
+    nodes together, with ``k = stiffness x`` the pair's share of the seam length [m].
+
+    a, b: node sets or index ranges as in constraints; each must select one line of nodes (a
+    single i or a single j) and both the same number of nodes. stiffness [N/m per metre of seam,
+    N/m^2]: omitted = 1000 x the stiffest slope of the warp and weft tables / the smaller grid
+    spacing, so that the seam opens by about a thousandth of a grid spacing times the strain
+    across it (``summary.json: max_seam_gap_m`` says by how much)."""
+
+    a: Union[Literal[NODE_SETS], NodeRange]  # type: ignore[valid-type]
+    b: Union[Literal[NODE_SETS], NodeRange]  # type: ignore[valid-type]
+    reverse: bool = False
+    stiffness: float | None = None
+
+    @field_validator("a", "b", mode="before")
+    @classmethod
+    def _nodes(cls, v):
+        return Constraint._nodes(v)
+
+    @field_validator("stiffness")
+    @classmethod
+    def _k(cls, v):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ValueError(f"must be positive and finite (got {v})")
+        return v
+
+
 class SolverSettings(_Strict):
     """method: which solver; C: the paper's step divisor (eq. 4, > 1); e: the convergence limit on
     ||V||_inf [N] (eq. 6); max_iterations; time_limit_s: wall-clock bound (None = none)."""
@@ -303,10 +333,26 @@ class Scene(_Strict):
     gravity: Gravity | None = None
     shear: SpringTerm | None = None
     bending: SpringTerm | None = None
+    seams: list[Seam] = Field(default_factory=list)
     solver: SolverSettings = Field(default_factory=SolverSettings)
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
+
+    @model_validator(mode="after")
+    def _seams_fit(self):
+        """Each seam joins two node lines of equal length that do not overlap."""
+        if not self.seams:
+            return self
+        from .grid import seam_pairs
+
+        nx, ny = self.fabric.divisions
+        for n, seam in enumerate(self.seams):
+            try:
+                seam_pairs(seam, nx, ny)
+            except SceneError as exc:
+                raise ValueError(f"seams.{n}.{exc}") from None
+        return self
 
     @property
     def base_dir(self) -> Path:
@@ -414,10 +460,13 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
             if msg.startswith(prefix):
                 msg = msg[len(prefix):]
         field = ".".join(str(p) for p in loc)
-        # a model-level validator reports "sub: message": fold the sub-field into the path
-        if ": " in msg and msg.split(": ", 1)[0].replace("_", "").isalnum() and " " not in msg.split(": ", 1)[0]:
+        # a model-level validator reports "sub: message" (sub may be a dotted path such as
+        # seams.0.b): fold the sub-field into the path
+        head = msg.split(": ", 1)[0] if ": " in msg else ""
+        if head and " " not in head and ("." not in head or head.startswith("seams.")) \
+                and all(p.replace("_", "").isalnum() for p in head.split(".")):
             sub, msg = msg.split(": ", 1)
-            loc = loc + (sub,)
+            loc = loc + tuple(int(p) if p.isdigit() else p for p in sub.split("."))
             field = ".".join(str(p) for p in loc)
         if err["type"] == "extra_forbidden":
             msg = "unknown field"

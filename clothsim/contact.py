@@ -138,8 +138,28 @@ def contact_normals(p, margs, qbuf, nbuf):
 
 
 @njit(cache=True)
+def free_axis_normals(fixed_row, nbuf, m):
+    """Restrict the first m contact normals to a node's free axes, in place: a constrained axis
+    takes any reaction along it, so only the normals' free components (renormalised) bound the
+    reaction the mold adds there. A normal lying along constrained axes only becomes 0 (it then
+    takes part in no cone). The cone's generators change length, not the cone itself."""
+    if not (fixed_row[0] or fixed_row[1] or fixed_row[2]):
+        return
+    for i in range(m):
+        for a in range(3):
+            if fixed_row[a]:
+                nbuf[i, a] = 0.0
+        nn = _norm3(nbuf[i, 0], nbuf[i, 1], nbuf[i, 2])
+        for a in range(3):
+            nbuf[i, a] = nbuf[i, a] / nn if nn > 1e-12 else 0.0
+
+
+@njit(cache=True)
 def node_residual(R, fixed_row, contact, p, has_mold, margs, qbuf, nbuf):
-    """V_k (eq. 6) for one node with resultant R (3,) (modified: constrained axes zeroed)."""
+    """V_k (eq. 6) for one node with resultant R (3,) (modified: constrained axes zeroed): |R| on
+    a free node; on a contact node the distance from R to the reactions the mold and the
+    constraints can supply together (the cone of the contact normals plus any force along the
+    constrained axes)."""
     for a in range(3):
         if fixed_row[a]:
             R[a] = 0.0
@@ -152,6 +172,7 @@ def node_residual(R, fixed_row, contact, p, has_mold, margs, qbuf, nbuf):
         nbuf[0, 1] = qbuf[4]
         nbuf[0, 2] = qbuf[5]
         m = 1
+    free_axis_normals(fixed_row, nbuf, m)
     return cone_distance(R, nbuf, m)
 
 

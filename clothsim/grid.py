@@ -3,8 +3,9 @@
 Node (i, j), i along warp (x, 0..nx) and j along weft (y, 0..ny), is row ``k = i * (ny + 1) + j``
 of the flat (N, 3) arrays. Springs are stored warp first (``(i, j)-(i+1, j)``, ``nx * (ny+1)`` of
 them, warp spring (i, j) at index ``i * (ny+1) + j``), then weft (``(i, j)-(i, j+1)``,
-``(nx+1) * ny``, weft spring (i, j) at ``nx*(ny+1) + i * ny + j``), then the optional shear and
-bending families, which are only built when the scene asks for them (an unused term costs nothing).
+``(nx+1) * ny``, weft spring (i, j) at ``nx*(ny+1) + i * ny + j``), then the optional shear,
+bending and seam families, which are only built when the scene asks for them (an unused term
+costs nothing).
 
 Tributary width (paper Fig. 3): a warp spring carries the band of width dy around its row, half of
 it on the bottom and top rows; a weft spring the band of width dx, half on the left and right
@@ -21,7 +22,14 @@ import numpy as np
 from .config import Scene, SceneError
 from .material import Table, TablePack
 
-FAMILY_WARP, FAMILY_WEFT, FAMILY_SHEAR, FAMILY_BEND_WARP, FAMILY_BEND_WEFT = 0, 1, 2, 3, 4
+FAMILY_WARP, FAMILY_WEFT, FAMILY_SHEAR, FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SEAM = 0, 1, 2, 3, 4, 5
+
+#: rest length of a seam spring, relative to the smaller grid spacing. A seam is a zero-length
+#: linear spring (force k * gap); the kernels' spring model (force = T(l/l0 - 1) * w) represents it
+#: exactly with the table T(s) = 1 + s [N/m] (compression allowed) and width w = k * l0, since
+#: then force = k * l and energy = k (l^2 - l0^2) / 2. l0 only has to be positive; keeping it
+#: tiny makes the paper's "elongation" l - l0 of a seam its gap.
+SEAM_REST_RATIO = 1e-6
 
 
 @dataclass(frozen=True)
@@ -31,7 +39,7 @@ class Model:
     node_count: N. grid_shape: (nx+1, ny+1). rest_positions [m] (N,3): the flat sheet.
     spring_nodes (S,2) int64; spring_rest_length [m] (S,); spring_width [m] (S,) tributary width
     (force = tension [N/m] x width); spring_table (S,) int64 index into ``tables``;
-    spring_family (S,) int8 (0 warp, 1 weft, 2 shear, 3/4 bending); fixed_axes (N,3) bool;
+    spring_family (S,) int8 (0 warp, 1 weft, 2 shear, 3/4 bending, 5 seam); fixed_axes (N,3) bool;
     prescribed_positions [m] (N,3) (the constrained coordinates' values); prescribed_flat [m]
     (N,3) the same in the flat sheet's own coordinates before placement and displacement (stretch
     only; used to build the initial guess); external_force [N]
@@ -93,8 +101,9 @@ class State:
         return State(self.positions.copy(), self.in_contact.copy(), self.iteration)
 
 
-def select_nodes(sel, nx: int, ny: int) -> np.ndarray:
-    """Boolean mask (nx+1, ny+1) of a node selector (see config.Constraint)."""
+def select_nodes(sel, nx: int, ny: int, what: str = "constraints") -> np.ndarray:
+    """Boolean mask (nx+1, ny+1) of a node selector (see config.Constraint); ``what`` names the
+    field in error messages."""
     m = np.zeros((nx + 1, ny + 1), bool)
     if isinstance(sel, str):
         if sel in ("left", "perimeter"):
@@ -124,13 +133,46 @@ def select_nodes(sel, nx: int, ny: int) -> np.ndarray:
         a = a + n + 1 if a < 0 else a
         b = b + n + 1 if b < 0 else b
         if not (0 <= a <= b <= n):
-            raise SceneError(f"constraints: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
+            raise SceneError(f"{what}: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
         return a, b
 
     ia, ib = rng(sel.i, nx, "i")
     ja, jb = rng(sel.j, ny, "j")
     m[ia:ib + 1, ja:jb + 1] = True
     return m
+
+
+def _seam_line(sel, nx: int, ny: int, name: str) -> tuple[np.ndarray, int]:
+    """Node indices of one seam side in index order, and the grid direction it runs along
+    (0: i varies, 1: j varies; 1 for a single node)."""
+    ii, jj = np.nonzero(select_nodes(sel, nx, ny, name))
+    if ii.size == 0:
+        raise SceneError(f"{name}: selects no nodes")
+    if ii.size > 1 and not ((ii == ii[0]).all() or (jj == jj[0]).all()):
+        raise SceneError(f"{name}: must select one line of nodes (a single i or a single j); it selects "
+                         f"{ii.size} nodes over i {ii.min()}..{ii.max()}, j {jj.min()}..{jj.max()}")
+    direction = 0 if ii.size > 1 and (jj == jj[0]).all() else 1
+    return (ii * (ny + 1) + jj).astype(np.int64), direction
+
+
+def seam_pairs(seam, nx: int, ny: int):
+    """The node pairs a seam (config.Seam) sews: (a (P,), b (P,), tributary length factors (P,)),
+    where the factor of a pair is its share of the seam in grid spacings along each side (1 inside,
+    1/2 at the ends, averaged over the two sides). Pairs of a node with itself (the tip of a dart)
+    are dropped. Raises SceneError naming the side ("a: ..." or "b: ...")."""
+    a, da = _seam_line(seam.a, nx, ny, "a")
+    b, db = _seam_line(seam.b, nx, ny, "b")
+    if a.size != b.size:
+        raise SceneError(f"b: selects {b.size} nodes but a selects {a.size}; a seam sews them one to one")
+    if seam.reverse:
+        b = b[::-1]
+    share = np.ones(a.size)
+    if a.size > 1:
+        share[0] = share[-1] = 0.5
+    keep = a != b
+    if not keep.any():
+        raise SceneError("b: selects the same nodes as a (nothing to sew)")
+    return a[keep], b[keep], share[keep], (da, db)
 
 
 def place_sheet(scene: Scene, flat: np.ndarray) -> np.ndarray:
@@ -227,6 +269,21 @@ def build_model(scene: Scene, mold=None) -> Model:
             nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, 2 * dy))
             width.append(w.ravel()); table.append(np.full(a.size, tid, np.int64))
             family.append(np.full(a.size, FAMILY_BEND_WEFT, np.int8))
+
+    if scene.seams:
+        tables.append(Table(np.array([0.0, 1.0]), np.array([1.0, 2.0]), compression=True))
+        tid = len(tables) - 1
+        l0 = SEAM_REST_RATIO * min(dx, dy)
+        slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain))) for t in (warp_table, weft_table))
+        for seam in scene.seams:
+            a, b, share, (da, db) = seam_pairs(seam, nx, ny)
+            # the pair's share of the seam length [m], averaged over the two sides
+            length = share * 0.5 * ((dx if da == 0 else dy) + (dx if db == 0 else dy))
+            k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / min(dx, dy)
+            k = k_line * length  # [N/m] per pair
+            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, l0))
+            width.append(k * l0); table.append(np.full(a.size, tid, np.int64))
+            family.append(np.full(a.size, FAMILY_SEAM, np.int8))
 
     spring_nodes = np.ascontiguousarray(np.concatenate(nodes).astype(np.int64))
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)

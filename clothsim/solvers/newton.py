@@ -76,7 +76,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, cone_active, contact_normals
+from ..contact import MAX_FEATURE_NORMALS, cone_active, contact_normals, free_axis_normals
 from ..contact import residual_from_forces as _residual_from_forces
 from ..kernels import LENGTH_EPS, first_slope, table_eval
 from ..mold import MOLD_MESH, mold_query, mold_segment_hit
@@ -634,6 +634,7 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
             sd, m = contact_normals(pos[k], margs, qbuf, nbuf)
+            free_axis_normals(fixed[k], nbuf, m)
             na = cone_active(R, nbuf, m, act)
             if na >= 2 and qbuf[6] != 0.0 and probe > 0.0:
                 na = _ridge_face(pos[k], R, nbuf, m, margs, probe, act, na)
@@ -1391,7 +1392,7 @@ class NewtonLevel:
 
 def coarsen_model(model):
     """The same scene on the grid of every second node (needs even divisions), or None."""
-    from ..grid import FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SHEAR, Model, _adjacency
+    from ..grid import FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SEAM, FAMILY_SHEAR, Model, _adjacency
 
     nx1, ny1 = model.grid_shape
     nx, ny = nx1 - 1, ny1 - 1
@@ -1431,6 +1432,21 @@ def coarsen_model(model):
         t = int(model.spring_table[fam == FAMILY_BEND_WEFT][0])
         w = np.full((cx + 1, cy - 1), dx); w[0, :] *= 0.5; w[cx, :] *= 0.5
         add(idx[:, :-2], idx[:, 2:], 2 * dy, w, t, FAMILY_BEND_WEFT)
+    seam = fam == FAMILY_SEAM
+    if seam.any():
+        # seams keep the pairs whose two nodes are both on the coarse grid; each carries the
+        # seam length of two fine pairs (twice the stiffness)
+        cmap = -np.ones(model.node_count, np.int64)
+        cmap[sub] = np.arange(n)
+        ca = cmap[model.spring_nodes[seam, 0]]
+        cb = cmap[model.spring_nodes[seam, 1]]
+        keep = (ca >= 0) & (cb >= 0)
+        if keep.any():
+            nodes.append(np.stack([ca[keep], cb[keep]], 1))
+            rest_len.append(model.spring_rest_length[seam][keep])
+            width.append(2.0 * model.spring_width[seam][keep])
+            table.append(model.spring_table[seam][keep])
+            family.append(np.full(int(keep.sum()), FAMILY_SEAM, np.int8))
     spring_nodes = np.ascontiguousarray(np.concatenate(nodes).astype(np.int64))
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
     wx = np.full(cx + 1, dx); wx[0] *= 0.5; wx[-1] *= 0.5
