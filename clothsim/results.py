@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .kernels import spring_strains_tensions
+from .grid import FAMILY_SEAM
 
 MMHG = 133.322387415  # Pa per mmHg
 
@@ -258,6 +259,11 @@ class Result:
             "max_contact_pressure_mmhg": pmax / MMHG,
             "gathered_contact_nodes": int(np.isinf(p).sum()),
         })
+        seam = self.model.spring_family == FAMILY_SEAM
+        if seam.any():
+            ab = self.model.spring_nodes[seam]
+            pos = self.state.positions
+            out["max_seam_gap_m"] = float(np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1).max())
         if self.model.mold is not None:
             from .contact import max_penetration
 

@@ -78,7 +78,7 @@ SUMMARY_KEYS = (
     "best_residual", "energy", "wall_time_s", "startup_s", "solver", "C", "e", "contact_count",
     "node_count", "clothsim_version", "slack_springs", "spring_count", "undetermined_nodes",
     "min_weft_extent_ratio", "max_strain_warp", "max_strain_weft", "max_contact_pressure_pa",
-    "max_contact_pressure_mmhg", "gathered_contact_nodes", "max_penetration_m",
+    "max_contact_pressure_mmhg", "gathered_contact_nodes", "max_seam_gap_m", "max_penetration_m",
 )
 #: outputs the sweep worker computes beside the summary (stored in sweep_run.json)
 EXTRA_KEYS = {
