@@ -78,9 +78,11 @@ def cases(quick: bool) -> list[Case]:
         Case("sphere cap 501^2", sc, ["fabric.divisions=[500,500]"], time_limit={"paper": 30, "newton": 120}),
     ]
     for cfg, label in (("thermoform.yaml", "thermoform 41^2"), ("torso_band.yaml", "torso band 41x11"),
-                       ("torso_band_held.yaml", "torso band held 41x11")):
+                       ("torso_band_held.yaml", "torso band held 41x11"),
+                       ("sewn_sleeve.yaml", "sewn sleeve 51x17")):
         if (ROOT / "configs" / cfg).exists():
-            out.append(Case(label, f"configs/{cfg}", [], time_limit={"paper": 120, "newton": 60}))
+            out.append(Case(label, f"configs/{cfg}", [], time_limit={"paper": 60 if "sewn" in cfg else 120,
+                                                                     "newton": 60}))
     for h in hard:
         out.append(Case(f"hard: {h.stem}", str(h.relative_to(ROOT)), [], time_limit={"paper": 60, "newton": 60},
                         group="hard"))

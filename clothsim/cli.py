@@ -69,6 +69,8 @@ def cmd_run(args) -> int:
     if s.get("min_weft_extent_ratio", 1.0) < 0.5:
         print(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
               f"(it gathers: nothing holds its width)")
+    if "max_seam_gap_m" in s:
+        print(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
     if s.get("gathered_contact_nodes"):
         print(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
               f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak")

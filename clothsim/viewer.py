@@ -51,6 +51,7 @@ from .config import NODE_SETS, SOLVER_METHODS, Scene, SceneError, load_scene, sc
 from .material import MaterialError, check_table, parse_table_csv
 from .mold import MoldError, load_mold, load_mold_bytes
 from .presets import PRESETS
+from .grid import FAMILY_SEAM
 from .results import grid_faces, sheet_health
 from .simulation import Simulation
 from .viewer_fields import FIELDS, node_field
@@ -190,6 +191,8 @@ class ViewerApp:
         self._mold_dirty = True
         self.h_cloth = None
         self.h_fixed = None
+        self.h_seams = None
+        self._seam_ab = np.zeros((0, 2), np.int64)
         self.h_mold = None
         self._glb: GlbMeshWriter | None = None
         self.gui: dict[str, object] = {}
@@ -1017,8 +1020,21 @@ class ViewerApp:
                 "/constrained", pos[self._fixed_idx].astype(np.float32), colors=(230, 40, 40),
                 point_size=size, point_shape="circle", precision="float32",
                 visible=bool(self.gui["show_fixed"].value))
+        # seams: one thread per sewn node pair (it shrinks to nothing as the seam closes)
+        if self.h_seams is not None:
+            self.h_seams.remove()
+            self.h_seams = None
+        self._seam_ab = model.spring_nodes[model.spring_family == FAMILY_SEAM]
+        if len(self._seam_ab):
+            self.h_seams = self.server.scene.add_line_segments(
+                "/seams", self._seam_points(pos), colors=(255, 140, 0), thickness=2.0,
+                thickness_units="screen")
         self._scene_model = model
         self._mold_dirty = True
+
+    def _seam_points(self, pos: np.ndarray) -> np.ndarray:
+        """(P, 2, 3) float32 end points of the seam threads."""
+        return np.stack([pos[self._seam_ab[:, 0]], pos[self._seam_ab[:, 1]]], axis=1).astype(np.float32)
 
     def _update_mold_node(self) -> None:
         g = self.gui
@@ -1093,6 +1109,8 @@ class ViewerApp:
         if self.h_fixed is not None:
             self.h_fixed.points = f.positions[self._fixed_idx].astype(np.float32)
             self.h_fixed.visible = bool(self.gui["show_fixed"].value)
+        if self.h_seams is not None:
+            self.h_seams.points = self._seam_points(f.positions)
         label = self.gui["field"].value
         unit = FIELDS[label][0]
         if self._field_key == "contact":

@@ -429,3 +429,28 @@ def test_status_shows_a_gathering_sheet_and_slack_springs():
         assert "the sheet gathers" in text
     finally:
         a.close()
+
+
+def test_seams_are_drawn_and_close():
+    """A scene with a seam shows one orange thread per sewn node pair; after the run the threads
+    end at the solver's positions, and they have closed to (almost) nothing."""
+    from clothsim.config import load_scene
+
+    scene = load_scene(ROOT / "configs" / "sewn_sleeve.yaml", ["fabric.divisions=[20,4]",
+                                                               "constraints.2.nodes={i: 10}"])
+    a = ViewerApp(scene, port=free_port())
+    try:
+        a.wait_idle(20)
+        pts0 = np.array(a.h_seams.points)
+        assert pts0.shape == (5, 2, 3)
+        assert np.linalg.norm(pts0[:, 0] - pts0[:, 1], axis=1).min() > 0.01  # the seam starts open
+        a.start(wait=True)
+        assert a.sim.wait(120) == "converged"
+        settle(a)
+        pos = a.sim.state.positions
+        pts = np.array(a.h_seams.points)
+        np.testing.assert_allclose(pts[:, 0], pos[a._seam_ab[:, 0]], atol=1e-6)
+        np.testing.assert_allclose(pts[:, 1], pos[a._seam_ab[:, 1]], atol=1e-6)
+        assert np.linalg.norm(pts[:, 0] - pts[:, 1], axis=1).max() < 1e-5
+    finally:
+        a.close()
