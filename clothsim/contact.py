@@ -186,10 +186,18 @@ def residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V):
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     vmax = 0.0
     for k in range(pos.shape[0]):
-        R[0] = F[k, 0]
-        R[1] = F[k, 1]
-        R[2] = F[k, 2]
-        v = node_residual(R, fixed[k], in_contact[k], pos[k], has_mold, margs, qbuf, nbuf)
+        if in_contact[k] and has_mold:
+            R[0] = F[k, 0]
+            R[1] = F[k, 1]
+            R[2] = F[k, 2]
+            v = node_residual(R, fixed[k], True, pos[k], has_mold, margs, qbuf, nbuf)
+        else:
+            # a free node: |R| over its free axes (node_residual's first case, without the
+            # array views that cost a reference count each)
+            r0 = 0.0 if fixed[k, 0] else F[k, 0]
+            r1 = 0.0 if fixed[k, 1] else F[k, 1]
+            r2 = 0.0 if fixed[k, 2] else F[k, 2]
+            v = _norm3(r0, r1, r2)
         V[k] = v
         if not (v <= vmax):
             if math.isnan(v):

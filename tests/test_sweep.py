@@ -176,6 +176,48 @@ def test_local_processes_and_dask_localcluster_give_identical_summaries(tmp_path
                                                "summary.json", "sweep_run.json"}
 
 
+def test_sweep_on_a_separate_dask_scheduler_over_tcp(tmp_path):
+    """A real remote-style cluster: `dask scheduler` and `dask worker` started as their own
+    processes (the command-line tools a user runs on other machines), the sweep given the
+    scheduler's tcp:// address. It writes the same summary as local worker processes."""
+    pytest.importorskip("distributed")
+    sched_file = tmp_path / "scheduler.json"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    procs = []
+    try:
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--no-dashboard", "--scheduler-file", str(sched_file)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env))
+        t0 = time.time()
+        while not sched_file.exists() and time.time() - t0 < 60:
+            time.sleep(0.2)
+        assert sched_file.exists(), "the dask scheduler did not start"
+        address = json.loads(sched_file.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "2", "--nthreads", "1",
+             "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=str(tmp_path)))
+        from dask.distributed import Client
+
+        with Client(address, timeout="30s") as c:
+            c.wait_for_workers(2, timeout=60)
+        p = _cap_sweep(tmp_path, {"solver.C": [1.5, 3]})
+        rep_remote = sw.run_sweep(p, tmp_path / "remote", dask=address, stream=io.StringIO(), plots=False)
+        rep_local = sw.run_sweep(p, tmp_path / "local", workers=2, stream=io.StringIO(), plots=False)
+        for rep in (rep_remote, rep_local):
+            assert rep["ran"] == 2 and rep["statuses"] == {"converged": 2}
+        assert _csv(tmp_path / "remote" / "summary.csv") == _csv(tmp_path / "local" / "summary.csv")
+    finally:
+        for pr in procs[::-1]:
+            pr.terminate()
+        for pr in procs[::-1]:
+            try:
+                pr.wait(20)
+            except subprocess.TimeoutExpired:
+                pr.kill()
+
+
 # ----------------------------------------------------------------------------- nothing lost
 
 

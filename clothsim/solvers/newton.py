@@ -78,7 +78,7 @@ from numba import njit
 
 from ..contact import MAX_FEATURE_NORMALS, cone_active, contact_normals, free_axis_normals
 from ..contact import residual_from_forces as _residual_from_forces
-from ..kernels import LENGTH_EPS, first_slope, table_eval
+from ..kernels import LENGTH_EPS, first_slope, forces_and_energy, table_eval
 from ..mold import MOLD_MESH, mold_query, mold_segment_hit
 from .common import Driver, model_mold_args
 
@@ -156,40 +156,6 @@ def _bsr_pattern(n, spring_nodes):
     for i in range(n):
         diag[i] = _find_block(indptr, indices, i, i)
     return indptr, indices, slot, diag
-
-
-@njit(cache=True)
-def _forces_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, out):
-    """Same as ``kernels.forces_and_energy`` (forces into out (N,3) [N], returns E [J]) with
-    scalar indexing only: no array views in the loop (their reference counting dominated the
-    cost on large grids)."""
-    n = pos.shape[0]
-    energy = 0.0
-    for k in range(n):
-        out[k, 0] = ext[k, 0]
-        out[k, 1] = ext[k, 1]
-        out[k, 2] = ext[k, 2]
-        energy -= ext[k, 0] * pos[k, 0] + ext[k, 1] * pos[k, 1] + ext[k, 2] * pos[k, 2]
-    for s in range(spring_nodes.shape[0]):
-        a = spring_nodes[s, 0]
-        b = spring_nodes[s, 1]
-        dx = pos[b, 0] - pos[a, 0]
-        dy = pos[b, 1] - pos[a, 1]
-        dz = pos[b, 2] - pos[a, 2]
-        length = math.sqrt(dx * dx + dy * dy + dz * dz)
-        l0 = rest[s]
-        T, dT, W = table_eval(x, y, cum, start, comp, table[s], length / l0 - 1.0)
-        energy += width[s] * l0 * W
-        if length < LENGTH_EPS:
-            continue
-        f = T * width[s] / length
-        out[a, 0] += f * dx
-        out[a, 1] += f * dy
-        out[a, 2] += f * dz
-        out[b, 0] -= f * dx
-        out[b, 1] -= f * dy
-        out[b, 2] -= f * dz
-    return energy
 
 
 @njit(cache=True)
@@ -1211,13 +1177,13 @@ class NewtonLevel:
 
     # -- helpers ---------------------------------------------------------------------------
     def energy_forces(self, pos, F):
-        return _forces_energy(pos, *self.sargs, self.model.external_force, F)
+        return forces_and_energy(pos, *self.sargs, self.model.external_force, F)
 
     def residual(self, pos, contact, F=None):
         """||V||_inf (eq. 6) at pos; F: the forces at pos when already known."""
         if F is None:
             F = self._Fr
-            _forces_energy(pos, *self.sargs, self.model.external_force, F)
+            forces_and_energy(pos, *self.sargs, self.model.external_force, F)
         return _residual_from_forces(pos, F, self.model.fixed_axes, contact, self.has_mold, self.margs,
                                      self.V)
 
