@@ -17,7 +17,8 @@ def _numba_cache_dir() -> None:
     numba invalidates a cached kernel only when *its own* file changes; a kernel that calls one in
     another module (every solver calls contact.py and kernels.py) would otherwise keep running the
     old callee after an update. Keying the directory by all sources makes any change start a fresh
-    cache. Base: $NUMBA_CACHE_DIR if set, else ~/.cache/clothsim/numba (XDG_CACHE_HOME honoured)."""
+    cache. Base: $NUMBA_CACHE_DIR if set, else ~/.cache/clothsim/numba (XDG_CACHE_HOME honoured); if
+    that cannot be written, the system's temporary folder; if neither, numba's own default."""
     import hashlib
     import os
     from pathlib import Path
@@ -29,9 +30,20 @@ def _numba_cache_dir() -> None:
         h.update(f.read_bytes())
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "clothsim", "numba")
+    import tempfile
+
     from numba import config
 
-    config.CACHE_DIR = os.path.join(base, h.hexdigest()[:16])
+    for root in (base, os.path.join(tempfile.gettempdir(), f"clothsim-numba-{os.getuid() if hasattr(os, 'getuid') else 0}")):
+        path = os.path.join(root, h.hexdigest()[:16])
+        try:  # numba refuses to compile a cache=True kernel whose cache folder it cannot write
+            os.makedirs(path, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=path):
+                pass
+        except OSError:
+            continue
+        config.CACHE_DIR = path
+        return
 
 
 _numba_cache_dir()

@@ -40,6 +40,13 @@ def _finite(v, name="value"):
     return v
 
 
+def _positive(v):
+    """None, or a positive finite number (else the validation message every such field gives)."""
+    if v is not None and not (math.isfinite(v) and v > 0):
+        raise ValueError(f"must be positive and finite (got {v})")
+    return v
+
+
 class MaterialSpec(_Strict):
     """A piecewise-linear tension-only table along one yarn direction.
 
@@ -59,9 +66,7 @@ class MaterialSpec(_Strict):
     @field_validator("scale")
     @classmethod
     def _scale(cls, v):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
-        return v
+        return _positive(v)
 
     @model_validator(mode="after")
     def _check(self):
@@ -100,8 +105,7 @@ class Fabric(_Strict):
     @classmethod
     def _size(cls, v):
         for x in v:
-            if not (math.isfinite(x) and x > 0):
-                raise ValueError(f"must be positive and finite (got {x})")
+            _positive(x)
         return v
 
     @field_validator("origin")
@@ -124,9 +128,7 @@ class Fabric(_Strict):
     @field_validator("thickness")
     @classmethod
     def _thick(cls, v):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
-        return v
+        return _positive(v)
 
     @model_validator(mode="after")
     def _needs_thickness(self):
@@ -277,9 +279,7 @@ class Seam(_Strict):
     @field_validator("stiffness")
     @classmethod
     def _k(cls, v):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
-        return v
+        return _positive(v)
 
 
 class SolverSettings(_Strict):
