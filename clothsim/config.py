@@ -463,8 +463,7 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
         # a model-level validator reports "sub: message" (sub may be a dotted path such as
         # seams.0.b): fold the sub-field into the path
         head = msg.split(": ", 1)[0] if ": " in msg else ""
-        if head and " " not in head and ("." not in head or head.startswith("seams.")) \
-                and all(p.replace("_", "").isalnum() for p in head.split(".")):
+        if head and " " not in head and all(p.replace("_", "").isalnum() for p in head.split(".")):
             sub, msg = msg.split(": ", 1)
             loc = loc + tuple(int(p) if p.isdigit() else p for p in sub.split("."))
             field = ".".join(str(p) for p in loc)

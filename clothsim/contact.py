@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from .kernels import node_force
-from .mold import mold_contact_normals, mold_query
+from .mold import mold_contact_normals, mold_query, mold_segment_hit
 
 MAX_FEATURE_NORMALS = 64
 
@@ -124,17 +124,17 @@ def cone_distance(R, normals, m):
 
 
 @njit(cache=True)
-def contact_normals(p, margs, qbuf, nbuf):
-    """Query the mold at p: fills qbuf (closest point, pseudo-normal, feature) and the normals of
-    the faces meeting at the contact feature into nbuf; returns (signed distance, count >= 1)."""
-    sd = mold_query(margs, p, qbuf)
-    m = mold_contact_normals(margs, p, nbuf)
-    if m == 0:
-        nbuf[0, 0] = qbuf[3]
-        nbuf[0, 1] = qbuf[4]
-        nbuf[0, 2] = qbuf[5]
-        m = 1
-    return sd, m
+def stop_at_surface(margs, p0, p, fixed_row):
+    """Cut the move p0 -> p (p (3,) in place, free axes only) where it first enters the mold
+    (paper 3.2.2: a free node's move that would cross the surface stops on it). Returns True
+    when it does."""
+    t = mold_segment_hit(margs, p0, p)
+    if t < 0.0:
+        return False
+    for a in range(3):
+        if not fixed_row[a]:
+            p[a] = p0[a] + t * (p[a] - p0[a])
+    return True
 
 
 @njit(cache=True)
@@ -165,13 +165,7 @@ def node_residual(R, fixed_row, contact, p, has_mold, margs, qbuf, nbuf):
             R[a] = 0.0
     if not contact or not has_mold:
         return _norm3(R[0], R[1], R[2])
-    m = mold_contact_normals(margs, p, nbuf)
-    if m == 0:  # (the mold always gives one; kept so a zero can never mean "free")
-        sd = mold_query(margs, p, qbuf)
-        nbuf[0, 0] = qbuf[3]
-        nbuf[0, 1] = qbuf[4]
-        nbuf[0, 2] = qbuf[5]
-        m = 1
+    m = mold_contact_normals(margs, p, qbuf, nbuf)
     free_axis_normals(fixed_row, nbuf, m)
     return cone_distance(R, nbuf, m)
 

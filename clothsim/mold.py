@@ -380,24 +380,13 @@ def _tri_closest(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
 def _box_d2(bmin, bmax, n, px, py, pz):
     """Squared distance from p to the axis-aligned box of BVH node n."""
     d = 0.0
-    v = bmin[n, 0] - px
-    if v > 0.0:
-        d += v * v
-    v = px - bmax[n, 0]
-    if v > 0.0:
-        d += v * v
-    v = bmin[n, 1] - py
-    if v > 0.0:
-        d += v * v
-    v = py - bmax[n, 1]
-    if v > 0.0:
-        d += v * v
-    v = bmin[n, 2] - pz
-    if v > 0.0:
-        d += v * v
-    v = pz - bmax[n, 2]
-    if v > 0.0:
-        d += v * v
+    for a in range(3):
+        c = px if a == 0 else (py if a == 1 else pz)
+        v = bmin[n, a] - c
+        if v <= 0.0:
+            v = c - bmax[n, a]
+        if v > 0.0:
+            d += v * v
     return d
 
 
@@ -916,14 +905,14 @@ def mold_feature_normals(margs, feature_code, feature_index, normals_out):
 
 
 @njit(cache=True)
-def mold_contact_normals(margs, p, normals_out):
+def mold_contact_normals(margs, p, out, normals_out):
     """The cone of contact normals at the closest feature of point p; returns the count (>= 1).
 
     Like :func:`mold_feature_normals` after :func:`mold_query`, but also covers point-dependent
     primitive normals (sphere; cylinder side; cylinder rim gives the cap normal and the side
-    normal at p).
+    normal at p). out (8,): filled by that one query (closest point, pseudo-normal, feature), so
+    a caller needs no second query for them.
     """
-    out = np.empty(8)
     mold_query(margs, p, out)
     kind = margs[0][0]
     k = mold_feature_normals(margs, out[6], out[7], normals_out)

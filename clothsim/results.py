@@ -78,7 +78,8 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     max(0, -R . n), R the resultant of the node's springs and external force, n the mold's outward
     (pseudo-)normal at the closest point; the pressure divides it by the node's tributary area on
     the deformed sheet. Zero off contact; inf where a loaded node's area has shrunk below
-    GATHERED_AREA_RATIO of its rest area (the sheet gathered into a rope: a line load). Whole-array kernels (the viewer calls it 25 times a second)."""
+    GATHERED_AREA_RATIO of its rest area (the sheet gathered into a rope: a line load).
+    Whole-array kernels (the viewer calls it 25 times a second)."""
     n = model.node_count
     force = np.zeros(n)
     pressure = np.zeros(n)
@@ -100,8 +101,7 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     np.divide(force, area, out=pressure, where=area > 0)
     # where the sheet has gathered (a band pulled into a rope) its area is gone and the reaction
     # is a line load: the pressure there is unbounded (inf), not a huge finite number
-    rest_area = deformed_node_area(model.rest_positions, nx1, ny1)
-    pressure[(force > 0.0) & (area < GATHERED_AREA_RATIO * rest_area)] = np.inf
+    pressure[(force > 0.0) & (area < GATHERED_AREA_RATIO * model.node_area)] = np.inf
     return force, pressure
 
 

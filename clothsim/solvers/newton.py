@@ -29,7 +29,7 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    symmetric 3x3-block Gauss-Seidel smoothing, a sparse LU (scipy ``splu``) on the coarsest grid.
    Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly.
 3. Line search on the energy along x + a dx with the paper's contact rules applied to every
-   trial: a free node's move is clipped where it would enter the mold (``mold_segment_hit``) and
+   trial: a free node's move is clipped where it would enter the mold (``contact.stop_at_surface``) and
    it becomes a contact node; contact nodes are projected back onto the surface
    (``mold_query``); no node ever ends inside. A contact node carried past a convex edge or
    vertex into free space (its closest point is that edge or vertex and its resultant pulls it
@@ -76,10 +76,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, cone_active, contact_normals, free_axis_normals
+from ..contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
 from ..contact import residual_from_forces as _residual_from_forces
-from ..kernels import LENGTH_EPS, first_slope, forces_and_energy, table_eval
-from ..mold import MOLD_MESH, mold_query, mold_segment_hit
+from ..kernels import LENGTH_EPS, first_slope, forces_and_energy, spring_vector, table_eval
+from ..mold import MOLD_MESH, mold_contact_normals, mold_query
 from .common import Driver, model_mold_args
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
@@ -167,12 +167,7 @@ def _assemble(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, kin
     kink[s] [N/m] at and below strain 0 on tension-only springs."""
     data[:] = 0.0
     for s in range(spring_nodes.shape[0]):
-        a = spring_nodes[s, 0]
-        b = spring_nodes[s, 1]
-        dx = pos[b, 0] - pos[a, 0]
-        dy = pos[b, 1] - pos[a, 1]
-        dz = pos[b, 2] - pos[a, 2]
-        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, length = spring_vector(pos, spring_nodes[s, 0], spring_nodes[s, 1])
         if length < LENGTH_EPS:
             continue
         l0 = rest[s]
@@ -599,7 +594,7 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
         if in_contact[k] and has_mold and nq < 3:
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
-            sd, m = contact_normals(pos[k], margs, qbuf, nbuf)
+            m = mold_contact_normals(margs, pos[k], qbuf, nbuf)
             free_axis_normals(fixed[k], nbuf, m)
             na = cone_active(R, nbuf, m, act)
             if na >= 2 and qbuf[6] != 0.0 and probe > 0.0:
@@ -674,7 +669,7 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
         sd = mold_query(margs, p, q)
         if not (sd < -1e-3 * probe):
             continue
-        sd, m = contact_normals(pos[k], margs, q, nbuf)
+        m = mold_contact_normals(margs, pos[k], q, nbuf)
         best = 0.0
         jb = -1
         for j in range(m):
@@ -807,12 +802,7 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                                 if not fixed[k, a]:
                                     p[a] = pos0[k, a] + t * dd[a]
             else:
-                t = mold_segment_hit(margs, pos0[k], p)
-                if t >= 0.0:
-                    for a in range(3):
-                        if not fixed[k, a]:
-                            p[a] = pos0[k, a] + t * (p[a] - pos0[k, a])
-                    hit = True
+                hit = stop_at_surface(margs, pos0[k], p, fixed[k])
             sd = mold_query(margs, p, q)
             if c and sd > RELEASE_GAP and q[6] != 0.0:
                 # a contact node whose move took it off the surface past a convex edge or vertex
@@ -866,6 +856,25 @@ def _interp_1d(n: int) -> tuple[sp.csr_matrix, np.ndarray]:
 
 
 @njit(cache=True)
+def _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, stamp, rowbuf):
+    """The distinct coarse columns of row c of P^T A P (the parents of the fine neighbours of
+    c's children) into rowbuf, unsorted; returns how many. marker (nc,) remembers the stamp of
+    the row that last listed each column (stamps must differ between calls)."""
+    m = 0
+    for qc in range(cptr[c], cptr[c + 1]):
+        k = cchild[qc]
+        for q in range(indptr[k], indptr[k + 1]):
+            l = indices[q]
+            for t in range(pidx.shape[1]):
+                d = pidx[l, t]
+                if d >= 0 and marker[d] != stamp:
+                    marker[d] = stamp
+                    rowbuf[m] = d
+                    m += 1
+    return m
+
+
+@njit(cache=True)
 def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi):
     """Coarse operator A_c = P^T A P for a node-level interpolation P (fine node k has parents
     pidx[k, :] with weights pw[k, :], -1 unused; coarse node c has children cchild[cptr[c]:...]
@@ -874,41 +883,17 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
     P^T (A - (I - Pi)) P, so the (I - Pi) part is left out of the diagonal blocks.
     Returns the coarse BSR arrays (indptr, indices, data (nb,3,3)) with sorted rows."""
     marker = -np.ones(nc, np.int64)
-    # symbolic pass: count the coarse row lengths
-    cnt = np.zeros(nc, np.int64)
     rowbuf = np.empty(nc, np.int64)
-    for c in range(nc):
-        m = 0
-        for qc in range(cptr[c], cptr[c + 1]):
-            k = cchild[qc]
-            for q in range(indptr[k], indptr[k + 1]):
-                l = indices[q]
-                for t in range(pidx.shape[1]):
-                    d = pidx[l, t]
-                    if d >= 0 and marker[d] != c:
-                        marker[d] = c
-                        rowbuf[m] = d
-                        m += 1
-        cnt[c] = m
+    # symbolic pass: count the coarse row lengths
     cip = np.zeros(nc + 1, np.int64)
     for c in range(nc):
-        cip[c + 1] = cip[c] + cnt[c]
+        cip[c + 1] = cip[c] + _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, c, rowbuf)
     cidx = np.empty(cip[nc], np.int64)
     cdat = np.zeros((cip[nc], 3, 3))
-    slot = -np.ones(nc, np.int64)
+    slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
     for c in range(nc):
-        # collect and sort the row's columns
-        m = 0
-        for qc in range(cptr[c], cptr[c + 1]):
-            k = cchild[qc]
-            for q in range(indptr[k], indptr[k + 1]):
-                l = indices[q]
-                for t in range(pidx.shape[1]):
-                    d = pidx[l, t]
-                    if d >= 0 and slot[d] != -2 - c:
-                        slot[d] = -2 - c
-                        rowbuf[m] = d
-                        m += 1
+        # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
+        m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
         row = np.sort(rowbuf[:m])
         base = cip[c]
         for t in range(m):
@@ -931,8 +916,6 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
                             if use_pi and l == k:
                                 v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
                             cdat[z, r, cc] += w * v
-        for t in range(m):
-            slot[row[t]] = -1
     return cip, cidx, cdat
 
 

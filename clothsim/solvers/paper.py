@@ -39,9 +39,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_vector
+from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_vector, stop_at_surface
 from ..kernels import forces_and_energy, node_force
-from ..mold import mold_query, mold_segment_hit
+from ..mold import mold_query
 from .common import Driver, model_mold_args
 
 # After a projection onto the mold a node must not be inside by more than this [m].
@@ -110,12 +110,7 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
                     if sd < -PENETRATION_TOL:
                         ok = False  # fixed axes keep the node inside: reject this move
             else:
-                t = mold_segment_hit(margs, pos[k], trial)
-                if t >= 0.0:
-                    for a in range(3):
-                        if not fixed[k, a]:
-                            trial[a] = pos[k, a] + t * (trial[a] - pos[k, a])
-                    contact1 = True
+                contact1 = stop_at_surface(margs, pos[k], trial, fixed[k])
                 sd = mold_query(margs, trial, qbuf)
             if not tangent and (contact1 or sd < 0.0):
                 # land exactly on the surface (the hit point is only accurate to rounding)
