@@ -16,7 +16,6 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernels import node_force
 from .mold import mold_contact_normals, mold_query, mold_segment_hit
 
 MAX_FEATURE_NORMALS = 64
@@ -198,19 +197,6 @@ def residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V):
                 return math.nan
             vmax = v
     return vmax
-
-
-@njit(cache=True)
-def residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
-                    x, y, cum, start, comp, ext, has_mold, margs, V):
-    """Fill V (N,) with eq. (6)'s entries; return ||V||_inf (nan if any entry is not finite).
-
-    Every solver reports this residual (the Newton solver, which has the resultants already,
-    calls :func:`residual_from_forces` directly)."""
-    F = np.empty_like(pos)
-    for k in range(pos.shape[0]):
-        node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum, start, comp, ext, F[k])
-    return residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V)
 
 
 @njit(cache=True)

@@ -957,10 +957,11 @@ def _quadratic_interval(A, B, C):
 
 
 @njit(cache=True)
-def _slab(p0, d, lo, hi, tlo, thi):
-    """Clip the running interval (tlo, thi) by the open slab lo < p0 + t d < hi."""
+def _slab(p0, d, lo, hi, tlo, thi, closed=False):
+    """Clip the running interval (tlo, thi) by the open slab lo < p0 + t d < hi (closed: with
+    the bounds, lo <= p0 + t d <= hi, the BVH box test)."""
     if d == 0.0:
-        if lo < p0 < hi:
+        if (lo <= p0 <= hi) if closed else (lo < p0 < hi):
             return tlo, thi
         return 1.0, 0.0
     a = (lo - p0) / d
@@ -1000,7 +1001,7 @@ def _mesh_segment_hit(margs, p0, p1):
         tlo = -_T_EPS
         thi = min(best, 1.0) + _T_EPS
         for k in range(3):
-            tlo, thi = _slab_closed(p0[k], (dx, dy, dz)[k], bmin[n, k], bmax[n, k], tlo, thi)
+            tlo, thi = _slab(p0[k], (dx, dy, dz)[k], bmin[n, k], bmax[n, k], tlo, thi, True)
         if tlo > thi:
             continue
         if child[n, 0] >= 0:
@@ -1062,20 +1063,6 @@ def _mesh_segment_hit(margs, p0, p1):
                     continue
             best = t
     return best if best <= 1.0 else -1.0
-
-
-@njit(cache=True)
-def _slab_closed(p0, d, lo, hi, tlo, thi):
-    """Clip (tlo, thi) by the closed slab lo <= p0 + t d <= hi (BVH box test)."""
-    if d == 0.0:
-        if lo <= p0 <= hi:
-            return tlo, thi
-        return 1.0, 0.0
-    a = (lo - p0) / d
-    b = (hi - p0) / d
-    if a > b:
-        a, b = b, a
-    return max(tlo, a), min(thi, b)
 
 
 @njit(cache=True)

@@ -41,12 +41,19 @@ def warm_up(model: Model, state: State, settings) -> float:
     """Compile (or load from numba's disk cache) every kernel the solve will call, so that no
     compilation falls inside a timed run; returns the seconds spent.
 
-    One iteration on a copy of the state covers the first step (for newton, grid sequencing); a
-    few on a 4 x 4 sheet with the same mold, tables and optional terms cover the rest (same array
+    One iteration on a copy of the state covers the first step; a few on a 4 x 4 sheet with the same mold, tables and optional terms cover the rest (same array
     types, so the same compiled code) at no cost worth counting."""
     t0 = time.perf_counter()
-    s = settings.model_copy(update={"max_iterations": 1, "time_limit_s": None})
+    # one fine-grid iteration without the grid sequencing (its coarse solves run the same kernels
+    # and would be thrown away); prolong_state's mold query is warmed on its own
+    s = settings.model_copy(update={"max_iterations": 1, "time_limit_s": None, "newton_sequencing": False})
     run_solver(model, state.copy(), s, None)
+    if model.mold is not None:
+        from .mold import mold_query_many
+
+        p = np.ascontiguousarray(state.positions[:1])
+        mold_query_many(model.mold.kernel_args(), p, np.empty(1), np.empty((1, 3)), np.empty((1, 3)),
+                        np.empty((1, 2), np.int64))
     if pick_method(model, settings) == "newton":
         try:  # best effort: a warm-up problem must never stop the real run
             small = build_model(_tiny_scene(model), model.mold)

@@ -717,15 +717,7 @@ class ViewerApp:
         smax = max(float(warp.strain[-1]), float(weft.strain[-1]))
         x = np.unique(np.concatenate([warp.strain, weft.strain, [smax]]))
 
-        def ev(t):
-            y = np.interp(x, t.strain, t.tension)
-            if len(t.strain) >= 2:  # beyond the last point the last segment extends
-                slope = (t.tension[-1] - t.tension[-2]) / (t.strain[-1] - t.strain[-2])
-                beyond = x > t.strain[-1]
-                y[beyond] = t.tension[-1] + slope * (x[beyond] - t.strain[-1])
-            return y
-
-        self.gui["curves"].data = (x, ev(warp), ev(weft))
+        self.gui["curves"].data = (x, warp.evaluate(x), weft.evaluate(x))
 
     # constraints ------------------------------------------------------------
     @staticmethod
@@ -955,21 +947,13 @@ class ViewerApp:
     def scene_yaml(self) -> str:
         """The edited scene (the draft) as YAML, with file paths made absolute so it loads from
         wherever it is saved."""
-        scene = self._validate(self.draft)
-        d = scene.to_dict()
+        scene = self._validate(self.draft).resolved()
         head = f"# saved by the clothsim viewer on {time.strftime('%Y-%m-%d %H:%M')}\n"
-        mold = d.get("mold")
-        if isinstance(mold, dict) and "path" in mold:
-            mold["path"] = str(scene.resolve(mold["path"]))
-            if str(self._tmpdir) in mold["path"]:
-                head += "# the mold was uploaded: its temporary copy disappears when the viewer stops\n"
-        for k in ("warp", "weft"):
-            m = d["fabric"][k]
-            if "csv" in m:
-                m["csv"] = str(scene.resolve(m["csv"]))
+        if scene.mold is not None and str(self._tmpdir) in str(scene.mold.get("path", "")):
+            head += "# the mold was uploaded: its temporary copy disappears when the viewer stops\n"
         if self.pending:
             head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"
-        return head + Scene.model_validate(d).to_yaml()
+        return head + scene.to_yaml()
 
     # ------------------------------------------------------------------ view
     def _view_changed(self, mold: bool = False) -> None:

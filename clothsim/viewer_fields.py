@@ -35,14 +35,15 @@ def node_field(model, positions: np.ndarray, in_contact: np.ndarray, key: str) -
         return in_contact.astype(np.float64)
     if key == "pressure":
         return contact_pressure(model, positions, in_contact) / MMHG
-    S = model.spring_count
+    # the fields are warp and weft quantities: only those springs (stored first) are evaluated
+    wc, fc = model.warp_count, model.weft_count
+    S = wc + fc
     strain = np.empty(S)
     force = np.empty(S)
-    spring_strains_tensions(positions, *model.spring_args(), strain, force)
-    wc, fc = model.warp_count, model.weft_count
+    nodes, rest, width, table, *tabs = model.spring_args()
+    spring_strains_tensions(positions, nodes[:S], rest[:S], width[:S], table[:S], *tabs, strain, force)
     if key == "tension":
-        width = model.spring_width
-        t = np.divide(force, width, out=np.zeros(S), where=width > 0)
+        t = np.divide(force, width[:S], out=np.zeros(S), where=width[:S] > 0)
         w = _spread_warp(t[:wc].reshape(nx1 - 1, ny1), nx1, ny1) if nx1 > 1 else np.zeros((nx1, ny1))
         f = _spread_weft(t[wc:wc + fc].reshape(nx1, ny1 - 1), nx1, ny1) if ny1 > 1 else np.zeros((nx1, ny1))
         return np.maximum(w, f).ravel()

@@ -130,10 +130,10 @@ def test_hessian_blocks_match_force_differences(strain):
 
 
 def test_fast_forces_and_residual_match_per_spring_and_per_node_kernels():
-    """The scalar-indexed whole-sheet kernels every solver uses (forces_and_energy, and Newton's
+    """The scalar-indexed whole-sheet kernels every solver uses (forces_and_energy, and the
     residual from those forces) agree with the per-spring function (spring_eval, summed here in
-    Python) and with the per-node resultants of the paper's relaxation (node_force, through
-    contact.residual_vector) to rounding, with gravity, shear and bending on."""
+    Python) and with the per-node resultants of the paper's relaxation (node_force) to
+    rounding, with gravity, shear and bending on."""
     from clothsim.kernels import node_force, spring_eval
     from clothsim.solvers.common import residual
 

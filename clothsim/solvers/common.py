@@ -17,7 +17,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ..contact import residual_vector
+from ..contact import residual_from_forces
 from ..kernels import forces_and_energy
 
 STATUSES = ("converged", "max_iterations", "time_limit", "stalled", "diverged", "stopped")
@@ -77,8 +77,9 @@ def residual(model, state, V: Optional[np.ndarray] = None) -> tuple[float, np.nd
     has_mold, margs = model_mold_args(model)
     if V is None:
         V = np.empty(model.node_count)
-    vinf = residual_vector(state.positions, model.fixed_axes, state.in_contact, *model.adjacency_args(),
-                           model.external_force, has_mold, margs, V)
+    F = np.empty_like(state.positions)
+    forces_and_energy(state.positions, *model.spring_args(), model.external_force, F)
+    vinf = residual_from_forces(state.positions, F, model.fixed_axes, state.in_contact, has_mold, margs, V)
     return vinf, V
 
 

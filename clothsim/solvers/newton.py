@@ -232,76 +232,6 @@ def _project_system(indptr, indices, data, diag, Pi, mu_abs, out):
 
 
 @njit(cache=True)
-def _inv3(a, out):
-    """Inverse of a symmetric 3x3 block; a nearly singular block is shifted first."""
-    tr = abs(a[0, 0]) + abs(a[1, 1]) + abs(a[2, 2])
-    shift = 0.0
-    for attempt in range(4):
-        a00 = a[0, 0] + shift
-        a11 = a[1, 1] + shift
-        a22 = a[2, 2] + shift
-        c00 = a11 * a22 - a[1, 2] * a[2, 1]
-        c01 = a[1, 2] * a[2, 0] - a[1, 0] * a22
-        c02 = a[1, 0] * a[2, 1] - a11 * a[2, 0]
-        det = a00 * c00 + a[0, 1] * c01 + a[0, 2] * c02
-        scale = max(tr, 1e-300)
-        if abs(det) > 1e-12 * scale * scale * scale and math.isfinite(det):
-            out[0, 0] = c00 / det
-            out[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a22) / det
-            out[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a11) / det
-            out[1, 0] = c01 / det
-            out[1, 1] = (a00 * a22 - a[0, 2] * a[2, 0]) / det
-            out[1, 2] = (a[0, 2] * a[1, 0] - a00 * a[1, 2]) / det
-            out[2, 0] = c02 / det
-            out[2, 1] = (a[0, 1] * a[2, 0] - a00 * a[2, 1]) / det
-            out[2, 2] = (a00 * a11 - a[0, 1] * a[1, 0]) / det
-            return
-        shift = (1e-8 if shift == 0.0 else shift * 1e3) * max(tr, 1.0)
-    for r in range(3):
-        for c in range(3):
-            out[r, c] = 0.0
-
-
-@njit(cache=True)
-def _block_diag_inv(indptr, indices, data, dinv):
-    n = indptr.shape[0] - 1
-    for i in range(n):
-        found = False
-        for q in range(indptr[i], indptr[i + 1]):
-            if indices[q] == i:
-                _inv3(data[q], dinv[i])
-                found = True
-                break
-        if not found:
-            dinv[i] = 0.0
-
-
-@njit(cache=True)
-def _block_gs(indptr, indices, data, dinv, b, xv, reverse):
-    """One 3x3-block Gauss-Seidel sweep on A x = b (forward, or backward when reverse)."""
-    n = indptr.shape[0] - 1
-    for ii in range(n):
-        i = n - 1 - ii if reverse else ii
-        r0 = b[3 * i]
-        r1 = b[3 * i + 1]
-        r2 = b[3 * i + 2]
-        for q in range(indptr[i], indptr[i + 1]):
-            j = indices[q]
-            if j == i:
-                continue
-            x0 = xv[3 * j]
-            x1 = xv[3 * j + 1]
-            x2 = xv[3 * j + 2]
-            r0 -= data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
-            r1 -= data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
-            r2 -= data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
-        d = dinv[i]
-        xv[3 * i] = d[0, 0] * r0 + d[0, 1] * r1 + d[0, 2] * r2
-        xv[3 * i + 1] = d[1, 0] * r0 + d[1, 1] * r1 + d[1, 2] * r2
-        xv[3 * i + 2] = d[2, 0] * r0 + d[2, 1] * r1 + d[2, 2] * r2
-
-
-@njit(cache=True)
 def _find_block(indptr, indices, i, j):
     lo = indptr[i]
     hi = indptr[i + 1]
@@ -1121,7 +1051,6 @@ class NewtonLevel:
         self.model = model
         self.has_mold, self.margs = model_mold_args(model)
         self.sargs = model.spring_args()
-        self.adj = model.adjacency_args()
         n = model.node_count
         self.n = n
         self.indptr, self.indices, self.slot, self.diag = _bsr_pattern(n, model.spring_nodes)
@@ -1144,19 +1073,15 @@ class NewtonLevel:
         self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
         ext = np.ptp(model.rest_positions, axis=0).max()
         self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
-        self.cg_iterations = 0
         # step probed for leaving an edge's or vertex's tangent cone [m] (_block_infeasible)
         self.probe = 1e-6 * float(min(model.spacing))
-        self.clip_faces = False  # unused: the line search tries the clipped step itself when the straight one fails
         self._cache = None
         self.sd0 = np.full(n, np.inf)
-        self.ls_trials = 0
         self.ls_alpha = 0.0
         self._mg_pi = None
         self._mg_mu = None
         self._mg_age = 0
         self._last_cg = 0
-        self.fails = 0
 
     # -- helpers ---------------------------------------------------------------------------
     def energy_forces(self, pos, F):
@@ -1225,7 +1150,7 @@ class NewtonLevel:
         contact = state.in_contact
         contact_before = contact.copy()
         _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe)
-        v_base = self.residual(pos, contact) if not np.array_equal(contact, contact_before) else vinf_now
+        v_base = self.residual(pos, contact, F) if not np.array_equal(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
         _apply_pi(self.Pi, f, rhs)
@@ -1250,16 +1175,14 @@ class NewtonLevel:
                 break
             mu_abs = self.lm * dmean
             tol = min(1e-2, max(forcing, 1e-12))
-            dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
-            self.cg_iterations += cg_it
+            dx, _ = self._solve_linear(rhs, mu_abs, tol)
             for _ in range(3):
                 if not (self.has_mold and np.all(np.isfinite(dx))):
                     break
                 if _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi) == 0:
                     break
                 _apply_pi(self.Pi, f, rhs)
-                dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
-                self.cg_iterations += cg_it
+                dx, _ = self._solve_linear(rhs, mu_abs, tol)
             if not np.all(np.isfinite(dx)):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
@@ -1290,15 +1213,12 @@ class NewtonLevel:
         if big > 0 and alpha * big > 0.5 * self.blowup:
             alpha = 0.5 * self.blowup / big
         Ft = np.empty_like(self.F)
-        self.ls_trials = 0
-        self.ls_clipped = False
         mesh = self.has_mold and self.margs[0][0] == MOLD_MESH and contact.any()
         for _ in range(40):
             self.ls_alpha = alpha
             # the straight step (contact nodes projected back onto the surface); on a mesh mold,
             # when it fails, the same step with contact nodes stopped at their face's border
             for clip in ((False, True) if mesh else (False,)):
-                self.ls_trials += 1
                 pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
                                        clip, self.F, self.trial, self.trial_contact)
                 if not (pen <= PENETRATION_TOL):
@@ -1308,13 +1228,11 @@ class NewtonLevel:
                     continue
                 resolution = ENERGY_RESOLUTION * max(abs(E0), abs(E1), 1e-300) + 1e-300
                 if E1 <= E0 + 1e-4 * alpha * slope and E1 < E0 - resolution:
-                    self.ls_clipped = clip
                     return self._accept(state, E1, F=Ft)
                 if abs(E1 - E0) <= 10 * resolution:
                     # below the energy's resolution: judge by the residual
                     v1 = self.residual(self.trial, self.trial_contact, Ft)
                     if v1 < v_base:
-                        self.ls_clipped = clip
                         return self._accept(state, E1, v1, Ft)
             alpha *= 0.5
             if alpha * np.abs(dx).max() < 1e-17:
@@ -1484,15 +1402,9 @@ def sequencing_chain(model, min_nodes: int = 400):
         c, sub = coarsen_model(m)
         if c is None or c.node_count < min_nodes:
             break
-        chain[-1] = (chain[-1][0], chain[-1][1])
-        chain.append((c, sub))
+        chain.append((c, sub))  # sub: the nodes of m (the next finer grid) that c keeps
         m = c
-    chain = chain[::-1]
-    # chain[i][1] must map level i to level i+1: shift the subs by one
-    out = []
-    for i, (mdl, _) in enumerate(chain):
-        out.append((mdl, chain[i][1] if i < len(chain) - 1 else None))
-    return out
+    return chain[::-1]
 
 
 def grid_sequence(model, state, settings, kink, deadline):
@@ -1515,8 +1427,10 @@ def grid_sequence(model, state, settings, kink, deadline):
     for li, (mdl, _) in enumerate(chain[:-1]):
         p, c = starts[li]
         cst = State(np.ascontiguousarray(p), c.copy(), 0)
-        if prev_state is not None and not prolong_state(prev_model, prev_state, mdl, cst):
-            cst = State(np.ascontiguousarray(p), c.copy(), 0)
+        if prev_state is not None:
+            # the previous level's solution; when it cannot be interpolated (prolong_state then
+            # leaves cst alone) this level starts from the restricted state
+            prolong_state(prev_model, prev_state, mdl, cst)
         lvl = NewtonLevel(mdl, kink=kink)
         v0 = lvl.residual(cst.positions, cst.in_contact)
         # the coarsest grid is solved tightly (it fixes the contact set), the others only as far

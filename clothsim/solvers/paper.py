@@ -39,7 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_vector, stop_at_surface
+from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_from_forces, stop_at_surface
 from ..kernels import forces_and_energy, node_force
 from ..mold import mold_query
 from .common import Driver, model_mold_args
@@ -162,8 +162,9 @@ def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, r
             moved += _relax_node(order[kk], pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest,
                                  width, table, x, y, cum, start, comp, ext, C, max_retries, has_mold,
                                  margs, R, Rn, qbuf, nbuf, trial)
-        vinf = residual_vector(pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
-                               x, y, cum, start, comp, ext, has_mold, margs, V)
+        # one force pass gives both the sweep's energy and its residual (eq. 6)
+        en = forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, F)
+        vinf = residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V)
         big = 0.0
         for k in range(pos.shape[0]):
             for a in range(3):
@@ -175,7 +176,7 @@ def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, r
             in_contact[:] = prev_contact
             return it, 2
         res_out[it] = vinf
-        en_out[it] = forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, F)
+        en_out[it] = en
         if vinf <= e:
             return it + 1, 1
         if moved == 0:
