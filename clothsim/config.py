@@ -26,8 +26,7 @@ NODE_SETS = (
 )
 
 
-class SceneError(ValueError):
-    """A scene is invalid. ``str(err)`` is the user-facing message: ``file:line: field: what``."""
+from .errors import SceneError  # noqa: E402  (re-exported: clothsim.config.SceneError)
 
 
 class _Strict(BaseModel):
@@ -344,13 +343,14 @@ class Scene(_Strict):
         """Each seam joins two node lines of equal length that do not overlap."""
         if not self.seams:
             return self
-        from .grid import seam_pairs
+        from .selection import SelectionError, seam_pairs
+        from .topology import Topology
 
-        nx, ny = self.fabric.divisions
+        topology = Topology.rectangle(*self.fabric.divisions)
         for n, seam in enumerate(self.seams):
             try:
-                seam_pairs(seam, nx, ny)
-            except SceneError as exc:
+                seam_pairs(seam, topology)
+            except SelectionError as exc:
                 raise ValueError(f"seams.{n}.{exc}") from None
         return self
 

@@ -1,26 +1,28 @@
-"""Scene -> Model: nodes, springs, tributary widths, constraint masks, initial state.
+"""Model and State, and the lattice builder: nodes, springs, tributary widths, constraint masks.
 
-Node (i, j), i along warp (x, 0..nx) and j along weft (y, 0..ny), is row ``k = i * (ny + 1) + j``
-of the flat (N, 3) arrays. Springs are stored warp first (``(i, j)-(i+1, j)``, ``nx * (ny+1)`` of
-them, warp spring (i, j) at index ``i * (ny+1) + j``), then weft (``(i, j)-(i, j+1)``,
-``(nx+1) * ny``, weft spring (i, j) at ``nx*(ny+1) + i * ny + j``), then the optional shear,
-bending and seam families, which are only built when the scene asks for them (an unused term
-costs nothing).
+A :class:`~clothsim.topology.Topology` says which nodes exist and which warp and weft springs
+join them; this module gives them their rest lengths, tributary widths and tables, adds the
+optional shear, bending and seam families (built only when a scene asks for them: an unused term
+costs nothing), and the constraint masks. Springs are stored warp first, then weft (in the
+topology's order), then shear, bending and seams. Grid sequencing's coarse models come from the
+same builder on the stride-2 lattice (:func:`coarsen_model`).
 
-Tributary width (paper Fig. 3): a warp spring carries the band of width dy around its row, half of
-it on the bottom and top rows; a weft spring the band of width dx, half on the left and right
-columns. Spring force = tension [N/m] x width [m].
+Tributary width (paper Fig. 3): a warp spring carries the band of width dy around its row: half
+of it (dy/2) on each side where the lattice has a cell, so half on the bottom and top rows of a
+rectangle; a weft spring the band of width dx likewise. Spring force = tension [N/m] x width
+[m]. A node's area is a quarter of each adjacent cell. The only reader of the scene file above
+this module is :mod:`clothsim.compile`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .config import Scene, SceneError
 from .material import Table, TablePack
+from .topology import Topology
 
 FAMILY_WARP, FAMILY_WEFT, FAMILY_SHEAR, FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SEAM = 0, 1, 2, 3, 4, 5
 
@@ -33,10 +35,42 @@ SEAM_REST_RATIO = 1e-6
 
 
 @dataclass(frozen=True)
+class Placement:
+    """Where the flat sheet goes in space at the start: unchanged (``wrap`` None), or rolled onto a
+    cylinder (warp x runs round the axis, weft y along it, centred on ``center``).
+
+    origin [m] (3,) and size [m] (2,): the flat sheet's origin and extent; wrap: an object with
+    ``center`` [m], ``axis``, ``radius`` [m] and ``start_angle`` [deg], or None."""
+
+    origin: tuple = (0.0, 0.0, 0.0)
+    size: tuple = (0.0, 0.0)
+    wrap: object = None
+
+    def apply(self, flat: np.ndarray) -> np.ndarray:
+        """Points of the flat sheet (N, 3) [m] -> their placement in space (N, 3) [m]."""
+        w = self.wrap
+        if w is None:
+            return flat.copy()
+        a = np.asarray(w.axis, float)
+        a = a / np.linalg.norm(a)
+        t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = t - a * (t @ a)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(a, e1)
+        u = flat[:, 0] - self.origin[0]
+        v = flat[:, 1] - self.origin[1] - self.size[1] / 2
+        r = w.radius + (flat[:, 2] - self.origin[2])
+        theta = math.radians(w.start_angle) + u / w.radius
+        c = np.asarray(w.center, float)
+        return c + r[:, None] * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2) + v[:, None] * a
+
+
+@dataclass(frozen=True)
 class Model:
     """Constant arrays of a scene (MuJoCo's model/data split: the State changes, this does not).
 
-    node_count: N. grid_shape: (nx+1, ny+1). rest_positions [m] (N,3): the flat sheet.
+    topology: the lattice (:class:`~clothsim.topology.Topology`: nodes, warp/weft pairs, faces).
+    node_count: N. rest_positions [m] (N,3): the flat sheet.
     spring_nodes (S,2) int64; spring_rest_length [m] (S,); spring_width [m] (S,) tributary width
     (force = tension [N/m] x width); spring_table (S,) int64 index into ``tables``;
     spring_family (S,) int8 (0 warp, 1 weft, 2 shear, 3/4 bending, 5 seam); fixed_axes (N,3) bool;
@@ -45,10 +79,10 @@ class Model:
     only; used to build the initial guess); external_force [N]
     (N,3) constant (gravity; zeros when off); node_area [m^2] (N,) tributary area of each node;
     node adjacency in CSR form: adj_ptr (N+1,), adj_node, adj_spring; mold: clothsim.mold.Mold or
-    None."""
+    None; spacing [m] (dx, dy) of the lattice; placement: where the flat sheet starts in space."""
 
     node_count: int
-    grid_shape: tuple[int, int]
+    topology: Topology
     rest_positions: np.ndarray
     spring_nodes: np.ndarray
     spring_rest_length: np.ndarray
@@ -67,11 +101,22 @@ class Model:
     mold: object = None
     spacing: tuple[float, float] = (0.0, 0.0)
     prescribed_flat: np.ndarray | None = None
-    warp_count: int = 0
-    weft_count: int = 0
+    placement: Placement = Placement()
 
-    def node_index(self, i: int, j: int) -> int:
-        return i * self.grid_shape[1] + j
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        """(nx+1, ny+1) of a one-panel full rectangle (see Topology.grid_shape)."""
+        return self.topology.grid_shape
+
+    @property
+    def warp_count(self) -> int:
+        """Warp springs, stored first."""
+        return self.topology.warp_count
+
+    @property
+    def weft_count(self) -> int:
+        """Weft springs, stored after the warp springs."""
+        return self.topology.weft_count
 
     @property
     def spring_count(self) -> int:
@@ -101,102 +146,6 @@ class State:
         return State(self.positions.copy(), self.in_contact.copy(), self.iteration)
 
 
-def select_nodes(sel, nx: int, ny: int, what: str = "constraints") -> np.ndarray:
-    """Boolean mask (nx+1, ny+1) of a node selector (see config.Constraint); ``what`` names the
-    field in error messages."""
-    m = np.zeros((nx + 1, ny + 1), bool)
-    if isinstance(sel, str):
-        if sel in ("left", "perimeter"):
-            m[0, :] = True
-        if sel in ("right", "perimeter"):
-            m[nx, :] = True
-        if sel in ("bottom", "perimeter"):
-            m[:, 0] = True
-        if sel in ("top", "perimeter"):
-            m[:, ny] = True
-        if sel in ("bottom_left", "corners"):
-            m[0, 0] = True
-        if sel in ("bottom_right", "corners"):
-            m[nx, 0] = True
-        if sel in ("top_left", "corners"):
-            m[0, ny] = True
-        if sel in ("top_right", "corners"):
-            m[nx, ny] = True
-        if sel == "all":
-            m[:] = True
-        return m
-
-    def rng(r, n, name):
-        if r is None:
-            return 0, n
-        a, b = (r, r) if isinstance(r, int) else r
-        a = a + n + 1 if a < 0 else a
-        b = b + n + 1 if b < 0 else b
-        if not (0 <= a <= b <= n):
-            raise SceneError(f"{what}: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
-        return a, b
-
-    ia, ib = rng(sel.i, nx, "i")
-    ja, jb = rng(sel.j, ny, "j")
-    m[ia:ib + 1, ja:jb + 1] = True
-    return m
-
-
-def _seam_line(sel, nx: int, ny: int, name: str) -> tuple[np.ndarray, int]:
-    """Node indices of one seam side in index order, and the grid direction it runs along
-    (0: i varies, 1: j varies; 1 for a single node)."""
-    ii, jj = np.nonzero(select_nodes(sel, nx, ny, name))
-    if ii.size == 0:
-        raise SceneError(f"{name}: selects no nodes")
-    if ii.size > 1 and not ((ii == ii[0]).all() or (jj == jj[0]).all()):
-        raise SceneError(f"{name}: must select one line of nodes (a single i or a single j); it selects "
-                         f"{ii.size} nodes over i {ii.min()}..{ii.max()}, j {jj.min()}..{jj.max()}")
-    direction = 0 if ii.size > 1 and (jj == jj[0]).all() else 1
-    return (ii * (ny + 1) + jj).astype(np.int64), direction
-
-
-def seam_pairs(seam, nx: int, ny: int):
-    """The node pairs a seam (config.Seam) sews: (a (P,), b (P,), tributary length factors (P,)),
-    where the factor of a pair is its share of the seam in grid spacings along each side (1 inside,
-    1/2 at the ends, averaged over the two sides). Pairs of a node with itself (the tip of a dart)
-    are dropped. Raises SceneError naming the side ("a: ..." or "b: ...")."""
-    a, da = _seam_line(seam.a, nx, ny, "a")
-    b, db = _seam_line(seam.b, nx, ny, "b")
-    if a.size != b.size:
-        raise SceneError(f"b: selects {b.size} nodes but a selects {a.size}; a seam sews them one to one")
-    if seam.reverse:
-        b = b[::-1]
-    share = np.ones(a.size)
-    if a.size > 1:
-        share[0] = share[-1] = 0.5
-    keep = a != b
-    if not keep.any():
-        raise SceneError("b: selects the same nodes as a (nothing to sew)")
-    return a[keep], b[keep], share[keep], (da, db)
-
-
-def place_sheet(scene: Scene, flat: np.ndarray) -> np.ndarray:
-    """Map points of the flat sheet (N,3) [m] to their initial placement in space: unchanged, or
-    rolled onto a cylinder when ``initial.wrap`` is set (warp x runs round the cylinder's axis,
-    weft y along it, centred on ``wrap.center``)."""
-    w = scene.initial.wrap
-    if w is None:
-        return flat.copy()
-    fab = scene.fabric
-    a = np.asarray(w.axis, float)
-    a = a / np.linalg.norm(a)
-    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = t - a * (t @ a)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
-    u = flat[:, 0] - fab.origin[0]
-    v = flat[:, 1] - fab.origin[1] - fab.size[1] / 2
-    r = w.radius + (flat[:, 2] - fab.origin[2])
-    theta = math.radians(w.start_angle) + u / w.radius
-    c = np.asarray(w.center, float)
-    return c + r[:, None] * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2) + v[:, None] * a
-
-
 def _adjacency(n: int, spring_nodes: np.ndarray):
     s = spring_nodes.shape[0]
     ends = np.concatenate([spring_nodes[:, 0], spring_nodes[:, 1]])
@@ -209,103 +158,159 @@ def _adjacency(n: int, spring_nodes: np.ndarray):
     return ptr, others[order].astype(np.int64), sids[order].astype(np.int64)
 
 
-def build_model(scene: Scene, mold=None) -> Model:
-    """Build the constant arrays of a scene. ``mold`` is a loaded clothsim.mold.Mold or None."""
-    fab = scene.fabric
-    nx, ny = fab.divisions
-    lx, ly = fab.size
-    dx, dy = lx / nx, ly / ny
-    ox, oy, oz = fab.origin
-    ii, jj = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), indexing="ij")
-    rest = np.stack([ox + ii * dx, oy + jj * dy, np.full(ii.shape, oz, float)], -1).reshape(-1, 3)
-    n = rest.shape[0]
-    idx = np.arange(n).reshape(nx + 1, ny + 1)
+def _cells(idx: np.ndarray) -> np.ndarray:
+    """(nx, ny) bool: the cells of a panel's index grid whose four corners exist."""
+    return (idx[:-1, :-1] >= 0) & (idx[1:, :-1] >= 0) & (idx[1:, 1:] >= 0) & (idx[:-1, 1:] >= 0)
 
-    warp_table, weft_table = scene.tables()
-    tables = [warp_table, weft_table]
 
-    nodes, rest_len, width, table, family = [], [], [], [], []
+def _band_width(cells: np.ndarray, h: float, along: int) -> np.ndarray:
+    """Tributary width of the springs running along lattice direction ``along`` (0: warp, 1:
+    weft): h/2 from each side where the lattice has a cell; shape (nx, ny+1) for warp, (nx+1, ny)
+    for weft."""
+    c = cells if along == 0 else cells.T
+    pad = np.zeros((c.shape[0], c.shape[1] + 2), bool)
+    pad[:, 1:-1] = c
+    w = 0.5 * h * pad[:, :-1] + 0.5 * h * pad[:, 1:]
+    return w if along == 0 else w.T
 
-    # warp springs: (i,j)-(i+1,j), width dy (half on bottom/top rows)
-    a = idx[:-1, :].ravel()
-    b = idx[1:, :].ravel()
-    w = np.full((nx, ny + 1), dy)
-    w[:, 0] *= 0.5
-    w[:, ny] *= 0.5
-    nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, dx)); width.append(w.ravel())
-    table.append(np.zeros(a.size, np.int64)); family.append(np.full(a.size, FAMILY_WARP, np.int8))
-    # weft springs: (i,j)-(i,j+1), width dx (half on left/right columns)
-    a = idx[:, :-1].ravel()
-    b = idx[:, 1:].ravel()
-    w = np.full((nx + 1, ny), dx)
-    w[0, :] *= 0.5
-    w[nx, :] *= 0.5
-    nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, dy)); width.append(w.ravel())
-    table.append(np.ones(a.size, np.int64)); family.append(np.full(a.size, FAMILY_WEFT, np.int8))
 
-    if scene.shear is not None:
+class _Springs:
+    """Spring arrays collected family by family."""
+
+    def __init__(self):
+        self.nodes, self.rest, self.width, self.table, self.family = [], [], [], [], []
+
+    def add(self, a, b, l0, w, t, f):
+        a = np.asarray(a).ravel()
+        self.nodes.append(np.stack([a, np.asarray(b).ravel()], 1))
+        self.rest.append(np.broadcast_to(np.asarray(l0, float), a.shape).ravel())
+        self.width.append(np.broadcast_to(np.asarray(w, float), a.shape).ravel())
+        self.table.append(np.broadcast_to(np.asarray(t, np.int64), a.shape).ravel())
+        self.family.append(np.full(a.size, f, np.int8))
+
+    def arrays(self):
+        return (np.ascontiguousarray(np.concatenate(self.nodes).astype(np.int64)),
+                np.ascontiguousarray(np.concatenate(self.rest), float),
+                np.ascontiguousarray(np.concatenate(self.width), float),
+                np.ascontiguousarray(np.concatenate(self.table).astype(np.int64)),
+                np.concatenate(self.family))
+
+
+def lattice_springs(topology: Topology, dx: float, dy: float, *, warp_table: int = 0, weft_table: int = 1,
+                    shear_table: int | None = None, bend_table: int | None = None) -> _Springs:
+    """The warp and weft springs of a lattice with spacing dx, dy [m] (and shear and bending when
+    their table ids are given), with their tributary widths (see the module docstring)."""
+    sp = _Springs()
+    warp_w, weft_w = [], []
+    for idx in topology.index:
+        cells = _cells(idx)
+        w = _band_width(cells, dy, 0)
+        warp_w.append(w[(idx[:-1, :] >= 0) & (idx[1:, :] >= 0)])
+        w = _band_width(cells, dx, 1)
+        weft_w.append(w[(idx[:, :-1] >= 0) & (idx[:, 1:] >= 0)])
+    sp.add(topology.warp[:, 0], topology.warp[:, 1], dx, np.concatenate(warp_w), warp_table, FAMILY_WARP)
+    sp.add(topology.weft[:, 0], topology.weft[:, 1], dy, np.concatenate(weft_w), weft_table, FAMILY_WEFT)
+    if shear_table is not None:
         # both diagonals of every cell; stiffness is per width across the diagonal
-        tables.append(Table.linear(scene.shear.stiffness, compression=True))
-        tid = len(tables) - 1
         diag = math.hypot(dx, dy)
         wdiag = 0.5 * dx * dy / diag  # each diagonal carries half the cell, across its length
-        for a, b in ((idx[:-1, :-1], idx[1:, 1:]), (idx[1:, :-1], idx[:-1, 1:])):
-            a = a.ravel(); b = b.ravel()
-            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, diag))
-            width.append(np.full(a.size, wdiag)); table.append(np.full(a.size, tid, np.int64))
-            family.append(np.full(a.size, FAMILY_SHEAR, np.int8))
-    if scene.bending is not None:
-        tables.append(Table.linear(scene.bending.stiffness, compression=True))
-        tid = len(tables) - 1
-        if nx >= 2:
-            a = idx[:-2, :].ravel(); b = idx[2:, :].ravel()
-            w = np.full((nx - 1, ny + 1), dy); w[:, 0] *= 0.5; w[:, ny] *= 0.5
-            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, 2 * dx))
-            width.append(w.ravel()); table.append(np.full(a.size, tid, np.int64))
-            family.append(np.full(a.size, FAMILY_BEND_WARP, np.int8))
-        if ny >= 2:
-            a = idx[:, :-2].ravel(); b = idx[:, 2:].ravel()
-            w = np.full((nx + 1, ny - 1), dx); w[0, :] *= 0.5; w[nx, :] *= 0.5
-            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, 2 * dy))
-            width.append(w.ravel()); table.append(np.full(a.size, tid, np.int64))
-            family.append(np.full(a.size, FAMILY_BEND_WEFT, np.int8))
+        c = topology.cells
+        sp.add(c[:, 0], c[:, 2], diag, wdiag, shear_table, FAMILY_SHEAR)
+        sp.add(c[:, 1], c[:, 3], diag, wdiag, shear_table, FAMILY_SHEAR)
+    if bend_table is not None:
+        # skip-one springs along warp (i, j)-(i+2, j) and weft (i, j)-(i, j+2), with the band
+        # width of the warp (weft) spring they span first
+        for along, fam in ((0, FAMILY_BEND_WARP), (1, FAMILY_BEND_WEFT)):
+            a_, b_, w_ = [], [], []
+            for idx in topology.index:
+                cells = _cells(idx)
+                if along == 0 and idx.shape[0] >= 3:
+                    a, m, b = idx[:-2, :], idx[1:-1, :], idx[2:, :]
+                    band = _band_width(cells, dy, 0)[:-1, :]
+                elif along == 1 and idx.shape[1] >= 3:
+                    a, m, b = idx[:, :-2], idx[:, 1:-1], idx[:, 2:]
+                    band = _band_width(cells, dx, 1)[:, :-1]
+                else:
+                    continue
+                keep = (a >= 0) & (m >= 0) & (b >= 0)
+                a_.append(a[keep]); b_.append(b[keep]); w_.append(band[keep])
+            if a_:
+                h = dx if along == 0 else dy
+                sp.add(np.concatenate(a_), np.concatenate(b_), 2 * h, np.concatenate(w_), bend_table, fam)
+    return sp
 
-    if scene.seams:
+
+def lattice_node_area(topology: Topology, dx: float, dy: float) -> np.ndarray:
+    """Rest tributary area [m^2] (N,) of each node: a quarter of each adjacent cell."""
+    q = 0.25 * dx * dy
+    n = topology.node_count
+    count = np.zeros(n)
+    for corner in range(4):
+        count += np.bincount(topology.cells[:, corner], minlength=n)
+    return count * q
+
+
+def build_model(*, topology: Topology, spacing: tuple[float, float], origin, tables: list,
+                constraints=(), placement: Placement | None = None, shear_stiffness: float | None = None,
+                bending_stiffness: float | None = None, gravity=None, seams=(), mold=None) -> Model:
+    """The constant arrays of a lattice (see the module docstring).
+
+    topology: the lattice; spacing (dx, dy) [m]; origin (3,) [m] of node (0, 0) of the flat sheet;
+    tables: [warp, weft] tension Tables [N/m]; constraints: objects with ``nodes`` (a selector),
+    ``axes``, ``stretch`` and ``displacement`` [m]; placement: where the flat sheet starts;
+    shear_stiffness / bending_stiffness [N/m] or None; gravity: an object with ``areal_density``
+    [kg/m^2], ``g`` [m/s^2] and ``direction``, or None; seams: objects with ``a``, ``b``,
+    ``reverse`` and ``stiffness`` [N/m^2] (None = the default); mold: a loaded Mold or None."""
+    from .selection import seam_pairs, select_nodes
+
+    dx, dy = spacing
+    ox, oy, oz = origin
+    placement = placement if placement is not None else Placement(tuple(origin), (0.0, 0.0), None)
+    ij = topology.node_ij
+    n = topology.node_count
+    rest = np.stack([ox + ij[:, 0] * dx, oy + ij[:, 1] * dy, np.full(n, oz, float)], -1)
+
+    warp_table, weft_table = tables
+    tables = [warp_table, weft_table]
+    shear_tid = bend_tid = None
+    if shear_stiffness is not None:
+        tables.append(Table.linear(shear_stiffness, compression=True))
+        shear_tid = len(tables) - 1
+    if bending_stiffness is not None:
+        tables.append(Table.linear(bending_stiffness, compression=True))
+        bend_tid = len(tables) - 1
+    sp = lattice_springs(topology, dx, dy, shear_table=shear_tid, bend_table=bend_tid)
+
+    if seams:
         tables.append(Table(np.array([0.0, 1.0]), np.array([1.0, 2.0]), compression=True))
         tid = len(tables) - 1
         l0 = SEAM_REST_RATIO * min(dx, dy)
         slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain))) for t in (warp_table, weft_table))
-        for seam in scene.seams:
-            a, b, share, (da, db) = seam_pairs(seam, nx, ny)
+        for seam in seams:
+            a, b, share, (da, db) = seam_pairs(seam, topology)
             # the pair's share of the seam length [m], averaged over the two sides
             length = share * 0.5 * ((dx if da == 0 else dy) + (dx if db == 0 else dy))
             k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / min(dx, dy)
             k = k_line * length  # [N/m] per pair
-            nodes.append(np.stack([a, b], 1)); rest_len.append(np.full(a.size, l0))
-            width.append(k * l0); table.append(np.full(a.size, tid, np.int64))
-            family.append(np.full(a.size, FAMILY_SEAM, np.int8))
+            sp.add(a, b, l0, k * l0, tid, FAMILY_SEAM)
 
-    spring_nodes = np.ascontiguousarray(np.concatenate(nodes).astype(np.int64))
+    spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
-
-    # node tributary areas (for pressure and gravity)
-    wx = np.full(nx + 1, dx); wx[0] *= 0.5; wx[-1] *= 0.5
-    wy = np.full(ny + 1, dy); wy[0] *= 0.5; wy[-1] *= 0.5
-    node_area = np.outer(wx, wy).ravel()
+    node_area = lattice_node_area(topology, dx, dy)
 
     ext = np.zeros((n, 3))
-    if scene.gravity is not None:
-        g = scene.gravity
-        d = np.asarray(g.direction, float)
+    if gravity is not None:
+        d = np.asarray(gravity.direction, float)
         d = d / np.linalg.norm(d)
-        ext[:] = (g.areal_density * g.g * node_area)[:, None] * d[None, :]
+        ext[:] = (gravity.areal_density * gravity.g * node_area)[:, None] * d[None, :]
 
-    fixed = np.zeros((nx + 1, ny + 1, 3), bool)
-    flat = rest.reshape(nx + 1, ny + 1, 3).copy()
-    shift = np.zeros((nx + 1, ny + 1, 3))
-    centre = np.array([ox + lx / 2, oy + ly / 2])
-    for c in scene.constraints:
-        m = select_nodes(c.nodes, nx, ny)
+    fixed = np.zeros((n, 3), bool)
+    flat = rest.copy()
+    shift = np.zeros((n, 3))
+    # stretch is about the sheet's centre
+    centre = np.array([ox + placement.size[0] / 2, oy + placement.size[1] / 2])
+    for c in constraints:
+        m = select_nodes(c.nodes, topology)
         for ax in c.axes:
             fixed[m, "xyz".index(ax)] = True
         if c.stretch is not None:
@@ -315,22 +320,22 @@ def build_model(scene: Scene, mold=None) -> Model:
             shift[m] += np.asarray(c.displacement, float)
     # stretch acts in the sheet's own coordinates, then the sheet is placed (flat or wrapped),
     # then displacements act in space
-    prescribed = place_sheet(scene, flat.reshape(-1, 3)) + shift.reshape(-1, 3)
+    prescribed = placement.apply(flat) + shift
 
     return Model(
         node_count=n,
-        grid_shape=(nx + 1, ny + 1),
+        topology=topology,
         rest_positions=rest,
         spring_nodes=spring_nodes,
-        spring_rest_length=np.ascontiguousarray(np.concatenate(rest_len), float),
-        spring_width=np.ascontiguousarray(np.concatenate(width), float),
-        spring_table=np.ascontiguousarray(np.concatenate(table)),
-        spring_family=np.concatenate(family),
+        spring_rest_length=rest_len,
+        spring_width=width,
+        spring_table=table,
+        spring_family=family,
         tables=TablePack.from_tables(tables),
         table_list=tuple(tables),
-        fixed_axes=fixed.reshape(n, 3),
+        fixed_axes=fixed,
         prescribed_positions=np.ascontiguousarray(prescribed),
-        prescribed_flat=flat.reshape(-1, 3),
+        prescribed_flat=flat,
         external_force=ext,
         node_area=node_area,
         adj_ptr=ptr,
@@ -338,6 +343,58 @@ def build_model(scene: Scene, mold=None) -> Model:
         adj_spring=adj_spring,
         mold=mold,
         spacing=(dx, dy),
-        warp_count=nx * (ny + 1),
-        weft_count=(nx + 1) * ny,
+        placement=placement,
     )
+
+
+def coarsen_model(model: Model):
+    """The same scene on the stride-2 lattice (``Topology.coarsen``), built by the same spring
+    builder with twice the spacing: (coarse model, sub) where sub (Nc,) are the nodes of
+    ``model`` the coarse lattice keeps; (None, None) unless the lattice is a full rectangle with
+    even divisions of at least 4 (what grid sequencing interpolates between)."""
+    topo = model.topology
+    if not topo.is_grid:
+        return None, None
+    nx1, ny1 = topo.grid_shape
+    nx, ny = nx1 - 1, ny1 - 1
+    if nx % 2 or ny % 2 or nx < 4 or ny < 4:
+        return None, None
+    ctopo, sub = topo.coarsen()
+    dx, dy = 2 * model.spacing[0], 2 * model.spacing[1]
+    n = ctopo.node_count
+    fam = model.spring_family
+
+    def tid(f):
+        sel = fam == f
+        return int(model.spring_table[sel][0]) if sel.any() else None
+
+    bend = tid(FAMILY_BEND_WARP)
+    bend = bend if bend is not None else tid(FAMILY_BEND_WEFT)
+    sp = lattice_springs(ctopo, dx, dy, warp_table=tid(FAMILY_WARP), weft_table=tid(FAMILY_WEFT),
+                         shear_table=tid(FAMILY_SHEAR), bend_table=bend)
+    seam = fam == FAMILY_SEAM
+    if seam.any():
+        # seams keep the pairs whose two nodes are both on the coarse grid; each carries the
+        # seam length of two fine pairs (twice the stiffness)
+        cmap = -np.ones(model.node_count, np.int64)
+        cmap[sub] = np.arange(n)
+        ca = cmap[model.spring_nodes[seam, 0]]
+        cb = cmap[model.spring_nodes[seam, 1]]
+        keep = (ca >= 0) & (cb >= 0)
+        if keep.any():
+            sp.add(ca[keep], cb[keep], model.spring_rest_length[seam][keep], 2.0 * model.spring_width[seam][keep],
+                   model.spring_table[seam][keep], FAMILY_SEAM)
+    spring_nodes, rest_len, width, table, family = sp.arrays()
+    ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
+    area = lattice_node_area(ctopo, dx, dy)
+    fine_area = model.node_area[sub]
+    ext = model.external_force[sub] * (area / np.where(fine_area > 0, fine_area, 1.0))[:, None]
+    coarse = Model(
+        node_count=n, topology=ctopo, rest_positions=model.rest_positions[sub].copy(), spring_nodes=spring_nodes,
+        spring_rest_length=rest_len, spring_width=width, spring_table=table, spring_family=family,
+        tables=model.tables, table_list=model.table_list,
+        fixed_axes=np.ascontiguousarray(model.fixed_axes[sub]),
+        prescribed_positions=np.ascontiguousarray(model.prescribed_positions[sub]),
+        external_force=np.ascontiguousarray(ext), node_area=area, adj_ptr=ptr, adj_node=adj_node,
+        adj_spring=adj_spring, mold=model.mold, spacing=(dx, dy), placement=model.placement)
+    return coarse, sub

@@ -7,29 +7,37 @@ nodes at the flat sheet, then ``lift`` (a smooth dome), ``wrap`` (the sheet roll
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from .config import Scene, SceneError
-from .grid import Model, State, place_sheet
+from .errors import SceneError
+from .grid import Model, State
 
 
-def initial_state(scene: Scene, model: Model) -> State:
-    """Build the starting State; refuses a start that touches or penetrates the mold unless
-    ``initial.auto_clearance`` asks to lift it clear."""
-    ini = scene.initial
+def initial_state(model: Model, initial, file: Path | None = None) -> State:
+    """Build the starting State from the scene's ``initial`` record (lift, interpolate, perturb,
+    seed, auto_clearance, wrap) and ``file``, the resolved path of ``initial.file`` (or None).
+    Refuses a start that touches or penetrates the mold unless ``initial.auto_clearance`` asks to
+    lift it clear."""
+    ini = initial
     fixed = model.fixed_axes
-    nx1, ny1 = model.grid_shape
+    topo = model.topology
     flat = model.rest_positions.copy()
-    if ini.interpolate and ini.file is None:
-        flat[:, :2] += _spread_in_plane(scene, model)
+    if ini.interpolate and file is None:
+        flat[:, :2] += _spread_in_plane(model)
     if ini.lift:
         # the dome lifts along the sheet's normal (+z flat; outward when wrapped)
-        ii, jj = np.meshgrid(np.arange(nx1), np.arange(ny1), indexing="ij")
-        dome = np.sin(np.pi * ii / max(nx1 - 1, 1)) * np.sin(np.pi * jj / max(ny1 - 1, 1))
-        flat[:, 2] += ini.lift * dome.ravel()
-    pos = place_sheet(scene, flat)
-    if ini.file is not None:
-        path = scene.resolve(ini.file)
+        dome = np.empty(model.node_count)
+        for p in range(topo.panel_count):
+            nx1, ny1 = topo.panel_shape(p)
+            sel = topo.node_panel == p
+            ii, jj = topo.node_ij[sel, 0], topo.node_ij[sel, 1]
+            dome[sel] = np.sin(np.pi * ii / max(nx1 - 1, 1)) * np.sin(np.pi * jj / max(ny1 - 1, 1))
+        flat[:, 2] += ini.lift * dome
+    pos = model.placement.apply(flat)
+    if file is not None:
+        path = file
         try:
             with np.load(path) as data:
                 if "positions" not in data:
@@ -37,46 +45,45 @@ def initial_state(scene: Scene, model: Model) -> State:
                 p = np.asarray(data["positions"], float)
         except (OSError, ValueError) as exc:
             raise SceneError(f"{path}: initial.file: cannot read ({exc})") from None
-        if p.shape != (nx1, ny1, 3):
+        want = topo.to_grid(np.zeros((model.node_count, 3))).shape
+        if p.shape != want:
             raise SceneError(f"{path}: initial.file: positions have shape {p.shape}, the scene needs "
-                             f"{(nx1, ny1, 3)}")
+                             f"{want}")
         if not np.isfinite(p).all():
             raise SceneError(f"{path}: initial.file: positions are not all finite")
-        pos = p.reshape(-1, 3).copy()
+        pos = p.reshape(-1, 3).copy() if topo.is_grid else p[tuple(topo.node_ij.T)].copy()
     if ini.perturb:
         rng = np.random.default_rng(ini.seed)
         pos += rng.uniform(-ini.perturb, ini.perturb, pos.shape)
     # a constrained node starts at its prescribed position (its free axes moved along with it,
     # unless the start comes from a file); the constrained coordinates are exact
     held = fixed.any(axis=1)
-    if ini.file is None:
-        base = place_sheet(scene, model.rest_positions)
+    if file is None:
+        base = model.placement.apply(model.rest_positions)
         pos[held] += model.prescribed_positions[held] - base[held]
     pos[fixed] = model.prescribed_positions[fixed]
     state = State(np.ascontiguousarray(pos), np.zeros(model.node_count, bool), 0)
     if model.mold is not None:
-        _check_clearance(scene, model, state)
+        _check_clearance(ini, model, state)
     return state
 
 
-def _spread_in_plane(scene: Scene, model: Model) -> np.ndarray:
+def _spread_in_plane(model: Model) -> np.ndarray:
     """In-plane displacement (N,2) [m] of every node in the sheet's own coordinates: the
     constrained nodes' stretch (and, on a flat sheet, their in-plane displacement) held, the rest
     harmonic (discrete Laplace on the grid), so a strip pulled at one end starts uniformly
     stretched and a wrapped band pulled round starts evenly pulled. Zero when nothing moves."""
     held = model.fixed_axes.any(axis=1)
     rest = model.rest_positions
-    target = model.prescribed_positions if scene.initial.wrap is None else model.prescribed_flat
+    target = model.prescribed_positions if model.placement.wrap is None else model.prescribed_flat
     u_held = (target[:, :2] - rest[:, :2])[held]
     if not held.any() or not np.any(np.abs(u_held) > 0) or held.all():
         return np.zeros((model.node_count, 2))
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    nx1, ny1 = model.grid_shape
-    idx = np.arange(model.node_count).reshape(nx1, ny1)
-    a = np.concatenate([idx[:-1, :].ravel(), idx[:, :-1].ravel()])
-    b = np.concatenate([idx[1:, :].ravel(), idx[:, 1:].ravel()])
+    pairs = np.concatenate([model.topology.warp, model.topology.weft])
+    a, b = pairs[:, 0], pairs[:, 1]
     n = model.node_count
     W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
     L = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
@@ -91,7 +98,7 @@ def _spread_in_plane(scene: Scene, model: Model) -> np.ndarray:
     return u
 
 
-def _check_clearance(scene: Scene, model: Model, state: State) -> None:
+def _check_clearance(ini, model: Model, state: State) -> None:
     from .mold import mold_query_many
 
     margs = model.mold.kernel_args()
@@ -105,11 +112,11 @@ def _check_clearance(scene: Scene, model: Model, state: State) -> None:
     if not bad.any():
         return
     fixed_bad = bad & model.fixed_axes.any(axis=1)
-    size = max(scene.fabric.size)
-    if not scene.initial.auto_clearance or fixed_bad.any():
+    size = max(model.placement.size)
+    if not ini.auto_clearance or fixed_bad.any():
         what = "touch or penetrate"
         extra = ("; some of them are constrained nodes, which auto_clearance cannot move"
-                 if scene.initial.auto_clearance else
+                 if ini.auto_clearance else
                  "; raise initial.lift, move the mold or set initial.auto_clearance: true")
         raise SceneError(
             f"initial: {int(bad.sum())} nodes {what} the mold at the start (deepest {-sd.min() * 1e3:.3g} mm)"

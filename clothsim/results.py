@@ -42,30 +42,10 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 
 def grid_faces(nx1: int, ny1: int) -> np.ndarray:
-    """Two triangles per grid cell, (2*nx*ny, 3), counter-clockwise seen from +z."""
-    idx = np.arange(nx1 * ny1).reshape(nx1, ny1)
-    a = idx[:-1, :-1].ravel()
-    b = idx[1:, :-1].ravel()
-    c = idx[1:, 1:].ravel()
-    d = idx[:-1, 1:].ravel()
-    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    """Two triangles per cell of a full (nx1, ny1)-node rectangle (Topology.faces of it)."""
+    from .topology import Topology
 
-
-def deformed_node_area(pos: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
-    """Tributary area [m^2] of each node on the deformed sheet: a quarter of each adjacent cell."""
-    p = pos.reshape(nx1, ny1, 3)
-    a = p[:-1, :-1]
-    b = p[1:, :-1]
-    c = p[1:, 1:]
-    d = p[:-1, 1:]
-    cell = 0.5 * (np.linalg.norm(np.cross(b - a, c - a), axis=-1) + np.linalg.norm(np.cross(c - a, d - a), axis=-1))
-    area = np.zeros((nx1, ny1))
-    q = 0.25 * cell
-    area[:-1, :-1] += q
-    area[1:, :-1] += q
-    area[1:, 1:] += q
-    area[:-1, 1:] += q
-    return area.ravel()
+    return Topology.rectangle(nx1 - 1, ny1 - 1).faces
 
 
 #: a contact node whose deformed tributary area is below this fraction of its rest area has
@@ -96,8 +76,7 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     mold_query_many(model.mold.kernel_args(), np.ascontiguousarray(positions[k]), sd, cp, nrm,
                     np.empty((m, 2), np.int64))
     force[k] = np.maximum(0.0, -np.einsum("ij,ij->i", F[k], nrm))
-    nx1, ny1 = model.grid_shape
-    area = deformed_node_area(positions, nx1, ny1)
+    area = model.topology.deformed_node_area(positions)
     np.divide(force, area, out=pressure, where=area > 0)
     # where the sheet has gathered (a band pulled into a rope) its area is gone and the reaction
     # is a line load: the pressure there is unbounded (inf), not a huge finite number
@@ -106,25 +85,17 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
 
 
 def spread_warp(v: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
-    """Mean of the warp-spring values (nx, ny+1) at each node (nx+1, ny+1)."""
-    s = np.zeros((nx1, ny1))
-    c = np.zeros((nx1, ny1))
-    s[:-1] += v
-    s[1:] += v
-    c[:-1] += 1
-    c[1:] += 1
-    return s / np.maximum(c, 1)
+    """Mean of the warp-spring values (nx, ny+1) at each node (nx+1, ny+1) of a full rectangle."""
+    from .topology import Topology
+
+    return Topology.rectangle(nx1 - 1, ny1 - 1).spread(np.ravel(v), "warp").reshape(nx1, ny1)
 
 
 def spread_weft(v: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
-    """Mean of the weft-spring values (nx+1, ny) at each node (nx+1, ny+1)."""
-    s = np.zeros((nx1, ny1))
-    c = np.zeros((nx1, ny1))
-    s[:, :-1] += v
-    s[:, 1:] += v
-    c[:, :-1] += 1
-    c[:, 1:] += 1
-    return s / np.maximum(c, 1)
+    """Mean of the weft-spring values (nx+1, ny) at each node (nx+1, ny+1) of a full rectangle."""
+    from .topology import Topology
+
+    return Topology.rectangle(nx1 - 1, ny1 - 1).spread(np.ravel(v), "weft").reshape(nx1, ny1)
 
 
 def node_fields(model, state):
@@ -157,15 +128,22 @@ def sheet_health(model, positions, in_contact, force=None) -> dict:
         strain = np.empty(S)
         force = np.empty(S)
         spring_strains_tensions(positions, *model.spring_args(), strain, force)
-    nx1, ny1 = model.grid_shape
-    p = positions.reshape(nx1, ny1, 3)
-    weft_len = np.linalg.norm(np.diff(p, axis=1), axis=-1).sum(axis=1)
-    rest_w = (ny1 - 1) * model.spacing[1]
+    topo = model.topology
+    weft = topo.weft
+    ratio = math.nan
+    if weft.shape[0]:
+        # one weft line per (panel, i): its deformed length over its rest length
+        line = topo.node_panel[weft[:, 0]] * (1 + int(topo.node_ij[:, 0].max())) + topo.node_ij[weft[:, 0], 0]
+        _, line = np.unique(line, return_inverse=True)
+        length = np.linalg.norm(positions[weft[:, 1]] - positions[weft[:, 0]], axis=1)
+        weft_len = np.bincount(line, length)
+        rest_w = np.bincount(line) * model.spacing[1]
+        ratio = float((weft_len / rest_w).min()) if model.spacing[1] > 0 else math.nan
     return {
         "slack_springs": int((force <= 0.0).sum()),
         "spring_count": int(model.spring_count),
         "undetermined_nodes": int(_undetermined(model, force, in_contact).sum()),
-        "min_weft_extent_ratio": float(weft_len.min() / rest_w) if rest_w > 0 else math.nan,
+        "min_weft_extent_ratio": ratio,
     }
 
 
@@ -195,20 +173,18 @@ class Result:
 
     @property
     def positions(self) -> np.ndarray:
-        """(nx+1, ny+1, 3) [m]."""
-        nx1, ny1 = self.model.grid_shape
-        return self.state.positions.reshape(nx1, ny1, 3)
+        """(nx+1, ny+1, 3) [m]: the node positions on the lattice's grid (Topology.to_grid)."""
+        return self.model.topology.to_grid(self.state.positions)
 
     @property
     def in_contact(self) -> np.ndarray:
-        return self.state.in_contact.reshape(self.model.grid_shape)
+        return self.model.topology.to_grid(self.state.in_contact)
 
     def _split(self, arr):
-        m = self.model
-        nx1, ny1 = m.grid_shape
-        w = arr[: m.warp_count].reshape(nx1 - 1, ny1)
-        f = arr[m.warp_count: m.warp_count + m.weft_count].reshape(nx1, ny1 - 1)
-        return w, f
+        """Warp (nx, ny+1) and weft (nx+1, ny) grids of per-spring values (warp then weft first)."""
+        topo = self.model.topology
+        wc, fc = topo.warp_count, topo.weft_count
+        return (topo.springs_to_grid(arr[:wc], "warp"), topo.springs_to_grid(arr[wc:wc + fc], "weft"))
 
     @property
     def strain_warp(self):
@@ -230,18 +206,25 @@ class Result:
     @property
     def contact_force(self):
         """Normal contact reaction per node [N] (nx+1, ny+1)."""
-        return self._f()[2].reshape(self.model.grid_shape)
+        return self.model.topology.to_grid(self._f()[2])
 
     @property
     def contact_pressure(self):
         """Contact pressure [Pa] = reaction / deformed tributary area, (nx+1, ny+1); inf where
         the sheet has gathered into a rope (see contact_reaction)."""
-        return self._f()[3].reshape(self.model.grid_shape)
+        return self.model.topology.to_grid(self._f()[3])
+
+    def _node_strain(self) -> np.ndarray:
+        """(N,): the larger of the mean adjacent warp and weft strains at each node."""
+        topo = self.model.topology
+        wc, fc = topo.warp_count, topo.weft_count
+        strain = self._f()[0]
+        return np.maximum(topo.spread(strain[:wc], "warp"), topo.spread(strain[wc:wc + fc], "weft"))
 
     def node_strain(self) -> np.ndarray:
-        """Per-node strain for colouring: the larger of the mean adjacent warp and weft strains."""
-        nx1, ny1 = self.model.grid_shape
-        return np.maximum(spread_warp(self.strain_warp, nx1, ny1), spread_weft(self.strain_weft, nx1, ny1))
+        """Per-node strain for colouring on the lattice's grid (nx+1, ny+1): the larger of the
+        mean adjacent warp and weft strains."""
+        return self.model.topology.to_grid(self._node_strain())
 
     def diagnostics(self) -> dict:
         """Numbers that make a degenerate result visible (see :func:`sheet_health`), the peak
@@ -273,7 +256,7 @@ class Result:
     def undetermined_nodes(self) -> np.ndarray:
         """(i, j) indices of free nodes held only by slack springs (no unique equilibrium)."""
         und = _undetermined(self.model, self._f()[1], self.state.in_contact)
-        return np.stack(np.unravel_index(np.nonzero(und)[0], self.model.grid_shape), 1)
+        return self.model.topology.node_ij[und]
 
     def summary(self) -> dict:
         from . import __version__
@@ -308,15 +291,14 @@ class Result:
         import trimesh
         from matplotlib import colormaps
 
-        nx1, ny1 = self.model.grid_shape
-        values = (self.contact_pressure / MMHG if field == "pressure" else self.node_strain()).ravel()
+        values = self._f()[3] / MMHG if field == "pressure" else self._node_strain()
         finite = values[np.isfinite(values)]
         lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
         t = (values - lo) / (hi - lo) if hi > lo else np.where(np.isposinf(values), 1.0, 0.0)
         # gathered nodes (pressure inf) take the top colour
         t = np.clip(np.nan_to_num(t, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
         colors = (colormaps["viridis"](t) * 255).astype(np.uint8)
-        return trimesh.Trimesh(self.state.positions.copy(), grid_faces(nx1, ny1), vertex_colors=colors,
+        return trimesh.Trimesh(self.state.positions.copy(), self.model.topology.faces, vertex_colors=colors,
                                process=False)
 
     def history_csv(self) -> str:

@@ -19,8 +19,8 @@ from typing import Callable
 import numpy as np
 
 from .config import Scene, SceneError
-from .grid import Model, State, build_model
-from .initial import initial_state
+from .compile import compile_model, compile_scene
+from .grid import Model, State
 from .results import Result
 from .solvers import SolveResult, pick_method
 from .solvers import solve as run_solver
@@ -28,12 +28,8 @@ from .solvers import solve as run_solver
 
 def prepare(scene: Scene) -> tuple[Model, State, float]:
     """Load the mold, build the model and the initial state. Returns (model, state, seconds)."""
-    from .mold import load_mold
-
     t0 = time.perf_counter()
-    mold = load_mold(scene.mold, scene.base_dir) if scene.mold is not None else None
-    model = build_model(scene, mold)
-    state = initial_state(scene, model)
+    model, state = compile_scene(scene)
     return model, state, time.perf_counter() - t0
 
 
@@ -56,7 +52,7 @@ def warm_up(model: Model, state: State, settings) -> float:
                         np.empty((1, 2), np.int64))
     if pick_method(model, settings) == "newton":
         try:  # best effort: a warm-up problem must never stop the real run
-            small = build_model(_tiny_scene(model), model.mold)
+            small = compile_model(_tiny_scene(model), model.mold)
             tiny = State(small.rest_positions.copy(), np.zeros(small.node_count, bool), 0)
             tiny.positions[:, 2] += 1e-3 * np.sin(np.arange(small.node_count))
             run_solver(small, tiny, s.model_copy(update={"max_iterations": 3, "newton_sequencing": False}), None)

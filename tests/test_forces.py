@@ -7,7 +7,7 @@ gravity, shear and bending springs."""
 import numpy as np
 import pytest
 
-from clothsim.grid import build_model
+from clothsim.compile import compile_model, compile_state
 from clothsim.kernels import forces_and_energy, spring_eval, spring_hessian_block
 
 from conftest import make_scene
@@ -42,7 +42,7 @@ def _fd_check(model, pos, h=1e-8, rtol=1e-5):
 def test_forces_are_minus_energy_gradient_in_tension(stretch):
     """Random stretched 4x3 grid with distinct warp/weft tables: F = -dE/dx."""
     scene = make_scene(**{"fabric.divisions": [4, 3]})
-    model = build_model(scene)
+    model = compile_model(scene)
     rng = np.random.default_rng(0)
     pos = model.rest_positions * np.array([stretch, stretch * 0.97, 1.0]) + rng.normal(0, 2e-4, model.rest_positions.shape)
     _fd_check(model, pos)
@@ -52,7 +52,7 @@ def test_forces_at_slack_boundary_and_breakpoints():
     """Springs placed at strains just around 0 (slack kink) and just around table breakpoints
     (0.1, 0.3, 0.6): the C1 energy still gives F = -dE/dx there."""
     scene = make_scene(**{"fabric.divisions": [1, 1]})
-    model = build_model(scene)
+    model = compile_model(scene)
     l0 = model.spring_rest_length[0]
     for s in (-1e-6, 1e-6, 0.1 - 1e-6, 0.1 + 1e-6, 0.3, 0.6 + 1e-7, 1.2):
         pos = model.rest_positions.copy()
@@ -75,7 +75,7 @@ def test_optional_terms_forces_are_energy_gradients():
     resisting compression): F = -dE/dx, in tension and in compression."""
     scene = make_scene(**{"fabric.divisions": [4, 3], "gravity": {"areal_density": 0.2},
                           "shear": {"stiffness": 20.0}, "bending": {"stiffness": 1.0}})
-    model = build_model(scene)
+    model = compile_model(scene)
     fam = set(model.spring_family.tolist())
     assert fam == {0, 1, 2, 3, 4}
     assert np.abs(model.external_force[:, 2]).sum() == pytest.approx(0.2 * 9.80665 * 0.1 * 0.02)
@@ -88,7 +88,7 @@ def test_optional_terms_forces_are_energy_gradients():
 def test_unused_terms_add_no_springs():
     """A scene that does not ask for shear/bending/gravity builds only warp and weft springs and a
     zero external force (an unused term costs nothing)."""
-    model = build_model(make_scene(**{"fabric.divisions": [5, 4]}))
+    model = compile_model(make_scene(**{"fabric.divisions": [5, 4]}))
     assert model.spring_count == 5 * 5 + 6 * 4
     assert set(model.spring_family.tolist()) == {0, 1}
     assert not model.external_force.any()
@@ -97,7 +97,7 @@ def test_unused_terms_add_no_springs():
 def test_hessian_block_matches_force_derivative():
     """spring_hessian_block is d(f_b)/d(x_b) of the spring force (finite differences) in tension."""
     scene = make_scene()
-    model = build_model(scene)
+    model = compile_model(scene)
     t = model.tables
     pa = np.array([0.0, 0.0, 0.0])
     pb = np.array([0.0061, 0.0012, -0.0009])  # length 6.28 mm: strain 0.256 on l0 = 5 mm
@@ -119,7 +119,7 @@ def test_hessian_block_matches_force_derivative():
 def test_zero_length_spring_is_finite():
     """Two nodes projected onto the same point: the spring is slack and gives no NaN."""
     scene = make_scene(**{"fabric.divisions": [1, 1]})
-    model = build_model(scene)
+    model = compile_model(scene)
     pos = model.rest_positions.copy()
     pos[2] = pos[0]
     F = _forces(model, pos)

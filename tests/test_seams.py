@@ -13,7 +13,8 @@ import pytest
 
 import clothsim
 from clothsim.config import SceneError, load_scene, scene_from_dict
-from clothsim.grid import FAMILY_SEAM, build_model
+from clothsim.compile import compile_model
+from clothsim.grid import FAMILY_SEAM
 from clothsim.kernels import forces_and_energy, spring_hessian_block
 
 from conftest import ROOT
@@ -64,14 +65,14 @@ def test_seam_pairs_and_stiffness():
     """left-right pairs (0, j)-(10, j); reverse pairs the first with the last; each pair's
     stiffness is the seam stiffness times its share of the seam (half at the ends); the default
     is 1000 x the stiffest table slope / the smaller spacing; no seam, no seam springs."""
-    m = build_model(scene_from_dict(_panel(seams=[{"a": "left", "b": "right", "stiffness": 1e6}])))
+    m = compile_model(scene_from_dict(_panel(seams=[{"a": "left", "b": "right", "stiffness": 1e6}])))
     f = m.spring_family == FAMILY_SEAM
     ny1 = 5
     assert m.spring_nodes[f].tolist() == [[j, 10 * ny1 + j] for j in range(5)]
     k = m.spring_width[f] / m.spring_rest_length[f]
     dy = 0.02
     np.testing.assert_allclose(k, 1e6 * dy * np.array([0.5, 1, 1, 1, 0.5]), rtol=1e-12)
-    m = build_model(scene_from_dict(_panel(seams=[{"a": {"i": [0, 3], "j": 0}, "b": {"i": [5, 8], "j": 0},
+    m = compile_model(scene_from_dict(_panel(seams=[{"a": {"i": [0, 3], "j": 0}, "b": {"i": [5, 8], "j": 0},
                                                    "reverse": True}])))
     f = m.spring_family == FAMILY_SEAM
     assert m.spring_nodes[f].tolist() == [[0, 8 * ny1], [ny1, 7 * ny1], [2 * ny1, 6 * ny1], [3 * ny1, 5 * ny1]]
@@ -79,7 +80,7 @@ def test_seam_pairs_and_stiffness():
     dx = 0.025
     k_line = 1000 * max(100 / 0.5, (400 - 40) / 0.8) / min(dx, dy)
     np.testing.assert_allclose(k, k_line * dx * np.array([0.5, 1, 1, 0.5]), rtol=1e-12)
-    assert not (build_model(scene_from_dict(_panel())).spring_family == FAMILY_SEAM).any()
+    assert not (compile_model(scene_from_dict(_panel())).spring_family == FAMILY_SEAM).any()
 
 
 def _energy_forces(model, pos):
@@ -91,7 +92,7 @@ def _energy_forces(model, pos):
 def test_seam_force_is_minus_energy_gradient_and_linear():
     """The seam force is k x gap (a zero-length linear spring), exactly -dE/dx (central
     differences), and its Hessian block is k I (finite differences of the force)."""
-    m = build_model(scene_from_dict(_panel(seams=[{"a": "left", "b": "right", "stiffness": 2e3}])))
+    m = compile_model(scene_from_dict(_panel(seams=[{"a": "left", "b": "right", "stiffness": 2e3}])))
     rng = np.random.default_rng(1)
     pos = m.rest_positions * np.array([1.1, 1.05, 1.0]) + rng.normal(0, 1e-3, m.rest_positions.shape)
     E, F = _energy_forces(m, pos)
@@ -113,7 +114,7 @@ def test_seam_force_is_minus_energy_gradient_and_linear():
         spring_hessian_block(pos[a], pos[b], m.spring_rest_length[s], m.spring_width[s], t.x, t.y, t.cum,
                              t.start, t.compression, m.spring_table[s], 0.0, K)
         np.testing.assert_allclose(K, k * np.eye(3), rtol=1e-9, atol=1e-9 * k)
-    sub = build_model(scene_from_dict(_panel()))
+    sub = compile_model(scene_from_dict(_panel()))
     _, F0 = _energy_forces(sub, pos)
     for s in np.nonzero(f)[0]:
         a, b = m.spring_nodes[s]
@@ -196,7 +197,7 @@ def test_grid_sequencing_keeps_the_seams():
 
     over = ["fabric.divisions=[100,40]", "constraints.2.nodes={i: 50}", "solver.method=newton", "solver.e=1e-9"]
     scene = load_scene(SLEEVE, over)
-    m = build_model(scene, None)
+    m = compile_model(scene, None)
     c, sub = coarsen_model(m)
     f, fc = m.spring_family == FAMILY_SEAM, c.spring_family == FAMILY_SEAM
     assert fc.sum() == 21

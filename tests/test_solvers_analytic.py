@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import clothsim
-from clothsim.grid import build_model
-from clothsim.initial import initial_state
+from clothsim.compile import compile_model, compile_state
+
 from clothsim.solvers import solve as run_solver
 
 from conftest import make_scene, solver_methods
@@ -20,8 +20,8 @@ WEFT_T = np.array([0, 0.1, 0.3, 0.6, 1.0]), np.array([0, 12, 55, 140, 300.0])
 
 
 def _prepare(scene):
-    model = build_model(scene)
-    return model, initial_state(scene, model)
+    model = compile_model(scene)
+    return model, compile_state(scene, model)
 
 
 def _T(table, s):

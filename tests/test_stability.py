@@ -17,8 +17,8 @@ import pytest
 
 from clothsim.config import load_scene, scene_from_dict
 from clothsim.contact import max_penetration
-from clothsim.grid import build_model
-from clothsim.initial import initial_state
+from clothsim.compile import compile_model, compile_state
+
 from clothsim.mold import mold_from_arrays
 from clothsim.results import Result
 from clothsim.simulation import prepare
@@ -50,8 +50,8 @@ def _run(scene, mold=None, **upd):
     if mold is None:
         model, state, _ = prepare(scene)
     else:
-        model = build_model(scene, mold)
-        state = initial_state(scene, model)
+        model = compile_model(scene, mold)
+        state = compile_state(scene, model)
     settings = scene.solver.model_copy(update=upd)
     res = solve(model, state, settings)
     return model, state, res
@@ -158,7 +158,7 @@ def test_nodes_starting_on_mold_edges_and_vertices(method, tmp_path):
     V, F = _box_mesh([0.0375, 0.0375, -0.05], [0.0625, 0.0625, 0.0])
     mold = mold_from_arrays(V, F, closed=True, source="box")
     scene = _sheet(div=40, stretch=1.0, lift=0.0)
-    model = build_model(scene, mold)
+    model = compile_model(scene, mold)
     pos = model.rest_positions.copy()
     pos[:, 2] = 0.01 * np.sin(np.pi * pos[:, 0] / 0.1) * np.sin(np.pi * pos[:, 1] / 0.1) + 0.0
     # nodes at x, y in [0.0375, 0.0625] lie on the box top (z = 0): put them exactly there
@@ -173,7 +173,7 @@ def test_nodes_starting_on_mold_edges_and_vertices(method, tmp_path):
     d["constraints"] = [{"nodes": "perimeter", "axes": "xyz", "displacement": [0, 0, -0.01]}]
     d["solver"]["time_limit_s"] = 5
     scene2 = scene_from_dict(d)
-    model2 = build_model(scene2, mold)
+    model2 = compile_model(scene2, mold)
     from clothsim.grid import State
 
     p2 = pos.copy()
@@ -219,8 +219,8 @@ def test_sharp_concave_corner(method):
          "initial": {"lift": 0.03},
          "solver": {"method": method, "e": 1e-8, "time_limit_s": 5}}
     scene = scene_from_dict(d)
-    model = build_model(scene, mold)
-    state = initial_state(scene, model)
+    model = compile_model(scene, mold)
+    state = compile_state(scene, model)
     state.positions[:, 2] += 0.005
     res = solve(model, state, scene.solver)
     assert np.isfinite(state.positions).all()

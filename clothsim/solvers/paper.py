@@ -185,11 +185,10 @@ def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, r
 
 
 def paper_order(model) -> np.ndarray:
-    """Node visiting order: the paper numbers nodes left to right, rows bottom to top."""
-    nx1, ny1 = model.grid_shape
-    i = np.tile(np.arange(nx1), ny1)
-    j = np.repeat(np.arange(ny1), nx1)
-    k = i * ny1 + j
+    """Node visiting order: the paper numbers nodes left to right (i, along warp), rows bottom to
+    top (j, along weft); panel after panel in a lattice of several."""
+    topo = model.topology
+    k = np.lexsort((topo.node_ij[:, 0], topo.node_ij[:, 1], topo.node_panel))
     free = ~model.fixed_axes.all(axis=1)
     return np.ascontiguousarray(k[free[k]].astype(np.int64))
 
