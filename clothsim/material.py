@@ -6,7 +6,7 @@ stress [Pa] is converted once, with the fabric thickness, to tension per width
 ``T = sigma * thickness``; from then on a spring's axial force is ``T(strain) * width`` where width
 is its tributary width [m] (paper, Fig. 3: the associated area is thickness x width).
 
-Conventions (DESIGN.md): strain is engineering strain ``l / l0 - 1``; the table starts at strain 0,
+Conventions: strain is engineering strain ``l / l0 - 1``; the table starts at strain 0,
 strictly increasing strain, non-negative non-decreasing values; beyond the last point the last
 segment is extended; at zero or negative strain a tension-only spring is slack (zero force).
 
