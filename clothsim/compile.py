@@ -10,18 +10,73 @@ plain records and arrays, never the Scene.
 
 from __future__ import annotations
 
+import numpy as np
+
 from .config import Scene
-from .grid import Model, Placement, State, build_model
+from .errors import SceneError
+from .grid import Model, PanelBuild, Placement, State, build_model, rotation_matrix
 from .initial import initial_state
+from .panels import PanelError, panel_geometry, rectangle_geometry
+from .selection import SelectionError
 from .topology import Topology
 
 _NO_MOLD = object()
 
 
+def scene_panels(scene: Scene) -> list[PanelBuild]:
+    """The scene's panels as the builder takes them: the ``fabric`` rectangle (one panel named
+    ``fabric``), or each of ``panels`` cut to its outline (clothsim.panels)."""
+    fab = scene.fabric
+    if not scene.panels:
+        nx, ny = fab.divisions
+        lx, ly = fab.size
+        warp, weft = scene.tables()
+        geom = rectangle_geometry("fabric", nx, ny, lx / nx, ly / ny, origin=fab.origin[:2])
+        return [PanelBuild(geom, warp, weft, Placement(tuple(fab.origin), tuple(fab.size), scene.initial.wrap),
+                           z=fab.origin[2])]
+    if scene.initial.wrap is not None:
+        raise SceneError("initial.wrap: with panels, give each panel its placement (panels.N.placement.wrap)")
+    out = []
+    default = {}
+    for n, panel in enumerate(scene.panels):
+        try:
+            geom = panel_geometry(panel.name, panel.outline, panel.grain, panel.spacing, panel.divisions)
+        except PanelError as exc:
+            raise SceneError(f"panels.{n}: {exc}") from None
+        thick = panel.thickness if panel.thickness is not None else fab.thickness
+        tables = []
+        for name in ("warp", "weft"):
+            spec = getattr(panel, name)
+            if spec is None and panel.thickness is None:
+                if name not in default:
+                    default[name] = scene.material_table(getattr(fab, name), fab.thickness, f"fabric.{name}")
+                tables.append(default[name])  # the same Table object: one table id for all panels
+            else:
+                spec = spec if spec is not None else getattr(fab, name)
+                tables.append(scene.material_table(spec, thick, f"panels.{n}.{name}"))
+        g = geom.grain
+        uv = geom.outline @ np.stack([g, [-g[1], g[0]]], 1)
+        size = tuple(float(x) for x in uv.max(axis=0) - uv.min(axis=0))
+        origin = (float(geom.origin[0]), float(geom.origin[1]), 0.0)
+        pl = panel.placement
+        if pl.wrap is not None:
+            placement = Placement(origin, size, pl.wrap, grain=tuple(g))
+        elif pl.transform is not None:
+            placement = Placement(origin, size, None, grain=tuple(g), rotation=rotation_matrix(pl.transform.rotate),
+                                  translation=np.asarray(pl.transform.translate, float))
+        else:
+            placement = Placement(origin, size, None, grain=tuple(g))
+        out.append(PanelBuild(geom, tables[0], tables[1], placement, z=0.0))
+    return out
+
+
 def scene_topology(scene: Scene) -> Topology:
-    """The scene's lattice: today the ``fabric`` rectangle, one panel."""
-    nx, ny = scene.fabric.divisions
-    return Topology.rectangle(nx, ny, name="fabric")
+    """The scene's lattice (the ``fabric`` rectangle or the panels' cut lattices)."""
+    if not scene.panels:
+        nx, ny = scene.fabric.divisions
+        return Topology.rectangle(nx, ny, name="fabric")
+    geoms = [p.geometry for p in scene_panels(scene)]
+    return Topology.from_masks([g.mask for g in geoms], [g.name for g in geoms], [g.outline_lattice for g in geoms])
 
 
 def load_scene_mold(scene: Scene):
@@ -36,24 +91,39 @@ def load_scene_mold(scene: Scene):
 def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     """The constant Model of a scene; ``mold`` (a loaded Mold or None) replaces the scene's own
     mold when given (tests and the viewer's mold preview use it)."""
-    fab = scene.fabric
-    nx, ny = fab.divisions
-    lx, ly = fab.size
+    panels = scene_panels(scene)
     if mold is _NO_MOLD:
         mold = load_scene_mold(scene)
-    return build_model(
-        topology=scene_topology(scene),
-        spacing=(lx / nx, ly / ny),
-        origin=tuple(fab.origin),
-        tables=list(scene.tables()),
-        constraints=scene.constraints,
-        placement=Placement(tuple(fab.origin), tuple(fab.size), scene.initial.wrap),
-        shear_stiffness=None if scene.shear is None else scene.shear.stiffness,
-        bending_stiffness=None if scene.bending is None else scene.bending.stiffness,
-        gravity=scene.gravity,
-        seams=scene.seams,
-        mold=mold,
-    )
+    try:
+        return build_model(
+            panels=panels,
+            constraints=scene.constraints,
+            shear_stiffness=None if scene.shear is None else scene.shear.stiffness,
+            bending_stiffness=None if scene.bending is None else scene.bending.stiffness,
+            gravity=scene.gravity,
+            seams=scene.seams,
+            mold=mold,
+        )
+    except SelectionError as exc:
+        raise SceneError(_which_selector(scene, exc)) from None
+
+
+def _which_selector(scene: Scene, exc: SelectionError) -> str:
+    """Name the constraint or seam a selection error comes from (the builder reads them in order)."""
+    from .selection import seam_pairs, select_nodes
+
+    topo = scene_topology(scene)
+    for n, c in enumerate(scene.constraints):
+        try:
+            select_nodes(c.nodes, topo)
+        except SelectionError as e:
+            return f"constraints.{n}.nodes: {e}"
+    for n, seam in enumerate(scene.seams):
+        try:
+            seam_pairs(seam, topo)
+        except SelectionError as e:
+            return f"seams.{n}.{e}"
+    return str(exc)
 
 
 def compile_state(scene: Scene, model: Model) -> State:

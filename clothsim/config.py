@@ -22,7 +22,7 @@ from .material import MaterialError, Table, check_table, read_table_csv
 SOLVER_METHODS = ("auto", "paper", "newton")
 NODE_SETS = (
     "perimeter", "left", "right", "bottom", "top",
-    "bottom_left", "bottom_right", "top_left", "top_right", "corners", "all",
+    "bottom_left", "bottom_right", "top_left", "top_right", "corners", "all", "outline",
 )
 
 
@@ -91,11 +91,13 @@ class MaterialSpec(_Strict):
 
 class Fabric(_Strict):
     """The rectangular sheet: size [m] warp (x) by weft (y), lying in z = origin_z, divisions
-    nx x ny, thickness [m] (needed with stress tables), warp and weft tables."""
+    nx x ny, thickness [m] (needed with stress tables), warp and weft tables. With ``panels``
+    the fabric gives the panels' default tables and thickness, and size and divisions are not
+    used (omit them)."""
 
-    size: tuple[float, float]
+    size: tuple[float, float] | None = None
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    divisions: tuple[int, int]
+    divisions: tuple[int, int] | None = None
     thickness: float | None = None
     warp: MaterialSpec
     weft: MaterialSpec
@@ -103,7 +105,7 @@ class Fabric(_Strict):
     @field_validator("size")
     @classmethod
     def _size(cls, v):
-        for x in v:
+        for x in v or ():
             _positive(x)
         return v
 
@@ -117,6 +119,8 @@ class Fabric(_Strict):
     @field_validator("divisions")
     @classmethod
     def _div(cls, v):
+        if v is None:
+            return v
         for x in v:
             if x < 1:
                 raise ValueError(f"must be at least 1 (got {x})")
@@ -142,10 +146,29 @@ IndexRange = tuple[int, int]
 
 
 class NodeRange(_Strict):
-    """Explicit inclusive index ranges; negative indices count from the end (-1 = last)."""
+    """Explicit inclusive index ranges; negative indices count from the end (-1 = last).
+
+    With ``panels``: ``panel`` names the panel the selector reads (omitted: every panel);
+    ``side`` a named set of that panel's lattice (left, right, ... as in constraints); ``edge``
+    ``[v0, v1]`` the lattice nodes along the panel's outline from vertex v0 to vertex v1
+    (counter-clockwise), ordered along it."""
 
     i: IndexRange | int | None = None
     j: IndexRange | int | None = None
+    panel: str | None = None
+    side: Literal[NODE_SETS] | None = None  # type: ignore[valid-type]
+    edge: tuple[int, int] | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        kinds = [k for k in ("side", "edge") if getattr(self, k) is not None]
+        if kinds and (self.i is not None or self.j is not None):
+            raise ValueError(f"give either i/j ranges or {kinds[0]}, not both")
+        if len(kinds) > 1:
+            raise ValueError("give either side or edge, not both")
+        if self.edge is not None and self.panel is None:
+            raise ValueError("edge: needs panel (the panel whose outline it follows)")
+        return self
 
 
 class Constraint(_Strict):
@@ -195,6 +218,21 @@ class Constraint(_Strict):
         return v
 
 
+class PanelTransform(_Strict):
+    """A rigid placement of a panel's plane in space: rotate [deg] about x, then y, then z, then
+    translate [m]. The panel's outline lies in its plane's x-y."""
+
+    rotate: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @field_validator("rotate", "translate")
+    @classmethod
+    def _fin(cls, v):
+        for x in v:
+            _finite(x)
+        return v
+
+
 class Wrap(_Strict):
     """Initial sheet wrapped on a cylinder around a mold (the paper's torso set-up): the sheet's
     warp (x) direction goes round the cylinder's axis, weft along it."""
@@ -203,6 +241,76 @@ class Wrap(_Strict):
     center: tuple[float, float, float] = (0.0, 0.0, 0.0)
     radius: float = Field(gt=0)
     start_angle: float = 0.0  # degrees, where the sheet's left edge sits
+
+
+class PanelPlacement(_Strict):
+    """Where a panel starts in space: ``transform`` (rigid; the default is the identity: the panel
+    in z = 0) or ``wrap`` (rolled round an axis at a radius, warp round the axis, like
+    ``initial.wrap``)."""
+
+    transform: PanelTransform | None = None
+    wrap: Wrap | None = None
+
+    @model_validator(mode="after")
+    def _one(self):
+        if self.transform is not None and self.wrap is not None:
+            raise ValueError("give transform or wrap, not both")
+        return self
+
+
+class Panel(_Strict):
+    """A pattern panel: a closed ``outline`` [m] in the panel's own plane (at least 3 points,
+    not crossing itself), ``grain`` the warp direction in that plane (default x), the lattice
+    ``spacing`` [m] (one value or [dx, dy]) or ``divisions`` [nx, ny] of the outline's extent
+    along and across the grain, its own ``warp``/``weft`` tables and ``thickness`` (default: the
+    ``fabric``'s), and a ``placement``. The lattice follows the grain and is cut to the outline
+    with exact tributary areas (see clothsim.panels)."""
+
+    name: str
+    outline: list[tuple[float, float]]
+    grain: tuple[float, float] = (1.0, 0.0)
+    spacing: float | tuple[float, float] | None = None
+    divisions: tuple[int, int] | None = None
+    warp: MaterialSpec | None = None
+    weft: MaterialSpec | None = None
+    thickness: float | None = None
+    placement: PanelPlacement = Field(default_factory=PanelPlacement)
+
+    @field_validator("outline")
+    @classmethod
+    def _outline(cls, v):
+        from .panels import PanelError, check_outline
+
+        try:
+            check_outline(v, "outline")
+        except PanelError as exc:
+            raise ValueError(str(exc).removeprefix("outline: ")) from None
+        return v
+
+    @field_validator("spacing")
+    @classmethod
+    def _spacing(cls, v):
+        for x in ([v] if isinstance(v, (int, float)) else (v or [])):
+            _positive(x)
+        return v
+
+    @field_validator("divisions")
+    @classmethod
+    def _div(cls, v):
+        if v is not None:
+            Fabric._div(v)
+        return v
+
+    @field_validator("thickness")
+    @classmethod
+    def _thick(cls, v):
+        return _positive(v)
+
+    @model_validator(mode="after")
+    def _lattice(self):
+        if (self.spacing is None) == (self.divisions is None):
+            raise ValueError("give spacing or divisions (one of them)")
+        return self
 
 
 class Initial(_Strict):
@@ -333,15 +441,41 @@ class Scene(_Strict):
     shear: SpringTerm | None = None
     bending: SpringTerm | None = None
     seams: list[Seam] = Field(default_factory=list)
+    panels: list[Panel] = Field(default_factory=list)
     solver: SolverSettings = Field(default_factory=SolverSettings)
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
 
     @model_validator(mode="after")
+    def _panels_fit(self):
+        """The fabric rectangle or panels; panel names are unique and every selector names an
+        existing panel."""
+        if not self.panels:
+            for k in ("size", "divisions"):
+                if getattr(self.fabric, k) is None:
+                    raise ValueError(f"fabric.{k}: missing (the sheet needs it unless panels are given)")
+        else:
+            for k in ("size", "divisions"):
+                if getattr(self.fabric, k) is not None:
+                    raise ValueError(f"fabric.{k}: not used with panels (each panel has its outline and lattice)")
+        names = [p.name for p in self.panels]
+        for n, name in enumerate(names):
+            if name in names[:n]:
+                raise ValueError(f"panels.{n}.name: '{name}' is used twice")
+        sels = [(f"constraints.{n}.nodes", c.nodes) for n, c in enumerate(self.constraints)]
+        sels += [(f"seams.{n}.{k}", getattr(s, k)) for n, s in enumerate(self.seams) for k in ("a", "b")]
+        for where, sel in sels:
+            if isinstance(sel, NodeRange) and sel.panel is not None and sel.panel not in names:
+                known = ", ".join(names) if names else "none: the scene has no panels"
+                raise ValueError(f"{where}.panel: unknown panel '{sel.panel}' (known: {known})")
+        return self
+
+    @model_validator(mode="after")
     def _seams_fit(self):
-        """Each seam joins two node lines of equal length that do not overlap."""
-        if not self.seams:
+        """Each seam joins two node lines of equal length that do not overlap (checked here for
+        the ``fabric`` sheet; panel seams are checked when the panels' lattices are built)."""
+        if not self.seams or self.panels:
             return self
         from .selection import SelectionError, seam_pairs
         from .topology import Topology
@@ -371,11 +505,16 @@ class Scene(_Strict):
         return tuple(self._table(name) for name in ("warp", "weft"))  # type: ignore[return-value]
 
     def _table(self, name: str) -> Table:
-        m: MaterialSpec = getattr(self.fabric, name)
+        return self.material_table(getattr(self.fabric, name), self.fabric.thickness, name)
+
+    def material_table(self, m: MaterialSpec, thickness: float | None, name: str) -> Table:
+        """The tension table [N/m] of a material spec (CSV resolved against the scene's folder,
+        stress times ``thickness``); ``name`` is the field named in errors."""
         if m.preset is not None:
             from .presets import PRESETS
             p = PRESETS[m.preset]
-            return Table(np.asarray(p.strain, float), np.asarray(getattr(p, name), float) * (m.scale or 1.0))
+            which = "warp" if name.endswith("warp") else "weft"
+            return Table(np.asarray(p.strain, float), np.asarray(getattr(p, which), float) * (m.scale or 1.0))
         if m.csv is not None:
             path = self.resolve(m.csv)
             strain, value, kind = read_table_csv(path)
@@ -384,9 +523,9 @@ class Scene(_Strict):
             kind = "stress" if m.stress is not None else "tension"
             value = np.asarray(m.stress if m.stress is not None else m.tension, float)
         if kind == "stress":
-            if self.fabric.thickness is None:
+            if thickness is None:
                 raise SceneError(f"fabric.thickness: needed because {name} is given as stress [Pa]")
-            value = value * self.fabric.thickness
+            value = value * thickness
         return Table(strain, value * (m.scale or 1.0))
 
     def to_dict(self) -> dict:
@@ -396,9 +535,10 @@ class Scene(_Strict):
         """A copy whose file references (CSV tables, initial file, mold path) are absolute, so the
         scene can be written anywhere and repeated exactly."""
         d = self.to_dict()
-        for name in ("warp", "weft"):
-            if d["fabric"][name].get("csv"):
-                d["fabric"][name]["csv"] = str(self.resolve(d["fabric"][name]["csv"]))
+        for holder in [d["fabric"]] + d.get("panels", []):
+            for name in ("warp", "weft"):
+                if (holder.get(name) or {}).get("csv"):
+                    holder[name]["csv"] = str(self.resolve(holder[name]["csv"]))
         if d.get("initial", {}).get("file"):
             d["initial"]["file"] = str(self.resolve(d["initial"]["file"]))
         if d.get("mold") and d["mold"].get("path"):

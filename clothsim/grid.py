@@ -36,33 +36,95 @@ SEAM_REST_RATIO = 1e-6
 
 @dataclass(frozen=True)
 class Placement:
-    """Where the flat sheet goes in space at the start: unchanged (``wrap`` None), or rolled onto a
-    cylinder (warp x runs round the axis, weft y along it, centred on ``center``).
+    """Where one panel's flat lattice goes in space at the start.
 
-    origin [m] (3,) and size [m] (2,): the flat sheet's origin and extent; wrap: an object with
-    ``center`` [m], ``axis``, ``radius`` [m] and ``start_angle`` [deg], or None."""
+    origin [m] (3,): the panel's reference corner in its plane (the ``fabric`` sheet's origin);
+    size [m] (2,): its extent along and across the grain; grain (2,): its warp direction in its
+    plane (None: x); wrap: an object with ``center`` [m], ``axis``, ``radius`` [m] and
+    ``start_angle`` [deg] (the panel rolled onto a cylinder, warp round the axis, weft along it,
+    centred on ``center``), or None; rotation (3, 3) and translation (3,) [m]: a rigid placement
+    (used when wrap is None; None: the identity)."""
 
     origin: tuple = (0.0, 0.0, 0.0)
     size: tuple = (0.0, 0.0)
     wrap: object = None
+    grain: tuple | None = None
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None
 
     def apply(self, flat: np.ndarray) -> np.ndarray:
-        """Points of the flat sheet (N, 3) [m] -> their placement in space (N, 3) [m]."""
+        """Points of the flat panel (N, 3) [m] -> their placement in space (N, 3) [m]."""
         w = self.wrap
         if w is None:
-            return flat.copy()
+            if self.rotation is None:
+                return flat.copy()
+            return flat @ np.asarray(self.rotation).T + np.asarray(self.translation)
         a = np.asarray(w.axis, float)
         a = a / np.linalg.norm(a)
         t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         e1 = t - a * (t @ a)
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(a, e1)
-        u = flat[:, 0] - self.origin[0]
-        v = flat[:, 1] - self.origin[1] - self.size[1] / 2
+        if self.grain is None:
+            u = flat[:, 0] - self.origin[0]
+            v = flat[:, 1] - self.origin[1] - self.size[1] / 2
+        else:
+            g = np.asarray(self.grain, float)
+            d = flat[:, :2] - np.asarray(self.origin[:2])
+            u = d @ g
+            v = d @ np.array([-g[1], g[0]]) - self.size[1] / 2
         r = w.radius + (flat[:, 2] - self.origin[2])
         theta = math.radians(w.start_angle) + u / w.radius
         c = np.asarray(w.center, float)
         return c + r[:, None] * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2) + v[:, None] * a
+
+
+@dataclass(frozen=True)
+class Placements:
+    """The placement of every panel: ``parts`` ((start, stop, Placement), ...) over node ranges
+    (a panel's nodes are consecutive)."""
+
+    parts: tuple = ()
+
+    def apply(self, flat: np.ndarray) -> np.ndarray:
+        """Flat lattice points (N, 3) [m] -> their placement in space (N, 3) [m]."""
+        if len(self.parts) == 1:
+            return self.parts[0][2].apply(flat)
+        out = np.empty_like(flat)
+        for a, b, pl in self.parts:
+            out[a:b] = pl.apply(flat[a:b])
+        return out
+
+    @property
+    def identity(self) -> bool:
+        """True when every panel stays where its flat lattice is (no wrap, no rigid motion)."""
+        return all(pl.wrap is None and pl.rotation is None for _, _, pl in self.parts)
+
+    @property
+    def size(self) -> tuple:
+        """The largest panel extent (2,) [m]."""
+        return tuple(np.max([pl.size for _, _, pl in self.parts], axis=0)) if self.parts else (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PanelBuild:
+    """One panel as the builder takes it: geometry (clothsim.panels.PanelGeometry), its warp and
+    weft Tables [N/m], its Placement, and z [m]: the height of its flat lattice."""
+
+    geometry: object
+    warp_table: Table
+    weft_table: Table
+    placement: Placement
+    z: float = 0.0
+
+
+def rotation_matrix(degrees) -> np.ndarray:
+    """(3, 3): rotate about x, then y, then z by the given angles [deg]."""
+    ax, ay, az = (math.radians(float(d)) for d in degrees)
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
 
 
 @dataclass(frozen=True)
@@ -79,7 +141,8 @@ class Model:
     only; used to build the initial guess); external_force [N]
     (N,3) constant (gravity; zeros when off); node_area [m^2] (N,) tributary area of each node;
     node adjacency in CSR form: adj_ptr (N+1,), adj_node, adj_spring; mold: clothsim.mold.Mold or
-    None; spacing [m] (dx, dy) of the lattice; placement: where the flat sheet starts in space."""
+    None; spacing [m] (dx, dy) of the lattice (the smallest over panels); panel_spacing (P, 2)
+    [m] each panel's; placement: where each panel's flat lattice starts in space."""
 
     node_count: int
     topology: Topology
@@ -101,7 +164,8 @@ class Model:
     mold: object = None
     spacing: tuple[float, float] = (0.0, 0.0)
     prescribed_flat: np.ndarray | None = None
-    placement: Placement = Placement()
+    placement: Placements = Placements()
+    panel_spacing: np.ndarray | None = None
 
     @property
     def grid_shape(self) -> tuple[int, int]:
@@ -158,22 +222,6 @@ def _adjacency(n: int, spring_nodes: np.ndarray):
     return ptr, others[order].astype(np.int64), sids[order].astype(np.int64)
 
 
-def _cells(idx: np.ndarray) -> np.ndarray:
-    """(nx, ny) bool: the cells of a panel's index grid whose four corners exist."""
-    return (idx[:-1, :-1] >= 0) & (idx[1:, :-1] >= 0) & (idx[1:, 1:] >= 0) & (idx[:-1, 1:] >= 0)
-
-
-def _band_width(cells: np.ndarray, h: float, along: int) -> np.ndarray:
-    """Tributary width of the springs running along lattice direction ``along`` (0: warp, 1:
-    weft): h/2 from each side where the lattice has a cell; shape (nx, ny+1) for warp, (nx+1, ny)
-    for weft."""
-    c = cells if along == 0 else cells.T
-    pad = np.zeros((c.shape[0], c.shape[1] + 2), bool)
-    pad[:, 1:-1] = c
-    w = 0.5 * h * pad[:, :-1] + 0.5 * h * pad[:, 1:]
-    return w if along == 0 else w.T
-
-
 class _Springs:
     """Spring arrays collected family by family."""
 
@@ -196,82 +244,99 @@ class _Springs:
                 np.concatenate(self.family))
 
 
-def lattice_springs(topology: Topology, dx: float, dy: float, *, warp_table: int = 0, weft_table: int = 1,
-                    shear_table: int | None = None, bend_table: int | None = None) -> _Springs:
-    """The warp and weft springs of a lattice with spacing dx, dy [m] (and shear and bending when
-    their table ids are given), with their tributary widths (see the module docstring)."""
+def lattice_springs(topology: Topology, geometries, table_ids, *, shear_table: int | None = None,
+                    bend_table: int | None = None) -> _Springs:
+    """The warp and weft springs of a lattice (and shear and bending when their table ids are
+    given), with their tributary widths (see the module docstring).
+
+    geometries: one clothsim.panels.PanelGeometry per panel of ``topology`` (spacing and the band
+    and cell fractions); table_ids: ((warp id, weft id), ...) per panel."""
     sp = _Springs()
-    warp_w, weft_w = [], []
-    for idx in topology.index:
-        cells = _cells(idx)
-        w = _band_width(cells, dy, 0)
-        warp_w.append(w[(idx[:-1, :] >= 0) & (idx[1:, :] >= 0)])
-        w = _band_width(cells, dx, 1)
-        weft_w.append(w[(idx[:, :-1] >= 0) & (idx[:, 1:] >= 0)])
-    sp.add(topology.warp[:, 0], topology.warp[:, 1], dx, np.concatenate(warp_w), warp_table, FAMILY_WARP)
-    sp.add(topology.weft[:, 0], topology.weft[:, 1], dy, np.concatenate(weft_w), weft_table, FAMILY_WEFT)
+    for fam, pairs, frac_name, l_axis, w_axis in ((FAMILY_WARP, topology.warp, "warp_frac", 0, 1),
+                                                  (FAMILY_WEFT, topology.weft, "weft_frac", 1, 0)):
+        rest, width, table = [], [], []
+        for p, (g, idx) in enumerate(zip(geometries, topology.index)):
+            exists = (idx[:-1, :] >= 0) & (idx[1:, :] >= 0) if fam == FAMILY_WARP else (idx[:, :-1] >= 0) & (idx[:, 1:] >= 0)
+            frac = getattr(g, frac_name)[exists]
+            rest.append(np.full(frac.size, g.spacing[l_axis]))
+            width.append(frac * g.spacing[w_axis])
+            table.append(np.full(frac.size, table_ids[p][fam], np.int64))
+        sp.add(pairs[:, 0], pairs[:, 1], np.concatenate(rest), np.concatenate(width), np.concatenate(table), fam)
     if shear_table is not None:
-        # both diagonals of every cell; stiffness is per width across the diagonal
-        diag = math.hypot(dx, dy)
-        wdiag = 0.5 * dx * dy / diag  # each diagonal carries half the cell, across its length
+        # both diagonals of every cell; stiffness is per width across the diagonal: each diagonal
+        # carries half the cell (the part of it inside the outline), across its length
+        l0, w = [], []
+        for g, idx in zip(geometries, topology.index):
+            dx, dy = g.spacing
+            diag = math.hypot(dx, dy)
+            have = (idx[:-1, :-1] >= 0) & (idx[1:, :-1] >= 0) & (idx[1:, 1:] >= 0) & (idx[:-1, 1:] >= 0)
+            l0.append(np.full(int(have.sum()), diag))
+            w.append(g.cell_frac[have] * (0.5 * dx * dy / diag))
         c = topology.cells
-        sp.add(c[:, 0], c[:, 2], diag, wdiag, shear_table, FAMILY_SHEAR)
-        sp.add(c[:, 1], c[:, 3], diag, wdiag, shear_table, FAMILY_SHEAR)
+        l0, w = np.concatenate(l0), np.concatenate(w)
+        sp.add(c[:, 0], c[:, 2], l0, w, shear_table, FAMILY_SHEAR)
+        sp.add(c[:, 1], c[:, 3], l0, w, shear_table, FAMILY_SHEAR)
     if bend_table is not None:
         # skip-one springs along warp (i, j)-(i+2, j) and weft (i, j)-(i, j+2), with the band
         # width of the warp (weft) spring they span first
         for along, fam in ((0, FAMILY_BEND_WARP), (1, FAMILY_BEND_WEFT)):
-            a_, b_, w_ = [], [], []
-            for idx in topology.index:
-                cells = _cells(idx)
+            a_, b_, l_, w_ = [], [], [], []
+            for g, idx in zip(geometries, topology.index):
                 if along == 0 and idx.shape[0] >= 3:
                     a, m, b = idx[:-2, :], idx[1:-1, :], idx[2:, :]
-                    band = _band_width(cells, dy, 0)[:-1, :]
+                    band = g.warp_frac[:-1, :] * g.spacing[1]
                 elif along == 1 and idx.shape[1] >= 3:
                     a, m, b = idx[:, :-2], idx[:, 1:-1], idx[:, 2:]
-                    band = _band_width(cells, dx, 1)[:, :-1]
+                    band = g.weft_frac[:, :-1] * g.spacing[0]
                 else:
                     continue
                 keep = (a >= 0) & (m >= 0) & (b >= 0)
                 a_.append(a[keep]); b_.append(b[keep]); w_.append(band[keep])
+                l_.append(np.full(int(keep.sum()), 2 * g.spacing[along]))
             if a_:
-                h = dx if along == 0 else dy
-                sp.add(np.concatenate(a_), np.concatenate(b_), 2 * h, np.concatenate(w_), bend_table, fam)
+                sp.add(np.concatenate(a_), np.concatenate(b_), np.concatenate(l_), np.concatenate(w_), bend_table, fam)
     return sp
 
 
-def lattice_node_area(topology: Topology, dx: float, dy: float) -> np.ndarray:
-    """Rest tributary area [m^2] (N,) of each node: a quarter of each adjacent cell."""
-    q = 0.25 * dx * dy
-    n = topology.node_count
-    count = np.zeros(n)
-    for corner in range(4):
-        count += np.bincount(topology.cells[:, corner], minlength=n)
-    return count * q
-
-
-def build_model(*, topology: Topology, spacing: tuple[float, float], origin, tables: list,
-                constraints=(), placement: Placement | None = None, shear_stiffness: float | None = None,
+def build_model(*, panels: list, constraints=(), shear_stiffness: float | None = None,
                 bending_stiffness: float | None = None, gravity=None, seams=(), mold=None) -> Model:
-    """The constant arrays of a lattice (see the module docstring).
+    """The constant arrays of a lattice of panels (see the module docstring).
 
-    topology: the lattice; spacing (dx, dy) [m]; origin (3,) [m] of node (0, 0) of the flat sheet;
-    tables: [warp, weft] tension Tables [N/m]; constraints: objects with ``nodes`` (a selector),
-    ``axes``, ``stretch`` and ``displacement`` [m]; placement: where the flat sheet starts;
-    shear_stiffness / bending_stiffness [N/m] or None; gravity: an object with ``areal_density``
-    [kg/m^2], ``g`` [m/s^2] and ``direction``, or None; seams: objects with ``a``, ``b``,
-    ``reverse`` and ``stiffness`` [N/m^2] (None = the default); mold: a loaded Mold or None."""
+    panels: PanelBuild records (geometry, tables, placement, z), one per panel, in order;
+    constraints: objects with ``nodes`` (a selector), ``axes``, ``stretch`` and ``displacement``
+    [m]; shear_stiffness / bending_stiffness [N/m] or None; gravity: an object with
+    ``areal_density`` [kg/m^2], ``g`` [m/s^2] and ``direction``, or None; seams: objects with
+    ``a``, ``b``, ``reverse`` and ``stiffness`` [N/m^2] (None = the default); mold: a loaded Mold
+    or None."""
     from .selection import seam_pairs, select_nodes
 
-    dx, dy = spacing
-    ox, oy, oz = origin
-    placement = placement if placement is not None else Placement(tuple(origin), (0.0, 0.0), None)
-    ij = topology.node_ij
+    geoms = [p.geometry for p in panels]
+    topology = Topology.from_masks([g.mask for g in geoms], [g.name for g in geoms],
+                                   outlines=[g.outline_lattice for g in geoms])
     n = topology.node_count
-    rest = np.stack([ox + ij[:, 0] * dx, oy + ij[:, 1] * dy, np.full(n, oz, float)], -1)
+    rest = np.empty((n, 3))
+    tables: list = []
+    table_ids = []
 
-    warp_table, weft_table = tables
-    tables = [warp_table, weft_table]
+    def table_id(t):
+        for k, u in enumerate(tables):
+            if u is t:
+                return k
+        tables.append(t)
+        return len(tables) - 1
+
+    starts = np.searchsorted(topology.node_panel, np.arange(len(panels) + 1))
+    for p, pb in enumerate(panels):
+        g = pb.geometry
+        ij = topology.node_ij[starts[p]:starts[p + 1]]
+        if g.grain[0] == 1.0 and g.grain[1] == 0.0:
+            rest[starts[p]:starts[p + 1]] = np.stack([g.origin[0] + ij[:, 0] * g.spacing[0],
+                                                      g.origin[1] + ij[:, 1] * g.spacing[1],
+                                                      np.full(ij.shape[0], pb.z, float)], -1)
+        else:
+            rest[starts[p]:starts[p + 1], :2] = g.to_plane(ij)
+            rest[starts[p]:starts[p + 1], 2] = pb.z
+        table_ids.append((table_id(pb.warp_table), table_id(pb.weft_table)))
     shear_tid = bend_tid = None
     if shear_stiffness is not None:
         tables.append(Table.linear(shear_stiffness, compression=True))
@@ -279,24 +344,33 @@ def build_model(*, topology: Topology, spacing: tuple[float, float], origin, tab
     if bending_stiffness is not None:
         tables.append(Table.linear(bending_stiffness, compression=True))
         bend_tid = len(tables) - 1
-    sp = lattice_springs(topology, dx, dy, shear_table=shear_tid, bend_table=bend_tid)
+    sp = lattice_springs(topology, geoms, table_ids, shear_table=shear_tid, bend_table=bend_tid)
 
     if seams:
         tables.append(Table(np.array([0.0, 1.0]), np.array([1.0, 2.0]), compression=True))
         tid = len(tables) - 1
-        l0 = SEAM_REST_RATIO * min(dx, dy)
-        slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain))) for t in (warp_table, weft_table))
+        h_min = min(min(g.spacing) for g in geoms)
+        l0 = SEAM_REST_RATIO * h_min
+        slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain)))
+                    for pb in panels for t in (pb.warp_table, pb.weft_table))
         for seam in seams:
-            a, b, share, (da, db) = seam_pairs(seam, topology)
+            a, b, share, (sa, sb) = seam_pairs(seam, topology)
+            side = [sa, sb]
+            for k, (nodes, s) in enumerate(((a, sa), (b, sb))):
+                if isinstance(s, tuple):  # (panel, direction 0/1): the lattice spacing
+                    side[k] = geoms[s[0]].spacing[s[1]]
+                else:  # along an outline edge: the mean distance between its nodes
+                    d = np.linalg.norm(np.diff(rest[s], axis=0), axis=1)
+                    side[k] = float(d.mean()) if d.size else h_min
             # the pair's share of the seam length [m], averaged over the two sides
-            length = share * 0.5 * ((dx if da == 0 else dy) + (dx if db == 0 else dy))
-            k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / min(dx, dy)
+            length = share * 0.5 * (side[0] + side[1])
+            k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / h_min
             k = k_line * length  # [N/m] per pair
             sp.add(a, b, l0, k * l0, tid, FAMILY_SEAM)
 
     spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
-    node_area = lattice_node_area(topology, dx, dy)
+    node_area = np.concatenate([g.node_frac[g.mask] * (g.spacing[0] * g.spacing[1]) for g in geoms])
 
     ext = np.zeros((n, 3))
     if gravity is not None:
@@ -307,20 +381,39 @@ def build_model(*, topology: Topology, spacing: tuple[float, float], origin, tab
     fixed = np.zeros((n, 3), bool)
     flat = rest.copy()
     shift = np.zeros((n, 3))
-    # stretch is about the sheet's centre
-    centre = np.array([ox + placement.size[0] / 2, oy + placement.size[1] / 2])
+    # stretch is about each panel's centre, along its grain and across it
+    centre = np.empty((n, 2))
+    grain = np.empty((n, 2))
+    for p, pb in enumerate(panels):
+        pl, g = pb.placement, pb.geometry
+        gr = np.asarray(g.grain, float)
+        c = np.array([pl.origin[0], pl.origin[1]]) + pl.size[0] / 2 * gr + pl.size[1] / 2 * np.array([-gr[1], gr[0]])
+        if gr[0] == 1.0 and gr[1] == 0.0:
+            c = np.array([pl.origin[0] + pl.size[0] / 2, pl.origin[1] + pl.size[1] / 2])
+        centre[starts[p]:starts[p + 1]] = c
+        grain[starts[p]:starts[p + 1]] = gr
     for c in constraints:
         m = select_nodes(c.nodes, topology)
         for ax in c.axes:
             fixed[m, "xyz".index(ax)] = True
         if c.stretch is not None:
             s = np.array([c.stretch, c.stretch] if isinstance(c.stretch, (int, float)) else c.stretch, float)
-            flat[m, :2] = centre + (flat[m, :2] - centre) * s
+            if (grain[m, 0] == 1.0).all() and (grain[m, 1] == 0.0).all():
+                flat[m, :2] = centre[m] + (flat[m, :2] - centre[m]) * s
+            else:
+                d = flat[m, :2] - centre[m]
+                g = grain[m]
+                gp = np.stack([-g[:, 1], g[:, 0]], 1)
+                u = (d * g).sum(1) * s[0]
+                v = (d * gp).sum(1) * s[1]
+                flat[m, :2] = centre[m] + u[:, None] * g + v[:, None] * gp
         if c.displacement is not None:
             shift[m] += np.asarray(c.displacement, float)
-    # stretch acts in the sheet's own coordinates, then the sheet is placed (flat or wrapped),
-    # then displacements act in space
+    # stretch acts in the panels' own planes, then each panel is placed (flat, rigidly moved or
+    # wrapped), then displacements act in space
+    placement = Placements(tuple((int(starts[p]), int(starts[p + 1]), pb.placement) for p, pb in enumerate(panels)))
     prescribed = placement.apply(flat) + shift
+    spacing = np.array([g.spacing for g in geoms], float)
 
     return Model(
         node_count=n,
@@ -342,8 +435,9 @@ def build_model(*, topology: Topology, spacing: tuple[float, float], origin, tab
         adj_node=adj_node,
         adj_spring=adj_spring,
         mold=mold,
-        spacing=(dx, dy),
+        spacing=(float(spacing[:, 0].min()), float(spacing[:, 1].min())),
         placement=placement,
+        panel_spacing=spacing,
     )
 
 
@@ -359,8 +453,11 @@ def coarsen_model(model: Model):
     nx, ny = nx1 - 1, ny1 - 1
     if nx % 2 or ny % 2 or nx < 4 or ny < 4:
         return None, None
+    from .panels import rectangle_geometry
+
     ctopo, sub = topo.coarsen()
     dx, dy = 2 * model.spacing[0], 2 * model.spacing[1]
+    cgeom = rectangle_geometry(ctopo.names[0], nx // 2, ny // 2, dx, dy)
     n = ctopo.node_count
     fam = model.spring_family
 
@@ -370,8 +467,8 @@ def coarsen_model(model: Model):
 
     bend = tid(FAMILY_BEND_WARP)
     bend = bend if bend is not None else tid(FAMILY_BEND_WEFT)
-    sp = lattice_springs(ctopo, dx, dy, warp_table=tid(FAMILY_WARP), weft_table=tid(FAMILY_WEFT),
-                         shear_table=tid(FAMILY_SHEAR), bend_table=bend)
+    sp = lattice_springs(ctopo, [cgeom], [(tid(FAMILY_WARP), tid(FAMILY_WEFT))], shear_table=tid(FAMILY_SHEAR),
+                         bend_table=bend)
     seam = fam == FAMILY_SEAM
     if seam.any():
         # seams keep the pairs whose two nodes are both on the coarse grid; each carries the
@@ -386,7 +483,7 @@ def coarsen_model(model: Model):
                    model.spring_table[seam][keep], FAMILY_SEAM)
     spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
-    area = lattice_node_area(ctopo, dx, dy)
+    area = cgeom.node_frac[cgeom.mask] * (dx * dy)
     fine_area = model.node_area[sub]
     ext = model.external_force[sub] * (area / np.where(fine_area > 0, fine_area, 1.0))[:, None]
     coarse = Model(
@@ -396,5 +493,6 @@ def coarsen_model(model: Model):
         fixed_axes=np.ascontiguousarray(model.fixed_axes[sub]),
         prescribed_positions=np.ascontiguousarray(model.prescribed_positions[sub]),
         external_force=np.ascontiguousarray(ext), node_area=area, adj_ptr=ptr, adj_node=adj_node,
-        adj_spring=adj_spring, mold=model.mold, spacing=(dx, dy), placement=model.placement)
+        adj_spring=adj_spring, mold=model.mold, spacing=(dx, dy), placement=model.placement,
+        panel_spacing=np.array([[dx, dy]]))
     return coarse, sub

@@ -45,13 +45,13 @@ def initial_state(model: Model, initial, file: Path | None = None) -> State:
                 p = np.asarray(data["positions"], float)
         except (OSError, ValueError) as exc:
             raise SceneError(f"{path}: initial.file: cannot read ({exc})") from None
-        want = topo.to_grid(np.zeros((model.node_count, 3))).shape
+        want = topo.to_grid(np.zeros((model.node_count, 3))).shape if topo.is_grid else (model.node_count, 3)
         if p.shape != want:
             raise SceneError(f"{path}: initial.file: positions have shape {p.shape}, the scene needs "
                              f"{want}")
         if not np.isfinite(p).all():
             raise SceneError(f"{path}: initial.file: positions are not all finite")
-        pos = p.reshape(-1, 3).copy() if topo.is_grid else p[tuple(topo.node_ij.T)].copy()
+        pos = p.reshape(-1, 3).copy()
     if ini.perturb:
         rng = np.random.default_rng(ini.seed)
         pos += rng.uniform(-ini.perturb, ini.perturb, pos.shape)
@@ -75,7 +75,7 @@ def _spread_in_plane(model: Model) -> np.ndarray:
     stretched and a wrapped band pulled round starts evenly pulled. Zero when nothing moves."""
     held = model.fixed_axes.any(axis=1)
     rest = model.rest_positions
-    target = model.prescribed_positions if model.placement.wrap is None else model.prescribed_flat
+    target = model.prescribed_positions if model.placement.identity else model.prescribed_flat
     u_held = (target[:, :2] - rest[:, :2])[held]
     if not held.any() or not np.any(np.abs(u_held) > 0) or held.all():
         return np.zeros((model.node_count, 2))

@@ -174,16 +174,25 @@ class Result:
     @property
     def positions(self) -> np.ndarray:
         """(nx+1, ny+1, 3) [m]: the node positions on the lattice's grid (Topology.to_grid)."""
-        return self.model.topology.to_grid(self.state.positions)
+        return self._layout(self.state.positions)
 
     @property
     def in_contact(self) -> np.ndarray:
-        return self.model.topology.to_grid(self.state.in_contact)
+        return self._layout(self.state.in_contact)
+
+    def _layout(self, values: np.ndarray) -> np.ndarray:
+        """Per-node values on the (nx+1, ny+1) grid of a full rectangle; on any other lattice
+        (panels) the flat per-node array (N, ...) in node order (``node_panel``, ``node_ij`` in
+        result.npz say which node is which)."""
+        topo = self.model.topology
+        return topo.to_grid(values) if topo.is_grid else np.asarray(values)
 
     def _split(self, arr):
         """Warp (nx, ny+1) and weft (nx+1, ny) grids of per-spring values (warp then weft first)."""
         topo = self.model.topology
         wc, fc = topo.warp_count, topo.weft_count
+        if not topo.is_grid:
+            return arr[:wc], arr[wc:wc + fc]
         return (topo.springs_to_grid(arr[:wc], "warp"), topo.springs_to_grid(arr[wc:wc + fc], "weft"))
 
     @property
@@ -206,13 +215,13 @@ class Result:
     @property
     def contact_force(self):
         """Normal contact reaction per node [N] (nx+1, ny+1)."""
-        return self.model.topology.to_grid(self._f()[2])
+        return self._layout(self._f()[2])
 
     @property
     def contact_pressure(self):
         """Contact pressure [Pa] = reaction / deformed tributary area, (nx+1, ny+1); inf where
         the sheet has gathered into a rope (see contact_reaction)."""
-        return self.model.topology.to_grid(self._f()[3])
+        return self._layout(self._f()[3])
 
     def _node_strain(self) -> np.ndarray:
         """(N,): the larger of the mean adjacent warp and weft strains at each node."""
@@ -224,7 +233,7 @@ class Result:
     def node_strain(self) -> np.ndarray:
         """Per-node strain for colouring on the lattice's grid (nx+1, ny+1): the larger of the
         mean adjacent warp and weft strains."""
-        return self.model.topology.to_grid(self._node_strain())
+        return self._layout(self._node_strain())
 
     def diagnostics(self) -> dict:
         """Numbers that make a degenerate result visible (see :func:`sheet_health`), the peak
@@ -324,6 +333,9 @@ class Result:
             contact_pressure=self.contact_pressure,
             residual_history=self.solve.history.get("residual", np.zeros(0)),
             energy_history=self.solve.history.get("energy", np.zeros(0)),
+            **({} if self.model.topology.is_grid else {
+                "node_panel": self.model.topology.node_panel, "node_ij": self.model.topology.node_ij,
+                "panel_names": np.array(self.model.topology.names)}),
         )
         return buf.getvalue()
 

@@ -1,7 +1,8 @@
 """Node selection and seam pairing: pure functions of a selector and a :class:`Topology`.
 
 A selector is a name (``left``, ``right``, ``bottom``, ``top``, ``perimeter``, ``corners``,
-``bottom_left``, ``bottom_right``, ``top_left``, ``top_right``, ``all``) or an object with ``i``
+``bottom_left``, ``bottom_right``, ``top_left``, ``top_right``, ``all``, ``outline``: the nodes on
+a panel's cut outline, the perimeter of a rectangle) or an object with ``i``
 and ``j`` (an index, an inclusive ``[a, b]`` range with negatives counting from the end, or None
 for the whole range), read on a panel's (i, j) grid. These functions read plain attributes only:
 they import nothing from the scene layer, so the scene's validators can call them.
@@ -14,7 +15,7 @@ import numpy as np
 from .topology import Topology
 
 SIDE_NAMES = ("left", "right", "bottom", "top", "perimeter", "corners", "bottom_left", "bottom_right",
-              "top_left", "top_right", "all")
+              "top_left", "top_right", "all", "outline")
 
 
 class SelectionError(ValueError):
@@ -63,21 +64,93 @@ def select_grid(sel, shape: tuple[int, int], what: str = "constraints") -> np.nd
     return m
 
 
-def select_nodes(sel, topology: Topology, panel: int = 0, what: str = "constraints") -> np.ndarray:
-    """(N,) bool: the lattice nodes a selector picks on one panel."""
-    m = select_grid(sel, topology.panel_shape(panel), what)
-    idx = topology.index[panel][m]
+def _panels_of(sel, topology: Topology) -> list[int]:
+    name = getattr(sel, "panel", None)
+    if name is None:
+        return list(range(topology.panel_count))
+    try:
+        return [topology.panel_index(name)]
+    except ValueError as exc:
+        raise SelectionError(f"panel: {exc}") from None
+
+
+def _grid_selector(sel):
+    """The part of a selector read on a panel's (i, j) grid: a name, or an object with i and j."""
+    if isinstance(sel, str):
+        return sel
+    side = getattr(sel, "side", None)
+    return side if side is not None else sel
+
+
+def edge_nodes(topology: Topology, panel: int, edge, what: str = "edge") -> np.ndarray:
+    """The lattice nodes along a panel's outline from vertex edge[0] to vertex edge[1]
+    (counter-clockwise), ordered along it: the panel's boundary nodes whose closest outline point
+    lies on that chain of edges (distances in lattice units; a corner node belongs to both edges
+    that meet there)."""
+    import shapely
+
+    outline = topology.outlines[panel] if panel < len(topology.outlines) else None
+    if outline is None:
+        raise SelectionError(f"{what}: panel '{topology.names[panel]}' has no outline to follow")
+    k = len(outline)
+    v0, v1 = edge
+    if not (-k <= v0 < k and -k <= v1 < k):
+        raise SelectionError(f"{what}: vertex index outside 0..{k - 1} (the outline has {k} vertices)")
+    v0, v1 = v0 % k, v1 % k
+    if v0 == v1:
+        raise SelectionError(f"{what}: the two vertices must differ")
+    chain_idx = [(v0 + t) % k for t in range(((v1 - v0) % k) + 1)]
+    chain = shapely.LineString(outline[chain_idx])
+    ring = shapely.LinearRing(outline)
+    nodes = topology.panel_nodes(panel)
+    nodes = nodes[topology.boundary[nodes]]
+    pts = shapely.points(topology.node_ij[nodes].astype(float))
+    d_chain = shapely.distance(chain, pts)
+    d_all = shapely.distance(ring, pts)
+    keep = (d_chain <= d_all + 1e-9) & (d_chain <= 1.0)
+    nodes, pts = nodes[keep], pts[keep]
+    if nodes.size == 0:
+        raise SelectionError(f"{what}: no lattice node lies along outline vertices {v0}..{v1}")
+    order = np.argsort(shapely.line_locate_point(chain, pts), kind="stable")
+    return nodes[order].astype(np.int64)
+
+
+def select_nodes(sel, topology: Topology, panel: int | None = None, what: str = "constraints") -> np.ndarray:
+    """(N,) bool: the lattice nodes a selector picks (on ``panel``, on the panel the selector
+    names, or on every panel)."""
     out = np.zeros(topology.node_count, bool)
-    out[idx[idx >= 0]] = True
+    panels = [panel] if panel is not None else _panels_of(sel, topology)
+    if not isinstance(sel, str) and getattr(sel, "edge", None) is not None:
+        for p in panels:
+            out[edge_nodes(topology, p, sel.edge, what)] = True
+        return out
+    g = _grid_selector(sel)
+    for p in panels:
+        if g == "outline":
+            out |= topology.boundary & (topology.node_panel == p)
+            continue
+        m = select_grid(g, topology.panel_shape(p), what)
+        idx = topology.index[p][m]
+        out[idx[idx >= 0]] = True
     return out
 
 
-def seam_line(sel, topology: Topology, name: str, panel: int = 0) -> tuple[np.ndarray, int]:
-    """Node numbers of one seam side in index order, and the lattice direction it runs along
-    (0: i varies, 1: j varies; 1 for a single node)."""
-    m = select_grid(sel, topology.panel_shape(panel), name)
+def seam_line(sel, topology: Topology, name: str):
+    """Node numbers of one seam side in order, and how it runs: (panel, 0) along i, (panel, 1)
+    along j (also for a single node), or the node array itself for a side along an outline edge.
+    A side must lie on one panel."""
+    panels = _panels_of(sel, topology)
+    if len(panels) > 1:
+        raise SelectionError(f"{name}: name the panel (the scene has {len(panels)}: {', '.join(topology.names)})")
+    p = panels[0]
+    if not isinstance(sel, str) and getattr(sel, "edge", None) is not None:
+        nodes = edge_nodes(topology, p, sel.edge, name)
+        return nodes, nodes
+    if _grid_selector(sel) == "outline":
+        raise SelectionError(f"{name}: a seam side must be one line of nodes or an outline edge, not the whole outline")
+    m = select_grid(_grid_selector(sel), topology.panel_shape(p), name)
     ii, jj = np.nonzero(m)
-    nodes = topology.index[panel][ii, jj]
+    nodes = topology.index[p][ii, jj]
     keep = nodes >= 0
     ii, jj, nodes = ii[keep], jj[keep], nodes[keep]
     if ii.size == 0:
@@ -86,20 +159,26 @@ def seam_line(sel, topology: Topology, name: str, panel: int = 0) -> tuple[np.nd
         raise SelectionError(f"{name}: must select one line of nodes (a single i or a single j); it selects "
                              f"{ii.size} nodes over i {ii.min()}..{ii.max()}, j {jj.min()}..{jj.max()}")
     direction = 0 if ii.size > 1 and (jj == jj[0]).all() else 1
-    return nodes.astype(np.int64), direction
+    return nodes.astype(np.int64), (p, direction)
 
 
 def seam_pairs(seam, topology: Topology):
     """The node pairs a seam (``a``, ``b``, ``reverse``) sews: (a (P,), b (P,), share (P,),
-    (direction of a, direction of b)), where the share of a pair is its part of the seam in
-    lattice spacings along each side (1 inside, 1/2 at the ends). Pairs of a node with itself
-    (the tip of a dart) are dropped. Raises SelectionError naming the side ("a: ..." or "b: ...")."""
+    (how a runs, how b runs)) (see :func:`seam_line`), where the share of a pair is its part of
+    the seam in node spacings along each side (1 inside, 1/2 at the ends). Pairs of a node with
+    itself (the tip of a dart) are dropped. Raises SelectionError naming the side ("a: ..." or
+    "b: ..."). Both sides must select the same number of nodes."""
     a, da = seam_line(seam.a, topology, "a")
     b, db = seam_line(seam.b, topology, "b")
     if a.size != b.size:
-        raise SelectionError(f"b: selects {b.size} nodes but a selects {a.size}; a seam sews them one to one")
+        edges = not (isinstance(da, tuple) and isinstance(db, tuple))
+        raise SelectionError(f"b: selects {b.size} nodes but a selects {a.size}; a seam sews them one to one"
+                             + (" (outline edges of unequal node counts are not supported yet: choose spacings "
+                                "that give both edges the same count)" if edges else ""))
     if seam.reverse:
         b = b[::-1]
+        if not isinstance(db, tuple):
+            db = b
     share = np.ones(a.size)
     if a.size > 1:
         share[0] = share[-1] = 0.5

@@ -39,12 +39,14 @@ class Topology:
     index: tuple
     warp: np.ndarray
     weft: np.ndarray
+    outlines: tuple = ()
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_masks(cls, masks, names=None) -> "Topology":
+    def from_masks(cls, masks, names=None, outlines=None) -> "Topology":
         """The lattice of panels given as boolean masks (nx_p+1, ny_p+1); names default to
-        ``panel0``, ``panel1``, ..."""
+        ``panel0``, ``panel1``, ...; outlines: each panel's outline (K, 2) in lattice units
+        (counter-clockwise; None for a plain lattice), used to select nodes along outline edges."""
         masks = tuple(np.ascontiguousarray(m, bool) for m in masks)
         if not masks:
             raise ValueError("a lattice needs at least one panel")
@@ -70,7 +72,8 @@ class Topology:
         return cls(masks=masks, names=names, node_panel=np.concatenate(panel),
                    node_ij=np.concatenate(ij), index=tuple(index),
                    warp=np.concatenate(warp).astype(np.int64).reshape(-1, 2),
-                   weft=np.concatenate(weft).astype(np.int64).reshape(-1, 2))
+                   weft=np.concatenate(weft).astype(np.int64).reshape(-1, 2),
+                   outlines=tuple(outlines) if outlines is not None else (None,) * len(masks))
 
     @classmethod
     def rectangle(cls, nx: int, ny: int, name: str = "fabric") -> "Topology":
@@ -93,6 +96,17 @@ class Topology:
     @property
     def panel_count(self) -> int:
         return len(self.masks)
+
+    def panel_index(self, name: str) -> int:
+        """The number of the panel called ``name`` (ValueError if none is)."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown panel '{name}' (known: {', '.join(self.names)})") from None
+
+    def panel_nodes(self, panel: int) -> np.ndarray:
+        """(n_p,) the node numbers of a panel (consecutive)."""
+        return np.nonzero(self.node_panel == panel)[0]
 
     @cached_property
     def is_grid(self) -> bool:
@@ -210,6 +224,7 @@ class Topology:
         """The stride-2 lattice (nodes whose i and j are both even, built by the same
         constructor) and ``sub`` (Nc,) int64: the node of this lattice each coarse node is."""
         masks = tuple(m[::2, ::2] for m in self.masks)
-        coarse = Topology.from_masks(masks, self.names)
+        outlines = tuple(None if o is None else np.asarray(o) / 2 for o in self.outlines)
+        coarse = Topology.from_masks(masks, self.names, outlines)
         sub = np.concatenate([idx[::2, ::2][m] for idx, m in zip(self.index, masks)]).astype(np.int64)
         return coarse, sub

@@ -68,7 +68,7 @@ def test_good_scene_loads(tmp_path):
         ("size: [0.10, 0.02]", "size: [0.10, -0.02]", "x.yaml:3: fabric.size: must be positive and finite (got -0.02)"),
         ("{nodes: left, axes: xyz}", "{nodes: lefty, axes: xyz}",
          "x.yaml:9: constraints.0.nodes: unknown node set 'lefty' (known: perimeter, left, right, bottom, top, "
-         "bottom_left, bottom_right, top_left, top_right, corners, all; or give {i: [a, b], j: [c, d]})"),
+         "bottom_left, bottom_right, top_left, top_right, corners, all, outline; or give {i: [a, b], j: [c, d]})"),
         ("{nodes: left, axes: xyz}", "{nodes: left, axes: xw}",
          "x.yaml:9: constraints.0.axes: must be a non-empty subset of 'xyz' (got 'xw')"),
         ("{nodes: left, axes: xyz}", "{nodes: left, axes: xyz, stretch: 0}",

@@ -52,15 +52,18 @@ def test_non_rectangular_lattice_counts():
 
 
 def test_areas_and_widths_sum_to_the_lattice_area():
-    """Node areas (a quarter of each adjacent cell) sum to the cells' area; warp widths x lengths
-    also cover it once: the L has 12 cells of dx dy."""
-    t = _l_shape()
-    from clothsim.grid import lattice_node_area, lattice_springs
+    """An L-shaped outline on the lattice lines: node areas sum to its area (12 cells of dx dy)
+    and warp (weft) widths x lengths cover it once."""
+    from clothsim.grid import lattice_springs
+    from clothsim.panels import panel_geometry
 
     dx, dy = 0.02, 0.03
-    area = lattice_node_area(t, dx, dy)
+    g = panel_geometry("L", [[0, 0], [4 * dx, 0], [4 * dx, 2 * dy], [2 * dx, 2 * dy], [2 * dx, 4 * dy], [0, 4 * dy]],
+                       spacing=(dx, dy))
+    t = Topology.from_masks([g.mask])
+    area = g.node_area()
     assert area.sum() == pytest.approx(12 * dx * dy, rel=1e-14)
-    sp = lattice_springs(t, dx, dy)
+    sp = lattice_springs(t, [g], [(0, 1)])
     nodes, rest, width, table, family = sp.arrays()
     warp = family == 0
     assert (rest[warp] * width[warp]).sum() == pytest.approx(12 * dx * dy, rel=1e-14)
@@ -100,7 +103,7 @@ def test_selection_on_a_topology():
     a, b, share, dirs = seam_pairs(seam, t)
     np.testing.assert_array_equal(t.node_ij[a, 0], 0)
     np.testing.assert_array_equal(t.node_ij[b, 0], 4)
-    assert share.tolist() == [0.5, 1, 1, 0.5] and dirs == (1, 1)
+    assert share.tolist() == [0.5, 1, 1, 0.5] and dirs == ((0, 1), (0, 1))
 
 
 def test_compile_scene_reads_the_scene_once():
