@@ -4,7 +4,8 @@ A :class:`Mold` is either a triangle mesh (any format trimesh reads, the paper's
 points/triangles text format, legacy ASCII VTK polydata, VRML 2.0 ``IndexedFaceSet``) or an
 analytic primitive (sphere, finite capped cylinder, half-space, axis-aligned box). Loading and
 validation are plain Python/numpy; the queries used inside solver loops are ``@njit(cache=True)``
-pure functions of the tuple of arrays returned by :meth:`Mold.kernel_args` (called ``margs``).
+pure functions of the named tuple of arrays (:class:`MoldArgs`) returned by
+:meth:`Mold.kernel_args` (called ``margs``).
 
 Conventions (every kernel):
 
@@ -45,12 +46,13 @@ from .build import mold_from_arrays, mold_primitive
 from .load import load_mold, load_mold_bytes
 from .queries import mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
 from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MOLD_BOX, MOLD_CYLINDER, MOLD_MESH,
-                     MOLD_PLANE, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldError)
+                     MOLD_PLANE, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldArgs, MoldError)
 from .segment import mold_segment_hit
 
 __all__ = [
     "MoldError",
     "Mold",
+    "MoldArgs",
     "MOLD_MESH",
     "MOLD_SPHERE",
     "MOLD_CYLINDER",

@@ -146,14 +146,14 @@ def _box_d2(bmin, bmax, n, px, py, pz):
 @njit(cache=True)
 def _mesh_closest(margs, px, py, pz):
     """BVH search for the closest point: returns (cx, cy, cz, feature_code, feature_id, d2)."""
-    V = margs[2]
-    F = margs[3]
-    face_edges = margs[8]
-    bmin = margs[13]
-    bmax = margs[14]
-    child = margs[15]
-    rng = margs[16]
-    order = margs[17]
+    V = margs.vertices
+    F = margs.faces
+    face_edges = margs.face_edges
+    bmin = margs.bvh_min
+    bmax = margs.bvh_max
+    child = margs.bvh_child
+    rng = margs.bvh_range
+    order = margs.bvh_faces
     best = np.inf
     bx = 0.0
     by = 0.0
@@ -222,11 +222,11 @@ def _mesh_closest(margs, px, py, pz):
 @njit(cache=True)
 def _feature_normal(margs, code, idx):
     if code == 0:
-        N = margs[4]
+        N = margs.face_normals
     elif code == 1:
-        N = margs[7]
+        N = margs.edge_normals
     else:
-        N = margs[5]
+        N = margs.vertex_normals
     return N[idx, 0], N[idx, 1], N[idx, 2]
 
 
@@ -247,20 +247,20 @@ def _mesh_query(margs, px, py, pz, out):
     dist = math.sqrt(d2)
     s = wx * nx + wy * ny + wz * nz
     inside = s < 0.0
-    if margs[0][1] == 0:  # open surface: the boundary rule
+    if margs.info[1] == 0:  # open surface: the boundary rule
         boundary = False
         if code == 1:
-            boundary = margs[9][idx, 1] < 0
+            boundary = margs.edge_faces[idx, 1] < 0
         elif code == 2:
-            boundary = margs[12][idx] != 0
+            boundary = margs.vertex_boundary[idx] != 0
         if boundary:
             inside = False
-            FN = margs[4]
+            FN = margs.face_normals
             if code == 1:
-                inside = _behind_face(FN, margs[9][idx, 0], wx, wy, wz, dist)
+                inside = _behind_face(FN, margs.edge_faces[idx, 0], wx, wy, wz, dist)
             else:
-                ptr = margs[10]
-                ring = margs[11]
+                ptr = margs.vertex_face_ptr
+                ring = margs.vertex_face_idx
                 for k in range(ptr[idx], ptr[idx + 1]):
                     if _behind_face(FN, ring[k], wx, wy, wz, dist):
                         inside = True
@@ -558,13 +558,13 @@ def mold_query(margs, p, out):
     2 cap at -axis and edges (rims) 0 at +axis / 1 at -axis; box see ``_box_feature``
     (faces 2*axis+side, edges 4*axis+2*s_b+s_c, vertices s_x+2*s_y+4*s_z).
     """
-    kind = margs[0][0]
+    kind = margs.info[0]
     px = p[0]
     py = p[1]
     pz = p[2]
     if kind == MOLD_MESH:
         return _mesh_query(margs, px, py, pz, out)
-    prm = margs[1]
+    prm = margs.params
     if kind == MOLD_SPHERE:
         return _sphere_query(prm, px, py, pz, out)
     if kind == MOLD_CYLINDER:
@@ -596,24 +596,24 @@ def mold_feature_normals(margs, feature_code, feature_index, normals_out):
     return 0 because their normals depend on the point: use :func:`mold_contact_normals`
     (cylinder caps return their single normal).
     """
-    kind = margs[0][0]
+    kind = margs.info[0]
     code = int(feature_code)
     idx = int(feature_index)
-    prm = margs[1]
+    prm = margs.params
     if kind == MOLD_MESH:
-        FN = margs[4]
+        FN = margs.face_normals
         if code == 0:
             return _put(normals_out, 0, FN[idx, 0], FN[idx, 1], FN[idx, 2])
         if code == 1:
-            ef = margs[9]
+            ef = margs.edge_faces
             k = 0
             for j in range(2):
                 f = ef[idx, j]
                 if f >= 0:
                     k = _put(normals_out, k, FN[f, 0], FN[f, 1], FN[f, 2])
             return k
-        ptr = margs[10]
-        ring = margs[11]
+        ptr = margs.vertex_face_ptr
+        ring = margs.vertex_face_idx
         k = 0
         for j in range(ptr[idx], ptr[idx + 1]):
             f = ring[j]
@@ -667,12 +667,12 @@ def mold_contact_normals(margs, p, out, normals_out):
     a caller needs no second query for them.
     """
     mold_query(margs, p, out)
-    kind = margs[0][0]
+    kind = margs.info[0]
     k = mold_feature_normals(margs, out[6], out[7], normals_out)
     if k > 0:
         return k
     if kind == MOLD_CYLINDER and out[6] == 1.0:
-        prm = margs[1]
+        prm = margs.params
         sg = 1.0 if out[7] == 0.0 else -1.0
         q = math.sqrt(2.0)
         # pseudo-normal = (u + sg a)/sqrt2  =>  u = sqrt2 n - sg a

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,6 +34,50 @@ class MoldError(ValueError):
 # --------------------------------------------------------------------------------------------
 # the Mold record
 # --------------------------------------------------------------------------------------------
+
+
+class MoldArgs(NamedTuple):
+    """A mold's arrays as the njit kernels take them (numba passes a named tuple of arrays at no
+    cost, and fields are read by name). Same numba type for every mold: primitives carry empty
+    mesh arrays. Field order is the historical positional order (``margs[9]`` is ``edge_faces``),
+    so callers indexing by position keep working."""
+
+    info: np.ndarray
+    """int64 (2,): [kind, closed] (kind a ``MOLD_*`` code; closed 1 or 0)."""
+    params: np.ndarray
+    """float64 (16,): see :attr:`Mold.params`."""
+    vertices: np.ndarray
+    """float64 (V, 3) [m]."""
+    faces: np.ndarray
+    """int64 (F, 3)."""
+    face_normals: np.ndarray
+    """float64 (F, 3), unit."""
+    vertex_normals: np.ndarray
+    """float64 (V, 3), unit pseudo-normals."""
+    edges: np.ndarray
+    """int64 (E, 2)."""
+    edge_normals: np.ndarray
+    """float64 (E, 3), unit pseudo-normals."""
+    face_edges: np.ndarray
+    """int64 (F, 3)."""
+    edge_faces: np.ndarray
+    """int64 (E, 2); -1 marks a boundary edge."""
+    vertex_face_ptr: np.ndarray
+    """int64 (V+1,): CSR offsets."""
+    vertex_face_idx: np.ndarray
+    """int64 (sum of valences,)."""
+    vertex_boundary: np.ndarray
+    """int64 (V,): 1 on the open boundary."""
+    bvh_min: np.ndarray
+    """float64 (N, 3) [m]."""
+    bvh_max: np.ndarray
+    """float64 (N, 3) [m]."""
+    bvh_child: np.ndarray
+    """int64 (N, 2); -1 on leaves."""
+    bvh_range: np.ndarray
+    """int64 (N, 2): (start, count) in ``bvh_faces``."""
+    bvh_faces: np.ndarray
+    """int64 (F,)."""
 
 
 def _ro(a: np.ndarray, dtype) -> np.ndarray:
@@ -127,20 +172,16 @@ class Mold:
                     b[0, ax] = p[ax]
         return b
 
-    def kernel_args(self) -> tuple:
-        """The tuple ``margs`` every kernel takes first (plain, read-only numpy arrays):
-
-        ``(info int64 (2,) = [kind, closed], params, vertices, faces, face_normals,
-        vertex_normals, edges, edge_normals, face_edges, edge_faces, vertex_face_ptr,
-        vertex_face_idx, vertex_boundary, bvh_min, bvh_max, bvh_child, bvh_range, bvh_faces)``.
-        """
+    def kernel_args(self) -> "MoldArgs":
+        """The :class:`MoldArgs` named tuple every kernel takes first (called ``margs``): plain,
+        read-only numpy arrays, read by field name inside the kernels."""
         info = np.array([self.kind, 1 if self.closed else 0], dtype=np.int64)
         info.setflags(write=False)
-        return (info, self.params, self.vertices, self.faces, self.face_normals,
-                self.vertex_normals, self.edges, self.edge_normals, self.face_edges,
-                self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
-                self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
-                self.bvh_range, self.bvh_faces)
+        return MoldArgs(info, self.params, self.vertices, self.faces, self.face_normals,
+                        self.vertex_normals, self.edges, self.edge_normals, self.face_edges,
+                        self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
+                        self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
+                        self.bvh_range, self.bvh_faces)
 
     def surface_mesh(self, resolution: int = 48, extent: float = 1.0):
         """A triangle mesh for display: ``(vertices float64 (V,3) [m], faces int64 (F,3))``.

@@ -63,14 +63,14 @@ def _slab(p0, d, lo, hi, tlo, thi, closed=False):
 
 @njit(cache=True)
 def _mesh_segment_hit(margs, p0, p1):
-    V = margs[2]
-    F = margs[3]
-    FN = margs[4]
-    bmin = margs[13]
-    bmax = margs[14]
-    child = margs[15]
-    rng = margs[16]
-    order = margs[17]
+    V = margs.vertices
+    F = margs.faces
+    FN = margs.face_normals
+    bmin = margs.bvh_min
+    bmax = margs.bvh_max
+    child = margs.bvh_child
+    rng = margs.bvh_range
+    order = margs.bvh_faces
     dx = p1[0] - p0[0]
     dy = p1[1] - p0[1]
     dz = p1[2] - p0[2]
@@ -78,7 +78,7 @@ def _mesh_segment_hit(margs, p0, p1):
     if dd == 0.0 or bmin.shape[0] == 0:
         return -1.0
     dl = math.sqrt(dd)
-    probe = _PROBE_REL * margs[1][15]
+    probe = _PROBE_REL * margs.params[15]
     best = 2.0
     qout = np.empty(8)
     q = np.empty(3)
@@ -167,10 +167,10 @@ def mold_segment_hit(margs, p0, p1):
     the motion; hits within 1e-9 (barycentric) of an edge or vertex are confirmed by probing the
     signed distance 1e-8 x (bounding-box diagonal) beyond the hit. Primitives: analytic.
     """
-    kind = margs[0][0]
+    kind = margs.info[0]
     if kind == MOLD_MESH:
         return _mesh_segment_hit(margs, p0, p1)
-    prm = margs[1]
+    prm = margs.params
     dx = p1[0] - p0[0]
     dy = p1[1] - p0[1]
     dz = p1[2] - p0[2]
