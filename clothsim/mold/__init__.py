@@ -39,11 +39,15 @@ ray-triangle intersection"; J. A. Baerentzen & H. Aanaes (2005), see above.
 
 Modules, by job: ``record`` (the :class:`Mold` and its codes), ``queries`` (closest point, inside
 test, BVH traversal; numba), ``segment`` (segment hits; numba), ``build`` (mesh cleaning, BVH,
-pseudo-normals, primitives), ``readers`` (file formats), ``load`` (specs, transforms, loaders).
+pseudo-normals, primitives), ``readers`` (file formats, safe file reading), ``load`` (specs,
+transforms, loaders, the cache of loaded molds), ``checks`` (sanity warnings against the scene).
+Mold specs are typed in :mod:`clothsim.config` (``MoldSpec``).
 """
 
 from .build import mold_from_arrays, mold_primitive
-from .load import load_mold, load_mold_bytes
+from .checks import SCALE_WARNING_RATIO, mold_scale_warning, mold_size
+from .load import MOLD_CACHE_SIZE, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info
+from .readers import MAX_MOLD_FILE_BYTES
 from .queries import mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
 from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MOLD_BOX, MOLD_CYLINDER, MOLD_MESH,
                      MOLD_PLANE, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldArgs, MoldError)
@@ -64,6 +68,13 @@ __all__ = [
     "QUERY_OUT_SIZE",
     "load_mold",
     "load_mold_bytes",
+    "clear_mold_cache",
+    "mold_cache_info",
+    "MOLD_CACHE_SIZE",
+    "MAX_MOLD_FILE_BYTES",
+    "mold_scale_warning",
+    "mold_size",
+    "SCALE_WARNING_RATIO",
     "mold_from_arrays",
     "mold_primitive",
     "mold_query",

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,67 @@ _TRIMESH_EXTS = {".stl", ".obj", ".ply", ".off", ".glb", ".gltf"}
 # file readers: each returns (V float64 (V,3), F int64 (F,3)) and raises MoldError
 # --------------------------------------------------------------------------------------------
 
+#: largest index or count accepted in a mold file (int64 arrays hold them; 2**53 also keeps a
+#: float spelling such as ``1e15`` exact)
+_MAX_INT = 2**53
+
+#: largest mold file read from disk [bytes]: about 5M triangles as binary STL
+MAX_MOLD_FILE_BYTES = 256 * 2**20
+
+
+def _excerpt(text: str, n: int = 24, quote: bool = True) -> str:
+    """A short, printable excerpt of file content for an error message: at most n characters,
+    anything but printable ASCII shown as '?', '...' when cut. Messages never echo more of a
+    file than this (the file may not be what its name says)."""
+    text = str(text)
+    cut = len(text) > n
+    text = "".join(c if " " <= c <= "~" else "?" for c in text[:n]) + ("..." if cut else "")
+    return repr(text) if quote else text
+
+
+def mold_file_status(path: Path) -> os.stat_result:
+    """``os.stat`` of a mold file named by the user, refusing what cannot be a mold before
+    anything is read: a missing file, anything but a regular file (a device such as /dev/zero,
+    a pipe, a folder), a symbolic link to a file outside the folder the path names, and a file
+    over ``MAX_MOLD_FILE_BYTES``. Raises MoldError naming the path."""
+    name = str(path)
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise MoldError(f"{name}: cannot read mold file: {e.strerror or e}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise MoldError(f"{name}: not a regular file (a device, pipe or folder cannot be a mold)")
+    folder = Path(os.path.realpath(path.parent))
+    real = Path(os.path.realpath(path))
+    if not real.is_relative_to(folder):
+        raise MoldError(f"{name}: is a link to a file outside its folder; refusing to follow it "
+                        f"(copy the file there instead)")
+    if st.st_size > MAX_MOLD_FILE_BYTES:
+        raise MoldError(f"{name}: {st.st_size / 2**20:.0f} MB is over the mold file limit of "
+                        f"{MAX_MOLD_FILE_BYTES / 2**20:.0f} MB")
+    return st
+
+
+def read_mold_file(path: Path, max_bytes: int = MAX_MOLD_FILE_BYTES) -> bytes:
+    """The bytes of a mold file, after :func:`mold_file_status`'s checks; the descriptor is
+    checked again once open (a regular file, not a link) and at most ``max_bytes`` are read, so
+    a file swapped or growing meanwhile cannot make the read unbounded."""
+    name = str(path)
+    mold_file_status(path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(os.path.realpath(path), flags)
+    except OSError as e:
+        raise MoldError(f"{name}: cannot read mold file: {e.strerror or e}") from None
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise MoldError(f"{name}: not a regular file (a device, pipe or folder cannot be a mold)")
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise MoldError(f"{name}: over the mold file limit of {max_bytes / 2**20:.0f} MB")
+    return data
+
+
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?|[-+]?(?:nan|inf|infinity)"
 
 
@@ -31,23 +94,30 @@ def _float(tok: str, name: str, lineno: int, what: str) -> float:
     try:
         v = float(tok.replace("D", "e").replace("d", "e"))
     except ValueError:
-        raise MoldError(f"{name}: line {lineno}: {what}: {tok!r} is not a number") from None
+        raise MoldError(f"{name}: line {lineno}: {what}: {_excerpt(tok)} is not a number") from None
     if not math.isfinite(v):
-        raise MoldError(f"{name}: line {lineno}: {what}: non-finite coordinate {tok!r}")
+        raise MoldError(f"{name}: line {lineno}: {what}: non-finite coordinate {_excerpt(tok)}")
     return v
 
 
 def _int(tok: str, name: str, lineno: int, what: str) -> int:
+    """An integer token (``12``, or a float spelling of one such as ``12.0``), within
+    +-``_MAX_INT`` so that it fits the int64 arrays it goes into."""
     try:
-        return int(tok)
+        v = int(tok)
     except ValueError:
         try:
             f = float(tok)
         except ValueError:
             f = math.nan
-        if math.isfinite(f) and f == int(f):
-            return int(f)
-        raise MoldError(f"{name}: line {lineno}: {what}: {tok!r} is not an integer") from None
+        if not (math.isfinite(f) and f == int(f)):
+            raise MoldError(f"{name}: line {lineno}: {what}: {_excerpt(tok)} is not an "
+                            f"integer") from None
+        v = int(f)
+    if abs(v) > _MAX_INT:
+        raise MoldError(f"{name}: line {lineno}: {what}: {_excerpt(tok)} is out of range "
+                        f"(at most {_MAX_INT} in magnitude)")
+    return v
 
 
 def _read_paper_text(text: str, name: str):
@@ -80,7 +150,7 @@ def _read_paper_text(text: str, name: str):
             tri_lines.append(lineno)
         else:
             raise MoldError(f"{name}: line {lineno}: expected 'index x y z' or 'n1 n2 n3', got "
-                            f"{len(toks)} fields: {raw.strip()[:60]!r}")
+                            f"{len(toks)} fields: {_excerpt(raw.strip())}")
     if not labels and not tris:
         raise MoldError(f"{name}: empty file (no points, no triangles)")
     if not labels:
@@ -119,7 +189,7 @@ def _read_vtk(data: bytes, name: str):
         raise MoldError(f"{name}: line 3: binary VTK is not supported; save it as ASCII "
                         f"(e.g. ParaView 'File > Save Data', Data Mode ASCII) or as STL/PLY")
     if fmt != "ASCII":
-        raise MoldError(f"{name}: line 3: expected ASCII or BINARY, got {lines[2].strip()!r}")
+        raise MoldError(f"{name}: line 3: expected ASCII or BINARY, got {_excerpt(lines[2].strip())}")
     toks: list[tuple[str, int]] = []
     for i, ln in enumerate(lines[3:], 4):
         for t in ln.split():
@@ -144,7 +214,7 @@ def _read_vtk(data: bytes, name: str):
             typ, ln2 = take("the dataset type")
             if typ.upper() != "POLYDATA":
                 raise MoldError(f"{name}: line {ln2}: only 'DATASET POLYDATA' is supported, got "
-                                f"{typ!r}")
+                                f"{_excerpt(typ)}")
             dataset_seen = True
         elif K == "POINTS":
             n = _int(take("POINTS count")[0], name, ln, "POINTS count")
@@ -163,7 +233,7 @@ def _read_vtk(data: bytes, name: str):
                 offs = [_int(take("offsets")[0], name, ln, "offset") for _ in range(n)]
                 t, l4 = take("CONNECTIVITY")
                 if t.upper() != "CONNECTIVITY":
-                    raise MoldError(f"{name}: line {l4}: expected CONNECTIVITY, got {t!r}")
+                    raise MoldError(f"{name}: line {l4}: expected CONNECTIVITY, got {_excerpt(t)}")
                 take("CONNECTIVITY type")
                 conn, conn_lines = [], []
                 for _ in range(size):
@@ -195,7 +265,7 @@ def _read_vtk(data: bytes, name: str):
         elif K in ("POINT_DATA", "CELL_DATA", "FIELD", "METADATA"):
             break
         else:
-            raise MoldError(f"{name}: line {ln}: unexpected keyword {kw!r}")
+            raise MoldError(f"{name}: line {ln}: unexpected keyword {_excerpt(kw)}")
     if not dataset_seen:
         raise MoldError(f"{name}: no 'DATASET POLYDATA' section")
     if V is None or len(V) == 0:
@@ -232,7 +302,7 @@ def _read_vrml(data: bytes, name: str):
     if not head.startswith("#VRML"):
         raise MoldError(f"{name}: line 1: not a VRML file (expected '#VRML V2.0 utf8')")
     if not head.startswith("#VRML V2.0"):
-        raise MoldError(f"{name}: line 1: only VRML 2.0 is supported, got {head.splitlines()[0]!r}")
+        raise MoldError(f"{name}: line 1: only VRML 2.0 is supported, got {_excerpt(head.splitlines()[0])}")
     # blank comments but keep offsets (so line numbers stay right)
     text = re.sub(r"#[^\n]*", lambda m: " " * len(m.group(0)), text)
 
@@ -303,7 +373,7 @@ def _read_trimesh(data: bytes, name: str, ext: str):
         m = trimesh.load(io.BytesIO(data), file_type=ext.lstrip("."), force="mesh", process=False)
     except Exception as e:  # trimesh raises many kinds of errors on bad input
         raise MoldError(f"{name}: cannot parse as {ext.lstrip('.').upper()}: "
-                        f"{type(e).__name__}: {e}") from None
+                        f"{type(e).__name__}: {_excerpt(str(e), 80, quote=False)}") from None
     if isinstance(m, (list, tuple)):
         m = trimesh.util.concatenate(list(m))
     if not isinstance(m, trimesh.Trimesh):
@@ -352,7 +422,7 @@ def _read_any(data: bytes, name: str):
     if ext not in _PAPER_EXTS | _VTK_EXTS | _VRML_EXTS | _TRIMESH_EXTS:
         sniffed = _sniff(data)
         if sniffed is None:
-            raise MoldError(f"{name}: unknown mold format {ext or '(no extension)'!r}; supported: "
+            raise MoldError(f"{name}: unknown mold format {_excerpt(ext) if ext else repr('(no extension)')}; supported: "
                             f"STL, OBJ, PLY, OFF, GLB/glTF, the paper's .txt/.pts/.tri, "
                             f"legacy ASCII .vtk, VRML 2.0 .wrl")
         ext = sniffed
