@@ -11,11 +11,12 @@ from __future__ import annotations
 import copy
 import math
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Discriminator, Field, StrictBool, Tag, ValidationError,
+                      field_validator, model_validator)
 
 from .material import MaterialError, Table, check_table, read_table_csv
 
@@ -428,6 +429,223 @@ class SolverSettings(_Strict):
         return v
 
 
+# ----------------------------------------------------------------------------- mold specs
+
+
+def _short(v: Any, n: int = 40) -> str:
+    """repr of a user value, cut to n characters (error messages never echo a whole input)."""
+    r = repr(v)
+    return r if len(r) <= n else r[: n - 3] + "..."
+
+
+def _finite3(v, what: str = "3 finite numbers"):
+    if not all(math.isfinite(x) for x in v):
+        raise ValueError(f"must be {what} (got {list(v)})")
+    return v
+
+
+def _nonzero3(v):
+    _finite3(v, "a non-zero finite vector")
+    if sum(x * x for x in v) == 0:
+        raise ValueError(f"must be a non-zero finite vector (got {list(v)})")
+    return v
+
+
+class MeshMoldSpec(_Strict):
+    """A mold read from a triangle-mesh file (any format :func:`clothsim.mold.load_mold` reads).
+
+    path: the file (relative paths resolve against the scene file's folder); scale: a positive
+    number, or three (per axis), multiplying the file's coordinates into metres (0.001 for a file
+    in millimetres); rotate [deg]: about x, then y, then z; translate [m]: applied last;
+    closed: true = must be watertight (inside = the enclosed volume), false = an open skin even
+    if watertight, omitted = detected."""
+
+    kind: ClassVar[str] = "mesh"
+    path: str
+    scale: Any = None
+    translate: tuple[float, float, float] | None = None
+    rotate: tuple[float, float, float] | None = None
+    closed: StrictBool | None = None
+
+    @field_validator("path")
+    @classmethod
+    def _path(cls, v):
+        if not v.strip():
+            raise ValueError("must name a file")
+        return v
+
+    @field_validator("scale", mode="before")
+    @classmethod
+    def _scale(cls, v):
+        if v is None:
+            return v
+        msg = f"must be a positive number or three positive numbers (got {_short(v)})"
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(msg)
+            return float(v)
+        if isinstance(v, (list, tuple)) and len(v) == 3 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+                for x in v):
+            return [float(x) for x in v]
+        raise ValueError(msg)
+
+    @field_validator("translate", "rotate")
+    @classmethod
+    def _vec(cls, v):
+        return v if v is None else _finite3(v)
+
+
+class SphereParams(_Strict):
+    """center [m], radius [m]."""
+
+    center: tuple[float, float, float]
+    radius: float
+
+    @field_validator("center")
+    @classmethod
+    def _center(cls, v):
+        return _finite3(v)
+
+    @field_validator("radius")
+    @classmethod
+    def _radius(cls, v):
+        return _positive(v)
+
+
+class CylinderParams(_Strict):
+    """A finite capped cylinder: center [m], axis (any non-zero length), radius [m], length [m]
+    (it spans center +- axis * length / 2)."""
+
+    center: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    radius: float
+    length: float
+
+    @field_validator("center")
+    @classmethod
+    def _center(cls, v):
+        return _finite3(v)
+
+    @field_validator("axis")
+    @classmethod
+    def _axis(cls, v):
+        return _nonzero3(v)
+
+    @field_validator("radius", "length")
+    @classmethod
+    def _pos(cls, v):
+        return _positive(v)
+
+
+class PlaneParams(_Strict):
+    """The half-space behind a plane: point [m] on it, outward normal (any non-zero length)."""
+
+    point: tuple[float, float, float]
+    normal: tuple[float, float, float]
+
+    @field_validator("point")
+    @classmethod
+    def _point(cls, v):
+        return _finite3(v)
+
+    @field_validator("normal")
+    @classmethod
+    def _normal(cls, v):
+        return _nonzero3(v)
+
+
+class BoxParams(_Strict):
+    """An axis-aligned box: min and max corners [m], max > min on every axis."""
+
+    min: tuple[float, float, float]
+    max: tuple[float, float, float]
+
+    @field_validator("min", "max")
+    @classmethod
+    def _corners(cls, v):
+        return _finite3(v)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if not all(b > a for a, b in zip(self.min, self.max)):
+            raise ValueError(f"max: must exceed min on every axis (got min {list(self.min)}, "
+                             f"max {list(self.max)})")
+        return self
+
+
+class SphereMoldSpec(_Strict):
+    kind: ClassVar[str] = "sphere"
+    sphere: SphereParams
+
+
+class CylinderMoldSpec(_Strict):
+    kind: ClassVar[str] = "cylinder"
+    cylinder: CylinderParams
+
+
+class PlaneMoldSpec(_Strict):
+    kind: ClassVar[str] = "plane"
+    plane: PlaneParams
+
+
+class BoxMoldSpec(_Strict):
+    kind: ClassVar[str] = "box"
+    box: BoxParams
+
+
+MOLD_PRIMITIVES = ("sphere", "cylinder", "plane", "box")
+# pydantic puts the union branch's tag into error locations; format_validation_error drops these
+_MOLD_TAGS = tuple(f"mold:{k}" for k in ("mesh", *MOLD_PRIMITIVES))
+
+
+def _mold_tag(v: Any) -> str | None:
+    """Which branch of MoldSpec a raw spec is: 'path' makes it a mesh file, else the one
+    primitive key it holds (a second one is then reported as an unknown field)."""
+    if isinstance(v, BaseModel):
+        kind = getattr(v, "kind", None)
+        return f"mold:{kind}" if kind else None
+    if not isinstance(v, dict):
+        return None
+    if "path" in v:
+        return "mold:mesh"
+    for k in MOLD_PRIMITIVES:
+        if k in v:
+            return f"mold:{k}"
+    return None
+
+
+MoldSpec = Annotated[
+    Union[
+        Annotated[MeshMoldSpec, Tag("mold:mesh")],
+        Annotated[SphereMoldSpec, Tag("mold:sphere")],
+        Annotated[CylinderMoldSpec, Tag("mold:cylinder")],
+        Annotated[PlaneMoldSpec, Tag("mold:plane")],
+        Annotated[BoxMoldSpec, Tag("mold:box")],
+    ],
+    Discriminator(_mold_tag, custom_error_type="mold_kind",
+                  custom_error_message="must be a mapping with 'path' (a mesh file) or one of "
+                                       "sphere, cylinder, plane, box"),
+]
+"""A mold spec: :class:`MeshMoldSpec` or one primitive (``{sphere: {...}}``, ``{cylinder: ...}``,
+``{plane: ...}``, ``{box: ...}``)."""
+
+
+class _MoldHolder(_Strict):
+    mold: MoldSpec
+
+
+def validate_mold_spec(spec: Any) -> Any:
+    """A raw mold spec (dict) as its typed model; a typed one is returned as is. Raises
+    ValueError with ``mold.field: message`` lines (the same checks as a scene file's)."""
+    if isinstance(spec, (MeshMoldSpec, SphereMoldSpec, CylinderMoldSpec, PlaneMoldSpec, BoxMoldSpec)):
+        return spec
+    try:
+        return _MoldHolder.model_validate({"mold": spec}).mold
+    except ValidationError as exc:
+        raise ValueError(format_validation_error(exc, "", None).replace("\n: ", "\n").lstrip(": ")) from None
+
+
 class Scene(_Strict):
     """A complete, validated scene. ``source`` (not part of the file) is where it was read from;
     relative paths inside resolve against its folder."""
@@ -436,7 +654,7 @@ class Scene(_Strict):
     fabric: Fabric
     constraints: list[Constraint] = Field(default_factory=list)
     initial: Initial = Field(default_factory=Initial)
-    mold: dict[str, Any] | None = None
+    mold: MoldSpec | None = None
     gravity: Gravity | None = None
     shear: SpringTerm | None = None
     bending: SpringTerm | None = None
@@ -584,6 +802,8 @@ def _clean_loc(loc: tuple) -> tuple:
                 "NodeRange", "tuple[float, float]", "float", "int", "tuple[int, int]", "list[float]")):
             continue
         if isinstance(part, str) and part.startswith("literal["):
+            continue
+        if part in _MOLD_TAGS:
             continue
         out.append(part)
     return tuple(out)

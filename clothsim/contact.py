@@ -7,6 +7,9 @@ n_i are the outward normals of the faces at the contact feature (one on a face i
 distance is |R - (R.n) n| when R pushes into the mold and |R| when it pulls away; two at an edge;
 the ring at a vertex). A node in a groove can so rest with its reaction anywhere in the cone of
 the adjacent face normals, and a node on a face behaves exactly as the paper says.
+
+``margs`` everywhere is the mold's :class:`clothsim.mold.MoldArgs` (``Mold.kernel_args()``), a
+named tuple of arrays read by field name; ``has_mold`` False means it is a stand-in never queried.
 """
 
 from __future__ import annotations

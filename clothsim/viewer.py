@@ -949,7 +949,7 @@ class ViewerApp:
         wherever it is saved."""
         scene = self._validate(self.draft).resolved()
         head = f"# saved by the clothsim viewer on {time.strftime('%Y-%m-%d %H:%M')}\n"
-        if scene.mold is not None and str(self._tmpdir) in str(scene.mold.get("path", "")):
+        if scene.mold is not None and str(self._tmpdir) in str(getattr(scene.mold, "path", "")):
             head += "# the mold was uploaded: its temporary copy disappears when the viewer stops\n"
         if self.pending:
             head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"

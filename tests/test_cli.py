@@ -76,6 +76,26 @@ def test_exit_status_2_and_message_on_bad_scene(tmp_path):
     assert r.returncode == 2 and "solver.C: must be greater than 1 (got 0.5)" in r.stderr
 
 
+def test_exit_status_2_on_bad_mold_input(tmp_path):
+    """Bad mold specs and mold files end in exit 2 with one "file:line: mold.field: message"
+    or "mold file: line: reason" line and no traceback (issue 15: these gave a traceback and
+    exit 1, or unbounded memory for /dev/zero)."""
+    cfg = str(ROOT / "configs" / "thermoform.yaml")
+    huge = tmp_path / "huge.txt"
+    huge.write_text("0 0 0 0\n1 1 0 0\n99999999999999999999999 0 1 0\n0 1 2\n")
+    cases = [
+        ("mold.scale=abc", "thermoform.yaml:14: mold.scale: must be a positive number"),
+        ("mold.scale={a: 1}", "thermoform.yaml:14: mold.scale: must be a positive number"),
+        ("mold.path=5", "thermoform.yaml:14: mold.path: Input should be a valid string"),
+        ("mold.closed=maybe", "thermoform.yaml:14: mold.closed: Input should be a valid boolean"),
+        (f"mold.path={huge}", "huge.txt: line 3: point index: '99999999999999999999999' is out of range"),
+        ("mold.path=/dev/zero", "/dev/zero: not a regular file"),
+    ]
+    for override, needle in cases:
+        r = _run("run", cfg, "--set", override, "--out", str(tmp_path / "o"))
+        assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, (override, r.stderr)
+
+
 def test_bundled_strip_config_runs(tmp_path):
     """The README's first headless example works from the repository root."""
     r = _run("run", "configs/uniaxial_strip.yaml", "--out", str(tmp_path / "strip"), "--set", "solver.e=1e-5")

@@ -124,3 +124,55 @@ def test_every_bundled_config_validates(root):
     assert len(files) >= 6
     for f in files:
         load_scene(f)
+
+
+MOLD_GOOD = GOOD + "mold: {path: m.stl, scale: 0.001}\n"
+
+
+@pytest.mark.parametrize(
+    "overrides, text, message",
+    [
+        (["mold.scale=abc"], MOLD_GOOD,
+         "x.yaml:11: mold.scale: must be a positive number or three positive numbers (got 'abc')"),
+        (["mold.scale={a: 1}"], MOLD_GOOD,
+         "x.yaml:11: mold.scale: must be a positive number or three positive numbers (got {'a': 1})"),
+        (["mold.scale=[1, 2]"], MOLD_GOOD,
+         "x.yaml:11: mold.scale: must be a positive number or three positive numbers (got [1, 2])"),
+        (["mold.path=5"], MOLD_GOOD, "x.yaml:11: mold.path: Input should be a valid string"),
+        (["mold.closed=maybe"], MOLD_GOOD, "x.yaml:11: mold.closed: Input should be a valid boolean"),
+        (None, MOLD_GOOD.replace("scale: 0.001}", "closed: 1}"), "x.yaml:11: mold.closed: Input should be a valid boolean"),
+        (None, MOLD_GOOD.replace("scale: 0.001}", "rotate: [0, 90]}"), "x.yaml:11: mold.rotate.2: missing"),
+        (None, MOLD_GOOD.replace("scale: 0.001}", "colour: red}"), "x.yaml:11: mold.colour: unknown field"),
+        (None, GOOD + "mold: {sphere: {center: [0, 0, 0], radius: -1}}\n",
+         "x.yaml:11: mold.sphere.radius: must be positive and finite (got -1.0)"),
+        (None, GOOD + "mold:\n  cylinder: {center: [0, 0, 0], axis: [0, 0, 0], radius: 1, length: 1}\n",
+         "x.yaml:12: mold.cylinder.axis: must be a non-zero finite vector (got [0.0, 0.0, 0.0])"),
+        (None, GOOD + "mold: {box: {min: [0, 0, 0], max: [1, 0, 1]}}\n",
+         "x.yaml:11: mold.box.max: must exceed min on every axis (got min [0.0, 0.0, 0.0], max [1.0, 0.0, 1.0])"),
+        (None, GOOD + "mold: {sphere: {center: [0, 0, 0], radius: 1}, path: m.stl}\n",
+         "x.yaml:11: mold.sphere: unknown field"),
+        (None, GOOD + "mold: {scale: 2}\n",
+         "x.yaml:11: mold: must be a mapping with 'path' (a mesh file) or one of sphere, cylinder, plane, box"),
+        (None, GOOD + "mold: m.stl\n",
+         "x.yaml:11: mold: must be a mapping with 'path' (a mesh file) or one of sphere, cylinder, plane, box"),
+    ],
+)
+def test_mold_spec_typed_with_file_line(tmp_path, overrides, text, message):
+    """The mold spec is a typed union (mesh file or one primitive): every bad key or value is
+    reported like any other scene field, file:line: mold.field: what (issue 15: --set
+    mold.scale=abc, mold.path=5 and a non-bool mold.closed gave tracebacks or passed)."""
+    assert _err(tmp_path, text, overrides) == message
+
+
+def test_mold_spec_round_trip(tmp_path):
+    """A typed mold spec dumps back to the keys it was given (no defaults added), and
+    resolved() makes its path absolute."""
+    p = tmp_path / "x.yaml"
+    p.write_text(MOLD_GOOD)
+    s = load_scene(p)
+    assert s.mold.path == "m.stl" and s.mold.scale == 0.001 and s.mold.closed is None
+    assert s.to_dict()["mold"] == {"path": "m.stl", "scale": 0.001}
+    assert s.resolved().mold.path == str(tmp_path / "m.stl")
+    p.write_text(GOOD + "mold: {cylinder: {center: [0, 0, 0], axis: [0, 0, 1], radius: 0.05, length: 0.3}}\n")
+    d = load_scene(p).to_dict()["mold"]
+    assert d == {"cylinder": {"center": [0, 0, 0], "axis": [0, 0, 1], "radius": 0.05, "length": 0.3}}

@@ -716,3 +716,192 @@ def test_bundled_text_and_vtk_examples():
     p = load_mold({"path": "static/molds/pyramid.vtk"}, ROOT)
     assert len(p.faces) == 6 and p.closed
     assert trimesh.Trimesh(p.vertices, p.faces).volume == pytest.approx(0.04 ** 2 * 0.03 / 3)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad mold input (issue 15): refused with file, line and reason, quickly and in bounded memory
+# ---------------------------------------------------------------------------------------------
+
+TRI_TXT = "0 0 0 0\n1 1 0 0\n2 0 1 0\n0 1 2\n"
+
+
+@pytest.mark.parametrize("text, line", [
+    ("0 0 0 0\n1 1 0 0\n99999999999999999999999 0 1 0\n0 1 2\n", 3),
+    ("0 0 0 0\n1 1 0 0\n1e300 0 1 0\n0 1 1e300\n", 3),
+    ("0 0 0 0\n1 1 0 0\n2 0 1 0\n0 1 99999999999999999999999\n", 4),
+    ("0 0 0 0\n1 1 0 0\n2 0 1 0\n0 1 -1e300\n", 4),
+])
+def test_paper_text_huge_index_refused_with_line(tmp_path, text, line):
+    """A paper-format index too large for an int64 (or 1e300) is a MoldError naming the file,
+    the line and 'out of range' -- not a raw OverflowError from numpy (issue 15)."""
+    p = tmp_path / "huge.txt"
+    p.write_text(text)
+    with pytest.raises(MoldError) as ei:
+        load_mold({"path": str(p)})
+    msg = str(ei.value)
+    assert "huge.txt" in msg and f"line {line}" in msg and "out of range" in msg
+    with pytest.raises(MoldError, match="out of range"):  # uploads take the same reader
+        load_mold_bytes(text.encode(), "huge.txt")
+
+
+def test_non_regular_files_refused_quickly(tmp_path):
+    """/dev/zero (an endless stream), a named pipe and a folder are refused before any read,
+    with a clear message (the old loader read /dev/zero until memory ran out and blocked forever
+    on a pipe)."""
+    import os
+    import time
+
+    cases = [tmp_path]
+    if Path("/dev/zero").exists():
+        cases.append(Path("/dev/zero"))
+    if hasattr(os, "mkfifo"):
+        fifo = tmp_path / "pipe.stl"
+        os.mkfifo(fifo)
+        cases.append(fifo)
+    for path in cases:
+        t0 = time.perf_counter()
+        with pytest.raises(MoldError, match="not a regular file"):
+            load_mold({"path": str(path)})
+        assert time.perf_counter() - t0 < 2.0
+
+
+def test_mold_file_size_capped(tmp_path):
+    """A file over the size limit is refused by its size, and the read itself never takes more
+    than the limit plus one byte (a file that grows after the check cannot make it unbounded)."""
+    from clothsim.mold import readers
+
+    p = tmp_path / "m.txt"
+    p.write_text(TRI_TXT * 50)
+    with pytest.raises(MoldError, match="over the mold file limit"):
+        readers.read_mold_file(p, max_bytes=100)
+    old = readers.MAX_MOLD_FILE_BYTES
+    readers.MAX_MOLD_FILE_BYTES = 100
+    try:
+        with pytest.raises(MoldError, match="over the mold file limit"):
+            load_mold({"path": str(p)})
+    finally:
+        readers.MAX_MOLD_FILE_BYTES = old
+
+
+def test_symlink_out_of_folder_not_followed(tmp_path):
+    """A mold path that is a symbolic link to a file outside the folder it names is refused,
+    and the message quotes nothing of the target; a link to a file in the same folder loads."""
+    secret = tmp_path / "secret"
+    secret.write_text("root:*:19000:0:99999:7:::\n")
+    folder = tmp_path / "molds"
+    folder.mkdir()
+    (folder / "shadow.txt").symlink_to(secret)
+    with pytest.raises(MoldError) as ei:
+        load_mold({"path": "shadow.txt"}, folder)
+    assert "outside its folder" in str(ei.value) and "19000" not in str(ei.value)
+    (folder / "real.txt").write_text(TRI_TXT)
+    (folder / "alias.txt").symlink_to(folder / "real.txt")
+    assert len(load_mold({"path": "alias.txt"}, folder).faces) == 1
+
+
+@pytest.mark.parametrize("name, content", [
+    ("long.txt", "0 0 0 0\nroot:*:19000:0:99999:7:::secretsecretsecret 1 2 3\n0 1 2\n"),
+    ("ctrl.txt", "0 0 0 0\n1 1 0 0\n\x1b[31mredredredredredredredredred\x07 0 1 0\n0 1 2\n"),
+    ("many.txt", "0 0 0 0\n" + " ".join(["secretword"] * 30) + "\n"),
+    ("kw.vtk", "# vtk DataFile Version 3.0\nx\nASCII\nDATASET POLYDATA\n"
+               "root:*:19000:0:99999:7:::secretsecretsecret\n"),
+    ("hdr.vtk", "# vtk DataFile Version 3.0\nx\nroot:*:19000:0:99999:7:::secretsecretsecret\n"),
+])
+def test_error_messages_quote_short_printable_excerpt(tmp_path, name, content):
+    """Messages about a bad file quote at most a short, printable excerpt of its content: no
+    control characters and never a whole long line (issue 15: a link to /etc/shadow named
+    .txt echoed its content)."""
+    p = tmp_path / name
+    p.write_bytes(content.encode("latin-1"))
+    with pytest.raises(MoldError) as ei:
+        load_mold({"path": str(p)})
+    msg = str(ei.value).replace(str(p), "")
+    assert "secretsecretsecret" not in msg and "redredredredredredredredred" not in msg
+    assert msg.count("secretword") <= 3
+    assert all(" " <= c <= "~" for c in msg), repr(msg)
+
+
+# ---------------------------------------------------------------------------------------------
+# typed specs and the cache of loaded molds
+# ---------------------------------------------------------------------------------------------
+
+
+def test_load_mold_accepts_typed_spec_and_checks_dicts_with_it(tmp_path):
+    """load_mold takes the typed spec a scene holds and a plain dict (checked by the same
+    model, so a bad dict names the field as a scene file would)."""
+    from clothsim.config import MeshMoldSpec, SphereMoldSpec, validate_mold_spec
+
+    p = tmp_path / "t.txt"
+    p.write_text(TRI_TXT)
+    typed = validate_mold_spec({"path": str(p), "scale": 2})
+    assert isinstance(typed, MeshMoldSpec)
+    np.testing.assert_allclose(load_mold(typed).bounds, [[0, 0, 0], [2, 2, 0]])
+    sph = validate_mold_spec({"sphere": {"center": [0, 0, 0], "radius": 1}})
+    assert isinstance(sph, SphereMoldSpec) and load_mold(sph).kind == MOLD_SPHERE
+    with pytest.raises(MoldError, match=r"mold\.scale: must be a positive number"):
+        load_mold({"path": str(p), "scale": "abc"})
+    with pytest.raises(MoldError, match=r"mold\.closed"):
+        load_mold({"path": str(p), "closed": "maybe"})
+    with pytest.raises(MoldError, match=r"mold\.path"):
+        load_mold({"path": 5})
+
+
+def test_loaded_mesh_molds_cached_by_spec(tmp_path, monkeypatch):
+    """Loading the same spec twice returns the same Mold without reading the file or building
+    the BVH again; another scale, another closed flag, or a changed file (size/mtime) builds a
+    new one; the cache keeps MOLD_CACHE_SIZE molds, least recently used dropped first; the
+    build's warnings are raised again on a hit."""
+    import os
+
+    from clothsim.mold import MOLD_CACHE_SIZE, build, clear_mold_cache, mold_cache_info
+
+    builds = []
+    real = build._build_bvh
+    monkeypatch.setattr(build, "_build_bvh", lambda V, F: builds.append(1) or real(V, F))
+    clear_mold_cache()
+    p = tmp_path / "m.stl"
+    trimesh.creation.box(extents=(1, 1, 1)).export(p)
+    a = load_mold({"path": "m.stl"}, tmp_path)
+    b = load_mold({"path": str(p)})
+    assert b is a and len(builds) == 1 and mold_cache_info()["hits"] == 1
+    c = load_mold({"path": str(p), "scale": 0.5})
+    assert c is not a and len(builds) == 2
+    assert load_mold({"path": str(p), "closed": True}) is not a and len(builds) == 3
+    st = p.stat()
+    os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # same bytes, newer file
+    d = load_mold({"path": str(p)})
+    assert d is not a and len(builds) == 4
+    assert load_mold({"path": str(p)}) is d and len(builds) == 4
+    # LRU: fill the cache with other scales; the oldest entry drops out
+    for k in range(MOLD_CACHE_SIZE):
+        load_mold({"path": str(p), "scale": 2.0 + k})
+    assert mold_cache_info()["entries"] == MOLD_CACHE_SIZE
+    n = len(builds)
+    assert load_mold({"path": str(p)}) is not d and len(builds) == n + 1
+    # warnings of the build come again on a hit
+    q = tmp_path / "dup.txt"
+    q.write_text("0 0 0 0\n1 1 0 0\n2 0 1 0\n3 0 0 1\n0 1 2\n0 1 2\n0 1 3\n0 3 2\n1 2 3\n")
+    for _ in range(2):
+        with pytest.warns(UserWarning, match="duplicate"):
+            load_mold({"path": str(q)})
+    clear_mold_cache()
+
+
+def test_mold_scale_warning_millimetres():
+    """mold_scale_warning: None at a plausible size; 'millimetres?' when the mold is about 1000x
+    larger (a file in mm read as m) or 1000x smaller than the sheet; None for a plane."""
+    from clothsim.mold import mold_scale_warning
+
+    tm = load_mold({"path": str(MOLDS / "thermoform_mold.stl")})
+    assert mold_scale_warning(tm, (0.10, 0.10)) is None
+    assert mold_scale_warning(tm, 0.6) is None
+    V, F = tm.vertices, tm.faces
+    mm = mold_from_arrays(V * 1000.0, F)
+    w = mold_scale_warning(mm, (0.10, 0.10))
+    assert w is not None and "millimetres?" in w and "larger" in w and "mold.scale: 0.001" in w
+    w = mold_scale_warning(tm, 100.0)
+    assert w is not None and "millimetres?" in w and "smaller" in w
+    s = load_mold({"sphere": {"center": [0, 0, 0], "radius": 50.0}})
+    assert "millimetres?" in mold_scale_warning(s, [0.1, 0.05])
+    assert mold_scale_warning(load_mold({"plane": {"point": [0, 0, 0], "normal": [0, 0, 1]}}), 0.1) is None
+    assert mold_scale_warning(None, 0.1) is None

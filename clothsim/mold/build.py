@@ -1,0 +1,310 @@
+"""Building a mold (plain numpy): mesh cleaning and orientation, edges and angle-weighted
+pseudo-normals, the BVH, and the analytic primitives with their parameter checks."""
+
+from __future__ import annotations
+
+import warnings
+from typing import Mapping
+
+import numpy as np
+
+from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE, Mold, MoldError,
+                     _ro)
+
+
+# --------------------------------------------------------------------------------------------
+# building a mesh mold (plain numpy)
+# --------------------------------------------------------------------------------------------
+
+_E3 = np.zeros((0, 3))
+_I3 = np.zeros((0, 3), dtype=np.int64)
+_I2 = np.zeros((0, 2), dtype=np.int64)
+_I1 = np.zeros(0, dtype=np.int64)
+
+
+def _unit_rows(a: np.ndarray, fallback=(0.0, 0.0, 1.0)) -> np.ndarray:
+    n = np.linalg.norm(a, axis=1)
+    ok = n > 0
+    out = np.empty_like(a)
+    out[ok] = a[ok] / n[ok, None]
+    out[~ok] = fallback
+    return out
+
+
+def _build_bvh(V: np.ndarray, F: np.ndarray, leaf_size: int = 4):
+    """Median-split AABB tree over triangle centroids (flat arrays, node 0 the root)."""
+    nF = len(F)
+    tri = V[F]
+    fmin = tri.min(axis=1)
+    fmax = tri.max(axis=1)
+    cen = tri.mean(axis=1)
+    cap = max(2 * nF, 1)
+    bmin = np.empty((cap, 3))
+    bmax = np.empty((cap, 3))
+    child = -np.ones((cap, 2), dtype=np.int64)
+    rng = np.zeros((cap, 2), dtype=np.int64)
+    order = np.arange(nF, dtype=np.int64)
+    count = 1
+    stack = [(0, 0, nF)]
+    while stack:
+        node, s, e = stack.pop()
+        idx = order[s:e]
+        bmin[node] = fmin[idx].min(axis=0)
+        bmax[node] = fmax[idx].max(axis=0)
+        rng[node] = (s, e - s)
+        if e - s <= leaf_size:
+            continue
+        c = cen[idx]
+        ax = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+        mid = (e - s) // 2
+        part = np.argpartition(c[:, ax], mid)
+        order[s:e] = idx[part]
+        left, right = count, count + 1
+        count += 2
+        child[node] = (left, right)
+        stack.append((right, s + mid, e))
+        stack.append((left, s, s + mid))
+    diag = float(np.linalg.norm(V.max(0) - V.min(0))) if len(V) else 0.0
+    pad = 1e-9 * diag + 1e-300
+    return (bmin[:count] - pad, bmax[:count] + pad, child[:count], rng[:count], order)
+
+
+def _clean_mesh(V, F, source: str):
+    """Merge exact duplicate vertices, drop degenerate and duplicate triangles (with warnings)."""
+    V = np.asarray(V, dtype=np.float64).reshape(-1, 3) + 0.0  # +0.0 turns -0.0 into 0.0
+    F = np.asarray(F, dtype=np.int64).reshape(-1, 3)
+    if len(F) == 0:
+        raise MoldError(f"{source}: no triangles")
+    if len(V) == 0:
+        raise MoldError(f"{source}: no vertices")
+    bad = ~np.isfinite(V).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise MoldError(f"{source}: non-finite coordinates at vertex {i}: {V[i].tolist()}")
+    if F.min() < 0 or F.max() >= len(V):
+        f = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
+        raise MoldError(f"{source}: triangle {f} has a vertex index out of range "
+                        f"{F[f].tolist()} (there are {len(V)} vertices)")
+    uniq, inv = np.unique(V, axis=0, return_inverse=True)
+    F = inv.reshape(-1)[F]
+    V = uniq
+    diag = float(np.linalg.norm(V.max(0) - V.min(0)))
+    # degenerate: repeated vertex or zero area (relative to the mesh size)
+    cr = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    area2 = np.linalg.norm(cr, axis=1)
+    degenerate = ((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+                  | ~(area2 > 1e-14 * diag * diag))
+    nd = int(degenerate.sum())
+    F = F[~degenerate]
+    nu = 0
+    if len(F):
+        key = np.sort(F, axis=1)
+        _, first = np.unique(key, axis=0, return_index=True)
+        keep = np.zeros(len(F), dtype=bool)
+        keep[first] = True
+        nu = int(len(F) - keep.sum())
+        F = F[np.sort(first)]
+    if nd:
+        warnings.warn(f"{source}: dropped {nd} degenerate (zero-area) triangle(s)", stacklevel=3)
+    if nu:
+        warnings.warn(f"{source}: dropped {nu} duplicate triangle(s)", stacklevel=3)
+    if len(F) == 0:
+        raise MoldError(f"{source}: no triangles left after dropping degenerate/duplicate ones")
+    used = np.unique(F)
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return V[used], remap[F]
+
+
+def _orient(V, F, closed: bool | None, source: str):
+    """Make the winding consistent (trimesh); closed meshes outward, open ones keep the
+    majority (area-weighted) orientation of the input."""
+    import trimesh
+
+    m = trimesh.Trimesh(vertices=V, faces=F, process=False, validate=False)
+    edges_sorted = np.sort(m.edges, axis=1)
+    _, counts = np.unique(edges_sorted, axis=0, return_counts=True)
+    if counts.max() > 2:
+        raise MoldError(f"{source}: non-manifold mesh ({int((counts > 2).sum())} edge(s) shared "
+                        f"by more than two triangles)")
+    watertight = bool((counts == 2).all())
+    if closed is None:
+        closed = watertight
+    elif closed and not watertight:
+        raise MoldError(f"{source}: declared closed but has {int((counts == 1).sum())} "
+                        f"boundary edge(s)")
+    before = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    if not m.is_winding_consistent:
+        trimesh.repair.fix_winding(m)
+        m = trimesh.Trimesh(vertices=V, faces=np.asarray(m.faces), process=False, validate=False)
+        if not m.is_winding_consistent:
+            raise MoldError(f"{source}: inconsistent triangle winding that could not be repaired "
+                            f"(non-orientable surface?)")
+    F2 = np.asarray(m.faces, dtype=np.int64).copy()
+    if closed:
+        trimesh.repair.fix_inversion(m, multibody=True)
+        F2 = np.asarray(m.faces, dtype=np.int64).copy()
+        vol = trimesh.Trimesh(vertices=V, faces=F2, process=False).volume
+        if vol < 0:
+            F2 = F2[:, ::-1].copy()
+    else:
+        after = np.cross(V[F2[:, 1]] - V[F2[:, 0]], V[F2[:, 2]] - V[F2[:, 0]])
+        if np.sum(np.einsum("ij,ij->i", before, after)) < 0:
+            F2 = F2[:, ::-1].copy()
+    return F2, bool(closed)
+
+
+def _build_mesh_mold(V, F, closed: bool | None, source: str) -> Mold:
+    V, F = _clean_mesh(V, F, source)
+    F, closed = _orient(V, F, closed, source)
+    nV, nF = len(V), len(F)
+    e0, e1, e2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    fn = _unit_rows(np.cross(e1 - e0, e2 - e0))
+    # edges
+    he = np.stack([F, np.roll(F, -1, axis=1)], axis=2).reshape(-1, 2)  # (3F, 2): (f,k)
+    key = np.sort(he, axis=1)
+    edges, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    face_edges = inv.reshape(nF, 3)
+    nE = len(edges)
+    edge_faces = -np.ones((nE, 2), dtype=np.int64)
+    face_of_he = np.repeat(np.arange(nF), 3)
+    o = np.argsort(inv, kind="stable")
+    inv_s = inv[o]
+    first = np.r_[True, inv_s[1:] != inv_s[:-1]]
+    edge_faces[inv_s[first], 0] = face_of_he[o][first]
+    second = ~first
+    edge_faces[inv_s[second], 1] = face_of_he[o][second]
+    en = fn[edge_faces[:, 0]].copy()
+    two = edge_faces[:, 1] >= 0
+    en[two] += fn[edge_faces[two, 1]]
+    en = _unit_rows(en)
+    bad = np.linalg.norm(en, axis=1) == 0
+    en[bad] = fn[edge_faces[bad, 0]]
+    # angle-weighted vertex pseudo-normals
+    vn = np.zeros((nV, 3))
+    tri = V[F]
+    for k in range(3):
+        a = tri[:, (k + 1) % 3] - tri[:, k]
+        b = tri[:, (k + 2) % 3] - tri[:, k]
+        ang = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+        np.add.at(vn, F[:, k], ang[:, None] * fn)
+    zero = np.linalg.norm(vn, axis=1) == 0
+    if zero.any():
+        alt = np.zeros((nV, 3))
+        for k in range(3):
+            np.add.at(alt, F[:, k], fn)
+        vn[zero] = alt[zero]
+    vn = _unit_rows(vn)
+    # vertex -> faces (CSR)
+    flat_v = F.reshape(-1)
+    flat_f = np.repeat(np.arange(nF, dtype=np.int64), 3)
+    o = np.argsort(flat_v, kind="stable")
+    vf_idx = flat_f[o]
+    vf_ptr = np.zeros(nV + 1, dtype=np.int64)
+    np.cumsum(np.bincount(flat_v, minlength=nV), out=vf_ptr[1:])
+    vb = np.zeros(nV, dtype=np.int64)
+    vb[edges[edge_faces[:, 1] < 0].reshape(-1)] = 1
+    bmin, bmax, child, rng, order = _build_bvh(V, F)
+    params = np.zeros(16)
+    params[15] = float(np.linalg.norm(V.max(0) - V.min(0)))
+    maxval = int(np.diff(vf_ptr).max()) if nV else 3
+    return Mold(
+        kind=MOLD_MESH, params=_ro(params, np.float64), vertices=_ro(V, np.float64),
+        faces=_ro(F, np.int64), closed=closed, source=source,
+        face_normals=_ro(fn, np.float64), vertex_normals=_ro(vn, np.float64),
+        edges=_ro(edges, np.int64), edge_normals=_ro(en, np.float64),
+        face_edges=_ro(face_edges, np.int64), edge_faces=_ro(edge_faces, np.int64),
+        vertex_face_ptr=_ro(vf_ptr, np.int64), vertex_face_idx=_ro(vf_idx, np.int64),
+        vertex_boundary=_ro(vb, np.int64), bvh_min=_ro(bmin, np.float64),
+        bvh_max=_ro(bmax, np.float64), bvh_child=_ro(child, np.int64),
+        bvh_range=_ro(rng, np.int64), bvh_faces=_ro(order, np.int64),
+        max_feature_normals=max(maxval, 3),
+    )
+
+
+def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "") -> Mold:
+    """Mesh mold from arrays: vertices (V,3) [m], faces (F,3) vertex ids.
+
+    ``closed=None`` detects watertightness; ``closed=True`` on a mesh with boundary edges is an
+    error; ``closed=False`` treats even a watertight mesh as an open skin (winding kept).
+    Exact duplicate vertices are merged; degenerate and duplicate triangles are dropped with a
+    warning; inconsistent winding is repaired or reported.
+    """
+    return _build_mesh_mold(vertices, faces, closed, source or "<arrays>")
+
+
+def _primitive(kind: int, params, source: str) -> Mold:
+    prm = np.zeros(16)
+    prm[: len(params)] = params
+    return Mold(
+        kind=kind, params=_ro(prm, np.float64), vertices=_ro(_E3, np.float64),
+        faces=_ro(_I3, np.int64), closed=True, source=source,
+        face_normals=_ro(_E3, np.float64), vertex_normals=_ro(_E3, np.float64),
+        edges=_ro(_I2, np.int64), edge_normals=_ro(_E3, np.float64),
+        face_edges=_ro(_I3, np.int64), edge_faces=_ro(_I2, np.int64),
+        vertex_face_ptr=_ro(np.zeros(1, np.int64), np.int64), vertex_face_idx=_ro(_I1, np.int64),
+        vertex_boundary=_ro(_I1, np.int64), bvh_min=_ro(_E3, np.float64),
+        bvh_max=_ro(_E3, np.float64), bvh_child=_ro(_I2, np.int64), bvh_range=_ro(_I2, np.int64),
+        bvh_faces=_ro(_I1, np.int64), max_feature_normals=3,
+    )
+
+
+def _vec(d: Mapping, key: str, src: str, n: int = 3) -> np.ndarray:
+    if key not in d:
+        raise MoldError(f"{src}: missing '{key}'")
+    try:
+        v = np.asarray(d[key], dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as e:
+        raise MoldError(f"{src}: '{key}' must be {n} numbers ({e})") from None
+    if v.shape != (n,) or not np.isfinite(v).all():
+        raise MoldError(f"{src}: '{key}' must be {n} finite numbers, got {d[key]!r}")
+    return v
+
+
+def _pos(d: Mapping, key: str, src: str) -> float:
+    v = float(_vec(d, key, src, 1)[0])
+    if not v > 0:
+        raise MoldError(f"{src}: '{key}' must be positive, got {v}")
+    return v
+
+
+def _unit(v: np.ndarray, key: str, src: str) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    if not n > 0:
+        raise MoldError(f"{src}: '{key}' must be a non-zero vector")
+    return v / n
+
+
+def mold_primitive(kind: str, spec: Mapping) -> Mold:
+    """Analytic mold: kind 'sphere' {center, radius}, 'cylinder' {center, axis, radius, length},
+    'plane' {point, normal} (the mold is the half-space behind the normal), 'box' {min, max}."""
+    src = f"{kind} mold"
+    if not isinstance(spec, Mapping):
+        raise MoldError(f"{src}: expected a mapping of parameters, got {spec!r}")
+    allowed = {"sphere": {"center", "radius"}, "cylinder": {"center", "axis", "radius", "length"},
+               "plane": {"point", "normal"}, "box": {"min", "max"}}
+    if kind not in allowed:
+        raise MoldError(f"unknown mold primitive {kind!r}")
+    extra = set(spec) - allowed[kind]
+    if extra:
+        raise MoldError(f"{src}: unknown key(s) {sorted(extra)}")
+    if kind == "sphere":
+        c = _vec(spec, "center", src)
+        return _primitive(MOLD_SPHERE, [*c, _pos(spec, "radius", src)],
+                          f"sphere(center={c.tolist()}, radius={float(spec['radius'])})")
+    if kind == "cylinder":
+        c = _vec(spec, "center", src)
+        a = _unit(_vec(spec, "axis", src), "axis", src)
+        r, L = _pos(spec, "radius", src), _pos(spec, "length", src)
+        return _primitive(MOLD_CYLINDER, [*c, *a, r, L],
+                          f"cylinder(center={c.tolist()}, axis={a.tolist()}, radius={r}, "
+                          f"length={L})")
+    if kind == "plane":
+        p = _vec(spec, "point", src)
+        n = _unit(_vec(spec, "normal", src), "normal", src)
+        return _primitive(MOLD_PLANE, [*p, *n], f"plane(point={p.tolist()}, normal={n.tolist()})")
+    lo, hi = _vec(spec, "min", src), _vec(spec, "max", src)
+    if not (hi > lo).all():
+        raise MoldError(f"{src}: 'max' must exceed 'min' on every axis, got {lo} / {hi}")
+    return _primitive(MOLD_BOX, [*lo, *hi], f"box(min={lo.tolist()}, max={hi.tolist()})")

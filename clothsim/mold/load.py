@@ -1,0 +1,135 @@
+"""Public loaders: a mold from a spec (file or primitive) or from uploaded bytes, with the
+scale/rotate/translate transform, and the small cache of loaded mesh molds."""
+
+from __future__ import annotations
+
+import os
+import threading
+import warnings
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import MeshMoldSpec, validate_mold_spec
+from .build import _build_mesh_mold, _vec, mold_primitive
+from .readers import _read_any, mold_file_status, read_mold_file
+from .record import Mold, MoldError
+
+
+# --------------------------------------------------------------------------------------------
+# transforms and public loaders
+# --------------------------------------------------------------------------------------------
+
+
+def _rotation_xyz(deg) -> np.ndarray:
+    """Rotation about x, then y, then z (angles in degrees): R = Rz @ Ry @ Rx."""
+    rx, ry, rz = np.radians(np.asarray(deg, dtype=np.float64))
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate=None):
+    """Scale (a positive number or three), then rotate (degrees about x, y, z), then translate."""
+    src = f"{name}: transform"
+    s = np.asarray(1.0 if scale is None else scale, dtype=np.float64).reshape(-1)
+    if s.size not in (1, 3) or not np.isfinite(s).all() or not (s > 0).all():
+        raise MoldError(f"{src}: 'scale' must be a positive number (or three), got {scale!r}")
+    V = V * s
+    if rotate is not None:
+        V = V @ _rotation_xyz(_vec({"rotate": rotate}, "rotate", src)).T
+    if translate is not None:
+        V = V + _vec({"translate": translate}, "translate", src)
+    return V
+
+
+def load_mold_bytes(data: bytes, filename: str, *, scale=1.0, translate=None, rotate=None,
+                    closed: bool | None = None) -> Mold:
+    """Mold from file contents (an upload). ``filename`` only selects the format and names the
+    mold in messages; nothing is written to disk."""
+    name = str(filename)
+    V, F = _read_any(bytes(data), name)
+    V = _apply_transform(V, name, scale, translate, rotate)
+    return _build_mesh_mold(V, F, closed, name)
+
+
+#: how many loaded mesh molds :func:`load_mold` keeps (least recently used dropped first)
+MOLD_CACHE_SIZE = 4
+
+_cache: OrderedDict = OrderedDict()   # key -> (Mold, warnings raised while building it)
+_cache_lock = threading.Lock()
+_cache_stats = {"hits": 0, "misses": 0}
+
+
+def clear_mold_cache() -> None:
+    """Forget every cached mold (and the hit/miss counts)."""
+    with _cache_lock:
+        _cache.clear()
+        _cache_stats.update(hits=0, misses=0)
+
+
+def mold_cache_info() -> dict:
+    """``{"hits", "misses", "entries", "size"}`` of the loaded-mold cache."""
+    with _cache_lock:
+        return {**_cache_stats, "entries": len(_cache), "size": MOLD_CACHE_SIZE}
+
+
+def _freeze(v: Any):
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    return tuple(float(x) for x in np.asarray(v, dtype=np.float64).reshape(-1))
+
+
+def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
+    """A mesh mold from its file, through the cache: the same resolved file (same size,
+    modification time and inode) with the same scale/transform/closed returns the Mold built
+    before, without reading the file or rebuilding the BVH. The warnings its build raised are
+    raised again on every load."""
+    path = Path(spec.path).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    st = mold_file_status(path)
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev,
+           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed)
+    with _cache_lock:
+        hit = _cache.get(key)
+        if hit is not None:
+            _cache.move_to_end(key)
+            _cache_stats["hits"] += 1
+    if hit is None:
+        data = read_mold_file(path)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            mold = load_mold_bytes(data, str(path), scale=1.0 if spec.scale is None else spec.scale,
+                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed)
+        hit = (mold, [(w.message, w.category) for w in caught])
+        with _cache_lock:
+            _cache_stats["misses"] += 1
+            _cache[key] = hit
+            _cache.move_to_end(key)
+            while len(_cache) > MOLD_CACHE_SIZE:
+                _cache.popitem(last=False)
+    for message, category in hit[1]:
+        warnings.warn(message, category, stacklevel=3)
+    return hit[0]
+
+
+def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
+    """Mold from a spec: ``None``; a typed :data:`clothsim.config.MoldSpec`; or the same as a
+    plain mapping (checked by the same model): ``{"path": ..., "scale": s, "translate": [..],
+    "rotate": [..], "closed": bool}`` (relative paths resolve against ``base_dir``), or one
+    primitive ``{"sphere": {...}}``, ``{"cylinder": {...}}``, ``{"plane": {...}}``,
+    ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`). Raises MoldError."""
+    if spec is None:
+        return None
+    try:
+        typed = validate_mold_spec(spec)
+    except ValueError as e:
+        raise MoldError(str(e)) from None
+    if isinstance(typed, MeshMoldSpec):
+        return _load_mesh_file(typed, base_dir)
+    return mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())

@@ -1,0 +1,234 @@
+"""The :class:`Mold` record: constant arrays describing a rigid mold, the kind and feature codes,
+and :class:`MoldError`. Plain Python/numpy; the kernels that query it live in ``queries`` and
+``segment``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+MOLD_MESH = 1
+MOLD_SPHERE = 2
+MOLD_CYLINDER = 3
+MOLD_PLANE = 4
+MOLD_BOX = 5
+
+FEATURE_FACE = 0
+FEATURE_EDGE = 1
+FEATURE_VERTEX = 2
+
+#: minimum length of the ``out`` array of :func:`mold_query`
+QUERY_OUT_SIZE = 8
+
+_KIND_NAMES = {MOLD_MESH: "mesh", MOLD_SPHERE: "sphere", MOLD_CYLINDER: "cylinder",
+               MOLD_PLANE: "plane", MOLD_BOX: "box"}
+
+
+class MoldError(ValueError):
+    """A mold file or spec cannot be used. The message names the file (and line where known)."""
+
+
+# --------------------------------------------------------------------------------------------
+# the Mold record
+# --------------------------------------------------------------------------------------------
+
+
+class MoldArgs(NamedTuple):
+    """A mold's arrays as the njit kernels take them (numba passes a named tuple of arrays at no
+    cost, and fields are read by name). Same numba type for every mold: primitives carry empty
+    mesh arrays. Field order is the historical positional order (``margs[9]`` is ``edge_faces``),
+    so callers indexing by position keep working."""
+
+    info: np.ndarray
+    """int64 (2,): [kind, closed] (kind a ``MOLD_*`` code; closed 1 or 0)."""
+    params: np.ndarray
+    """float64 (16,): see :attr:`Mold.params`."""
+    vertices: np.ndarray
+    """float64 (V, 3) [m]."""
+    faces: np.ndarray
+    """int64 (F, 3)."""
+    face_normals: np.ndarray
+    """float64 (F, 3), unit."""
+    vertex_normals: np.ndarray
+    """float64 (V, 3), unit pseudo-normals."""
+    edges: np.ndarray
+    """int64 (E, 2)."""
+    edge_normals: np.ndarray
+    """float64 (E, 3), unit pseudo-normals."""
+    face_edges: np.ndarray
+    """int64 (F, 3)."""
+    edge_faces: np.ndarray
+    """int64 (E, 2); -1 marks a boundary edge."""
+    vertex_face_ptr: np.ndarray
+    """int64 (V+1,): CSR offsets."""
+    vertex_face_idx: np.ndarray
+    """int64 (sum of valences,)."""
+    vertex_boundary: np.ndarray
+    """int64 (V,): 1 on the open boundary."""
+    bvh_min: np.ndarray
+    """float64 (N, 3) [m]."""
+    bvh_max: np.ndarray
+    """float64 (N, 3) [m]."""
+    bvh_child: np.ndarray
+    """int64 (N, 2); -1 on leaves."""
+    bvh_range: np.ndarray
+    """int64 (N, 2): (start, count) in ``bvh_faces``."""
+    bvh_faces: np.ndarray
+    """int64 (F,)."""
+
+
+def _ro(a: np.ndarray, dtype) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=dtype)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Mold:
+    """A rigid mold: constant arrays queried by the njit kernels through :meth:`kernel_args`.
+
+    For primitives the mesh arrays are empty (with their proper dtype and number of dimensions)
+    so that every mold has the same numba type and the kernels compile once.
+    """
+
+    kind: int
+    """``MOLD_MESH``, ``MOLD_SPHERE``, ``MOLD_CYLINDER``, ``MOLD_PLANE`` or ``MOLD_BOX``."""
+    params: np.ndarray
+    """float64 (16,): primitive parameters [m] (unit vectors dimensionless).
+    sphere: center[0:3], radius[3]; cylinder: center[0:3], unit axis[3:6], radius[6], length[7]
+    (the cylinder spans center +- axis*length/2); plane: point[0:3], unit outward normal[3:6]
+    (the mold is the half-space below); box: min corner[0:3], max corner[3:6];
+    mesh: params[15] = bounding-box diagonal [m]."""
+    vertices: np.ndarray
+    """float64 (V, 3) [m]: mesh vertices (exact duplicates merged, unreferenced removed)."""
+    faces: np.ndarray
+    """int64 (F, 3): vertex ids of each triangle, counter-clockwise seen from outside."""
+    closed: bool
+    """True: watertight mesh (inside = enclosed volume), or any primitive. False: open skin."""
+    source: str
+    """Where the mold came from (file path, upload name or a description)."""
+    face_normals: np.ndarray
+    """float64 (F, 3): unit outward face normals."""
+    vertex_normals: np.ndarray
+    """float64 (V, 3): unit angle-weighted vertex pseudo-normals."""
+    edges: np.ndarray
+    """int64 (E, 2): vertex ids of each unique edge (sorted pair)."""
+    edge_normals: np.ndarray
+    """float64 (E, 3): unit edge pseudo-normals (normalised sum of the adjacent face normals)."""
+    face_edges: np.ndarray
+    """int64 (F, 3): edge id of the edge (faces[f,k], faces[f,(k+1)%3]) for k = 0, 1, 2."""
+    edge_faces: np.ndarray
+    """int64 (E, 2): the one or two faces adjacent to each edge; -1 marks a boundary edge."""
+    vertex_face_ptr: np.ndarray
+    """int64 (V+1,): CSR offsets into ``vertex_face_idx`` (the faces around each vertex)."""
+    vertex_face_idx: np.ndarray
+    """int64 (sum of valences,): face ids around each vertex."""
+    vertex_boundary: np.ndarray
+    """int64 (V,): 1 if the vertex lies on a boundary edge of an open mesh, else 0."""
+    bvh_min: np.ndarray
+    """float64 (N, 3) [m]: lower corner of each BVH node's box (slightly padded)."""
+    bvh_max: np.ndarray
+    """float64 (N, 3) [m]: upper corner of each BVH node's box (slightly padded)."""
+    bvh_child: np.ndarray
+    """int64 (N, 2): the two children of each BVH node; -1 on leaves. Node 0 is the root."""
+    bvh_range: np.ndarray
+    """int64 (N, 2): (start, count) of each node's faces in ``bvh_faces``."""
+    bvh_faces: np.ndarray
+    """int64 (F,): face ids ordered so that every node's faces are contiguous."""
+    max_feature_normals: int
+    """Rows ``normals_out`` of :func:`mold_feature_normals` needs (max vertex valence, >= 3)."""
+
+    # ---- API -----------------------------------------------------------------------------
+    @property
+    def kind_name(self) -> str:
+        return _KIND_NAMES[self.kind]
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """float64 (2, 3) [m]: [min corner, max corner]. A plane is unbounded: +-inf on every
+        axis except, for an axis-aligned normal, the upper (or lower) bound along that axis."""
+        p = self.params
+        if self.kind == MOLD_MESH:
+            return np.array([self.vertices.min(0), self.vertices.max(0)])
+        if self.kind == MOLD_SPHERE:
+            c, r = p[0:3], p[3]
+            return np.array([c - r, c + r])
+        if self.kind == MOLD_CYLINDER:
+            c, a, r, h = p[0:3], p[3:6], p[6], 0.5 * p[7]
+            ext = h * np.abs(a) + r * np.sqrt(np.clip(1.0 - a * a, 0.0, None))
+            return np.array([c - ext, c + ext])
+        if self.kind == MOLD_BOX:
+            return np.array([p[0:3], p[3:6]])
+        b = np.array([[-np.inf] * 3, [np.inf] * 3])
+        n = p[3:6]
+        for ax in range(3):
+            if abs(abs(n[ax]) - 1.0) < 1e-15:
+                if n[ax] > 0:
+                    b[1, ax] = p[ax]
+                else:
+                    b[0, ax] = p[ax]
+        return b
+
+    def kernel_args(self) -> "MoldArgs":
+        """The :class:`MoldArgs` named tuple every kernel takes first (called ``margs``): plain,
+        read-only numpy arrays, read by field name inside the kernels."""
+        info = np.array([self.kind, 1 if self.closed else 0], dtype=np.int64)
+        info.setflags(write=False)
+        return MoldArgs(info, self.params, self.vertices, self.faces, self.face_normals,
+                        self.vertex_normals, self.edges, self.edge_normals, self.face_edges,
+                        self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
+                        self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
+                        self.bvh_range, self.bvh_faces)
+
+    def surface_mesh(self, resolution: int = 48, extent: float = 1.0):
+        """A triangle mesh for display: ``(vertices float64 (V,3) [m], faces int64 (F,3))``.
+
+        A mesh mold returns (copies of) itself; a primitive is tessellated with about
+        ``resolution`` segments around; a plane becomes a square of side ``extent`` [m] centred on
+        its point.
+        """
+        import trimesh
+
+        p = self.params
+        res = max(int(resolution), 8)
+        if self.kind == MOLD_MESH:
+            return self.vertices.copy(), self.faces.copy()
+        if self.kind == MOLD_SPHERE:
+            sub = int(np.clip(round(math.log2(max(res, 8) / 5.0)), 1, 6))
+            m = trimesh.creation.icosphere(subdivisions=sub, radius=p[3])
+            return np.asarray(m.vertices) + p[0:3], np.asarray(m.faces, dtype=np.int64)
+        if self.kind == MOLD_CYLINDER:
+            T = np.eye(4)
+            T[:3, :3] = _frame_from_z(p[3:6])
+            T[:3, 3] = p[0:3]
+            m = trimesh.creation.cylinder(radius=p[6], height=p[7], sections=res, transform=T)
+            return np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
+        if self.kind == MOLD_BOX:
+            T = np.eye(4)
+            T[:3, 3] = 0.5 * (p[0:3] + p[3:6])
+            m = trimesh.creation.box(extents=p[3:6] - p[0:3], transform=T)
+            return np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
+        R = _frame_from_z(p[3:6])
+        h = 0.5 * float(extent)
+        corners = np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
+        return corners @ R.T + p[0:3], np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+
+    def __repr__(self) -> str:
+        if self.kind == MOLD_MESH:
+            return (f"Mold(mesh, {len(self.faces)} triangles, closed={self.closed}, "
+                    f"source={self.source!r})")
+        return f"Mold({self.kind_name}, params={self.params[:8].tolist()}, source={self.source!r})"
+
+
+def _frame_from_z(axis) -> np.ndarray:
+    """Rotation matrix whose third column is the unit vector ``axis``."""
+    z = np.asarray(axis, float)
+    z = z / np.linalg.norm(z)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.column_stack([x, y, z])

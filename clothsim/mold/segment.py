@@ -1,0 +1,230 @@
+"""Segment hits: where a straight move p0 -> p1 first enters the mold (``@njit(cache=True)``
+pure functions of the mold's kernel arguments ``margs``). Solvers use it to stop a node at the
+surface instead of letting a step tunnel through a thin part of the mold.
+
+Reference: T. Moller & B. Trumbore (1997), "Fast, minimum storage ray-triangle intersection",
+Journal of Graphics Tools 2(1).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .queries import _mesh_query
+from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE
+
+_BARY_EPS = 1e-9      # barycentric slack of a ray hit; hits closer to an edge are confirmed by a probe
+_T_EPS = 1e-10        # segment-parameter slack at t = 0 and t = 1
+_PROBE_REL = 1e-8     # probe step for edge/vertex hits, relative to the mesh bounding-box diagonal
+
+
+@njit(cache=True)
+def _interval_hit(lo, hi):
+    """Entry parameter of the open inside-interval (lo, hi) if it starts within [0, 1], else -1."""
+    if not (hi - lo > 1e-12):
+        return -1.0
+    if lo < -_T_EPS or lo > 1.0 + _T_EPS:
+        return -1.0
+    return min(max(lo, 0.0), 1.0)
+
+
+@njit(cache=True)
+def _quadratic_interval(A, B, C):
+    """Open interval where A t^2 + B t + C < 0 (A > 0); (1, 0) if empty (or tangent)."""
+    disc = B * B - 4.0 * A * C
+    if not (disc > 1e-14 * (B * B + abs(4.0 * A * C))):
+        return 1.0, 0.0
+    sq = math.sqrt(disc)
+    q = -0.5 * (B - sq) if B < 0.0 else -0.5 * (B + sq)
+    t1 = q / A
+    t2 = C / q if q != 0.0 else -t1
+    if t1 > t2:
+        t1, t2 = t2, t1
+    return t1, t2
+
+
+@njit(cache=True)
+def _slab(p0, d, lo, hi, tlo, thi, closed=False):
+    """Clip the running interval (tlo, thi) by the open slab lo < p0 + t d < hi (closed: with
+    the bounds, lo <= p0 + t d <= hi, the BVH box test)."""
+    if d == 0.0:
+        if (lo <= p0 <= hi) if closed else (lo < p0 < hi):
+            return tlo, thi
+        return 1.0, 0.0
+    a = (lo - p0) / d
+    b = (hi - p0) / d
+    if a > b:
+        a, b = b, a
+    return max(tlo, a), min(thi, b)
+
+
+@njit(cache=True)
+def _mesh_segment_hit(margs, p0, p1):
+    V = margs.vertices
+    F = margs.faces
+    FN = margs.face_normals
+    bmin = margs.bvh_min
+    bmax = margs.bvh_max
+    child = margs.bvh_child
+    rng = margs.bvh_range
+    order = margs.bvh_faces
+    dx = p1[0] - p0[0]
+    dy = p1[1] - p0[1]
+    dz = p1[2] - p0[2]
+    dd = dx * dx + dy * dy + dz * dz
+    if dd == 0.0 or bmin.shape[0] == 0:
+        return -1.0
+    dl = math.sqrt(dd)
+    probe = _PROBE_REL * margs.params[15]
+    best = 2.0
+    qout = np.empty(8)
+    q = np.empty(3)
+    stack = np.empty(128, dtype=np.int64)
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        n = stack[sp]
+        tlo = -_T_EPS
+        thi = min(best, 1.0) + _T_EPS
+        for k in range(3):
+            tlo, thi = _slab(p0[k], (dx, dy, dz)[k], bmin[n, k], bmax[n, k], tlo, thi, True)
+        if tlo > thi:
+            continue
+        if child[n, 0] >= 0:
+            if sp + 2 > stack.shape[0]:
+                bigger = np.empty(stack.shape[0] * 2, dtype=np.int64)
+                bigger[:sp] = stack[:sp]
+                stack = bigger
+            stack[sp] = child[n, 0]
+            stack[sp + 1] = child[n, 1]
+            sp += 2
+            continue
+        start = rng[n, 0]
+        for kk in range(start, start + rng[n, 1]):
+            f = order[kk]
+            ia = F[f, 0]
+            ib = F[f, 1]
+            ic = F[f, 2]
+            e1x = V[ib, 0] - V[ia, 0]
+            e1y = V[ib, 1] - V[ia, 1]
+            e1z = V[ib, 2] - V[ia, 2]
+            e2x = V[ic, 0] - V[ia, 0]
+            e2y = V[ic, 1] - V[ia, 1]
+            e2z = V[ic, 2] - V[ia, 2]
+            # entering means d . n < 0; with n ~ e1 x e2 this is det = e1 . (d x e2) > 0
+            pvx = dy * e2z - dz * e2y
+            pvy = dz * e2x - dx * e2z
+            pvz = dx * e2y - dy * e2x
+            det = e1x * pvx + e1y * pvy + e1z * pvz
+            e11 = e1x * e1x + e1y * e1y + e1z * e1z
+            e22 = e2x * e2x + e2y * e2y + e2z * e2z
+            if not (det * det > 1e-24 * e11 * e22 * dd) or det <= 0.0:
+                continue
+            if FN[f, 0] * dx + FN[f, 1] * dy + FN[f, 2] * dz >= 0.0:
+                continue
+            inv = 1.0 / det
+            tx = p0[0] - V[ia, 0]
+            ty = p0[1] - V[ia, 1]
+            tz = p0[2] - V[ia, 2]
+            u = (tx * pvx + ty * pvy + tz * pvz) * inv
+            if u < -_BARY_EPS or u > 1.0 + _BARY_EPS:
+                continue
+            qx = ty * e1z - tz * e1y
+            qy = tz * e1x - tx * e1z
+            qz = tx * e1y - ty * e1x
+            v = (dx * qx + dy * qy + dz * qz) * inv
+            if v < -_BARY_EPS or u + v > 1.0 + _BARY_EPS:
+                continue
+            t = (e2x * qx + e2y * qy + e2z * qz) * inv
+            if t < -_T_EPS or t > 1.0 + _T_EPS or t >= best:
+                continue
+            t = min(max(t, 0.0), 1.0)
+            if u < _BARY_EPS or v < _BARY_EPS or u + v > 1.0 - _BARY_EPS:
+                # on (or within rounding of) an edge or vertex: the segment may only graze the
+                # surface there; confirm that just past the hit point it is inside
+                q[0] = p0[0] + t * dx + probe * dx / dl
+                q[1] = p0[1] + t * dy + probe * dy / dl
+                q[2] = p0[2] + t * dz + probe * dz / dl
+                if not (_mesh_query(margs, q[0], q[1], q[2], qout) < 0.0):
+                    continue
+            best = t
+    return best if best <= 1.0 else -1.0
+
+
+@njit(cache=True)
+def mold_segment_hit(margs, p0, p1):
+    """Smallest t in [0, 1] where p0 + t (p1 - p0) crosses the surface from outside to inside.
+
+    Returns -1.0 if the segment does not enter the mold. A segment that starts on the surface
+    and moves inward returns 0.0; one that only touches the surface (tangent, grazing a convex
+    edge or vertex, sliding within a face) returns -1.0. The start point's own state is not a
+    crossing: a segment starting strictly inside reports only a later re-entry (callers should
+    project penetrating nodes first). Mesh: BVH + Moller-Trumbore on faces whose normal opposes
+    the motion; hits within 1e-9 (barycentric) of an edge or vertex are confirmed by probing the
+    signed distance 1e-8 x (bounding-box diagonal) beyond the hit. Primitives: analytic.
+    """
+    kind = margs.info[0]
+    if kind == MOLD_MESH:
+        return _mesh_segment_hit(margs, p0, p1)
+    prm = margs.params
+    dx = p1[0] - p0[0]
+    dy = p1[1] - p0[1]
+    dz = p1[2] - p0[2]
+    if dx == 0.0 and dy == 0.0 and dz == 0.0:
+        return -1.0
+    if kind == MOLD_PLANE:
+        nx, ny, nz = prm[3], prm[4], prm[5]
+        s0 = (p0[0] - prm[0]) * nx + (p0[1] - prm[1]) * ny + (p0[2] - prm[2]) * nz
+        dn = dx * nx + dy * ny + dz * nz
+        if not (dn < 0.0):
+            return -1.0
+        t = -s0 / dn
+        if t < -_T_EPS or t > 1.0 + _T_EPS:
+            return -1.0
+        return min(max(t, 0.0), 1.0)
+    if kind == MOLD_SPHERE:
+        wx = p0[0] - prm[0]
+        wy = p0[1] - prm[1]
+        wz = p0[2] - prm[2]
+        A = dx * dx + dy * dy + dz * dz
+        B = 2.0 * (dx * wx + dy * wy + dz * wz)
+        C = wx * wx + wy * wy + wz * wz - prm[3] * prm[3]
+        lo, hi = _quadratic_interval(A, B, C)
+        return _interval_hit(lo, hi)
+    if kind == MOLD_CYLINDER:
+        ax, ay, az = prm[3], prm[4], prm[5]
+        wx = p0[0] - prm[0]
+        wy = p0[1] - prm[1]
+        wz = p0[2] - prm[2]
+        da = dx * ax + dy * ay + dz * az
+        wa = wx * ax + wy * ay + wz * az
+        dpx = dx - da * ax
+        dpy = dy - da * ay
+        dpz = dz - da * az
+        wpx = wx - wa * ax
+        wpy = wy - wa * ay
+        wpz = wz - wa * az
+        A = dpx * dpx + dpy * dpy + dpz * dpz
+        C = wpx * wpx + wpy * wpy + wpz * wpz - prm[6] * prm[6]
+        if A <= 1e-30 * (dx * dx + dy * dy + dz * dz):
+            if C < 0.0:
+                lo, hi = -np.inf, np.inf
+            else:
+                return -1.0
+        else:
+            B = 2.0 * (dpx * wpx + dpy * wpy + dpz * wpz)
+            lo, hi = _quadratic_interval(A, B, C)
+        h = 0.5 * prm[7]
+        lo, hi = _slab(wa, da, -h, h, lo, hi)
+        return _interval_hit(lo, hi)
+    # box
+    lo = -np.inf
+    hi = np.inf
+    lo, hi = _slab(p0[0], dx, prm[0], prm[3], lo, hi)
+    lo, hi = _slab(p0[1], dy, prm[1], prm[4], lo, hi)
+    lo, hi = _slab(p0[2], dz, prm[2], prm[5], lo, hi)
+    return _interval_hit(lo, hi)
