@@ -94,6 +94,7 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     panels = scene_panels(scene)
     if mold is _NO_MOLD:
         mold = load_scene_mold(scene)
+        _warn_scale(mold, panels)
     try:
         return build_model(
             panels=panels,
@@ -124,6 +125,19 @@ def _which_selector(scene: Scene, exc: SelectionError) -> str:
         except SelectionError as e:
             return f"seams.{n}.{e}"
     return str(exc)
+
+
+def _warn_scale(mold, panels) -> None:
+    """Warn (``mold: ... millimetres?``) when the mold is 100x larger or smaller than the sheet."""
+    if mold is None:
+        return
+    import warnings
+
+    from .mold import mold_scale_warning
+
+    msg = mold_scale_warning(mold, max(max(p.placement.size) for p in panels))
+    if msg:
+        warnings.warn(f"mold: {msg}", UserWarning, stacklevel=3)
 
 
 def compile_state(scene: Scene, model: Model) -> State:
