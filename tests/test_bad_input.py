@@ -250,6 +250,12 @@ def test_yaml_bomb_in_set_and_sweep_file_refused(tmp_path):
     p.write_text(BOMB.replace("i: &i", "i: &i") + f"base: {s}\nsweep:\n  parameters:\n    solver.C: *i\n")
     with pytest.raises(sw.SweepError, match="aliases expand"):
         sw.load_sweep(p)
+    # a bomb in the sweep's base scene too
+    base = tmp_path / "base.yaml"
+    base.write_text(BOMB.replace("a: &a", "x-a: &a") + s.read_text())
+    p.write_text(f"base: {base}\nsweep:\n  parameters:\n    solver.C: [2, 3]\n")
+    with pytest.raises(sw.SweepError, match=r"base\.yaml: aliases expand"):
+        sw.load_sweep(p)
 
 
 # ----------------------------------------------------------------------------- implausible strains
