@@ -36,7 +36,16 @@ Design decisions (why):
 * **A finished run is a folder with summary.json.** ``summary.csv`` is rebuilt from the folders,
   so an interrupted sweep (Ctrl-C, killed driver or worker) keeps every finished run and rerunning
   the same command runs only the rest (``--force`` reruns all). A finished run whose scene no
-  longer matches what the sweep file now expands to (the base scene was edited) is rerun.
+  longer matches what the sweep file now expands to (the base scene was edited) is rerun, and so
+  is one that ended in status ``error`` (``--skip-errors`` keeps those).
+* **One sweep per folder.** The driver holds ``fcntl.flock`` on ``out/.clothsim-sweep.lock``
+  (holding its pid) while it runs; a second sweep is refused naming that pid. The kernel drops the
+  lock with the driver, however it ends, so a stale lock file never blocks.
+* **Workers die with the driver.** SIGTERM/SIGHUP act as Ctrl-C (the pool is terminated). Local
+  workers (children of the forkserver, not of the driver) set PR_SET_PDEATHSIG and poll the
+  driver's pid, so even ``kill -9`` of the driver leaves no worker behind.
+* **A full disk** stops the sweep with SweepError (exit 2): free space is checked before each
+  run's files are written and a failed write leaves no temporary file.
 * **A failing run never stops the sweep.** The worker catches every exception (SceneError,
   MoldError, unexpected ones) and reports status ``error`` with the message; a run that diverges
   or hits a limit keeps its solver status. A worker process that dies is reported as ``crashed``
