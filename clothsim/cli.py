@@ -7,7 +7,6 @@ did not converge), 2 bad input.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time

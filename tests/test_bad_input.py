@@ -15,15 +15,11 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import ROOT, STRIP, scene_dict
+from conftest import ROOT, scene_dict
 
 from clothsim import cli
 from clothsim.config import SceneError, load_scene
-from clothsim.material import MaterialError, parse_table_csv
-try:
-    from clothsim.material import MaterialWarning
-except ImportError:
-    MaterialWarning = UserWarning
+from clothsim.material import MaterialError, MaterialWarning, parse_table_csv
 
 
 def _write(tmp_path, d, name="s.yaml"):
@@ -180,7 +176,7 @@ def test_values_that_would_overflow_or_mean_nothing_are_refused(tmp_path, field,
     s = _write(tmp_path, scene_dict(**{field: value}))
     with pytest.raises(SceneError) as exc:
         load_scene(s)
-    assert f"s.yaml:" in str(exc.value) and message in str(exc.value), str(exc.value)
+    assert "s.yaml:" in str(exc.value) and message in str(exc.value), str(exc.value)
 
 
 def test_time_limit_still_accepts_none_and_positive(tmp_path):
