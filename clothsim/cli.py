@@ -7,9 +7,10 @@ did not converge), 2 bad input.
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "configs" / "thermoform.yaml"
@@ -38,25 +39,33 @@ def _progress_printer(stream, every_s: float = 0.2):
 
 
 def cmd_run(args) -> int:
+    from . import simulation
     from .config import SceneError, load_scene
+    from .fileio import OutputError, check_out_dir, describe_write_error
     from .mold import MoldError
     from .material import MaterialError
-    from .simulation import solve
 
+    out = Path(args.out) if args.out else None
     try:
         scene = load_scene(args.scene, args.set)
+        if out is not None:  # before the solve: a bad --out must not cost a whole run
+            check_out_dir(out)
         show = sys.stderr.isatty() or args.progress
         cb = _progress_printer(sys.stderr) if (show and not args.quiet) else None
-        result = solve(scene, callback=cb)
-    except (SceneError, MoldError, MaterialError) as exc:
+        result = simulation.solve(scene, callback=cb)
+    except (SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if cb is not None:
         sys.stderr.write("\n")
     s = result.summary()
-    out = Path(args.out) if args.out else None
     if out is not None:
-        result.save(out, ply_field=args.color)
+        try:
+            result.save(out, ply_field=args.color)
+        except OSError as exc:  # a full disk, the folder removed meanwhile, ...
+            print(f"error: {describe_write_error(exc, out)} ({s['status']} after {s['iterations']} iterations; "
+                  f"no summary.json was written)", file=sys.stderr)
+            return 2
     line = (f"{s['status']}: {s['iterations']} iterations, ||V||_inf = {s['residual']:.3e} N "
             f"(relative {s['relative_residual']:.1e}), energy {s['energy']:.6e} J, "
             f"{s['wall_time_s']:.3f} s relaxing + {s['startup_s']:.2f} s start-up, solver {s['solver']}, "
@@ -77,7 +86,9 @@ def cmd_run(args) -> int:
     if out is not None:
         print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
     if args.json:
-        print(json.dumps(s, indent=2))
+        from .results import strict_json
+
+        print(strict_json(s))
     return 0 if result.converged else 1
 
 
@@ -99,8 +110,44 @@ def cmd_bench(args) -> int:
     return bench_main(args)
 
 
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number (got {text})")
+    return v
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 1 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be between 1 and 65535 (got {v})")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {v})")
+    return v
+
+
+COMMANDS = ("run", "view", "sweep", "bench")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="clothsim", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="clothsim", description=__doc__.splitlines()[0],
+        epilog="Without a command, or with a scene file first (python app.py configs/x.yaml), the viewer "
+               "opens. Exit status: 0 converged, 1 not converged, 2 bad input.")
     sub = p.add_subparsers(dest="command")
 
     r = sub.add_parser("run", help="relax a scene headless and write its results")
@@ -108,48 +155,78 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", help="output folder (result.npz, summary.json, history.csv, sheet.ply, scene.yaml)")
     r.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a scene field, e.g. --set solver.C=3 --set fabric.divisions=[80,80]")
-    r.add_argument("--color", choices=["strain", "pressure"], default="strain", help="sheet.ply colouring")
+    r.add_argument("--color", choices=["strain", "pressure"], default="strain", help="sheet.ply colouring (default: %(default)s)")
     r.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
     r.set_defaults(func=cmd_run)
 
-    v = sub.add_parser("view", help="open the browser viewer (default command)")
-    v.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE))
-    v.add_argument("--host", default="127.0.0.1")
-    v.add_argument("--port", type=int, default=8080)
-    v.add_argument("--upload-limit-mb", type=float, default=200.0)
-    v.add_argument("--no-browser", action="store_true")
+    v = sub.add_parser("view", help="open the browser viewer (default command)",
+                       description="Open the browser viewer on a scene (the default command).")
+    v.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE),
+                   help="scene YAML file (default: configs/thermoform.yaml)")
+    v.add_argument("--host", default="127.0.0.1",
+                   help="address to serve on (default: %(default)s, this machine only)")
+    v.add_argument("--port", type=_port, default=8080,
+                   help="port to serve on; the next free one is taken if busy (default: %(default)s)")
+    v.add_argument("--upload-limit-mb", type=_positive_float, default=200.0,
+                   help="largest mold or table upload accepted [MB] (default: %(default)s)")
+    v.add_argument("--no-browser", action="store_true", help="do not open a browser tab")
     v.set_defaults(func=cmd_view)
 
-    s = sub.add_parser("sweep", help="run a parameter sweep")
-    s.add_argument("sweep", help="sweep YAML file")
-    s.add_argument("--out", required=True)
-    s.add_argument("--workers", type=int, default=None)
-    s.add_argument("--dask", default=None, help="'local' for a LocalCluster or a scheduler address tcp://host:port")
+    s = sub.add_parser("sweep", help="run a parameter sweep",
+                       description="Run every combination of a sweep file's parameters; finished runs "
+                                   "are kept, so rerunning the same command continues an interrupted sweep.")
+    s.add_argument("sweep", help="sweep YAML file (see README: Parameter sweeps)")
+    s.add_argument("--out", required=True,
+                   help="output folder: one folder per run, summary.csv and plots/ (locked while the sweep runs)")
+    s.add_argument("--workers", type=_positive_int, default=None,
+                   help="worker processes (default: the number of CPUs)")
+    s.add_argument("--dask", default=None,
+                   help="'local' for a Dask LocalCluster or a scheduler address tcp://host:port "
+                        "(default: local worker processes, no Dask)")
     s.add_argument("--force", action="store_true", help="rerun finished runs too")
+    s.add_argument("--skip-errors", action="store_true",
+                   help="do not retry runs that ended in status 'error' (they are retried by default)")
     s.set_defaults(func=cmd_sweep)
 
-    b = sub.add_parser("bench", help="speed-against-error benchmark")
-    b.add_argument("--quick", action="store_true")
-    b.add_argument("--out", default="docs")
+    b = sub.add_parser("bench", help="speed-against-error benchmark",
+                       description="Time every solver against its error on the benchmark scenes.")
+    b.add_argument("--quick", action="store_true", help="small grids and short caps (about a minute)")
+    b.add_argument("--out", default=str(Path("results") / "bench"),
+                   help="folder for benchmarks.md and speed_vs_error.png (default: %(default)s; the "
+                        "repository's copies are in docs/)")
     b.set_defaults(func=cmd_bench)
     return p
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Our own warnings (implausible tables) as one ``warning: ...`` line, no source location."""
+    from .material import MaterialWarning
+
+    if issubclass(category, MaterialWarning):
+        print(f"warning: {message}", file=sys.stderr)
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
+
+
+_default_showwarning = warnings.showwarning
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser()
-    if not argv or argv[0].startswith("--") and argv[0] not in ("-h", "--help"):
+    # view is the default command: no command, an option first or a scene file first
+    if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
         argv = ["view", *argv]
     args = parser.parse_args(argv)
-    if args.command is None:
-        args = parser.parse_args(["view"])
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:  # Ctrl+C before a command's own handler is in place
-        print("\ninterrupted", file=sys.stderr)
-        return 130
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt:  # Ctrl+C before a command's own handler is in place
+            print("\ninterrupted", file=sys.stderr)
+            return 130
 
 
 if __name__ == "__main__":

@@ -15,10 +15,11 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 
 import numpy as np
 import yaml
-from pydantic import (BaseModel, ConfigDict, Discriminator, Field, StrictBool, Tag, ValidationError,
-                      field_validator, model_validator)
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, StrictBool, Tag,
+                      ValidationError, field_validator, model_validator)
 
-from .material import MaterialError, Table, check_table, read_table_csv
+from .material import (TENSION_MAX, MaterialError, Table, check_table, read_table_csv,
+                       warn_implausible_strain)
 
 SOLVER_METHODS = ("auto", "paper", "newton")
 NODE_SETS = (
@@ -34,17 +35,62 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=False)
 
 
+#: bound on every coordinate, length and displacement [m]: far beyond any garment or mold, and
+#: small enough that squared distances and spring energies cannot overflow a float
+COORD_MAX = 1e6
+#: bound on gravity's areal density [kg/m^2] (a 1 m thick steel plate is 7850) and on g [m/s^2]
+DENSITY_MAX = 1e4
+G_MAX = 1e4
+#: bound on a seam's stiffness [N/m^2]: 1000 x TENSION_MAX / a 1 mm grid spacing
+SEAM_STIFFNESS_MAX = 1e15
+
+
 def _finite(v, name="value"):
     if v is not None and not math.isfinite(v):
         raise ValueError(f"must be finite (got {v})")
     return v
 
 
-def _positive(v):
-    """None, or a positive finite number (else the validation message every such field gives)."""
+def _positive(v, hi: float | None = None, unit: str = ""):
+    """None, or a positive finite number (else the validation message every such field gives),
+    at most ``hi`` if given."""
     if v is not None and not (math.isfinite(v) and v > 0):
         raise ValueError(f"must be positive and finite (got {v})")
+    if v is not None and hi is not None and v > hi:
+        raise ValueError(f"at most {hi:.0e}{' ' + unit if unit else ''} (got {v:g})")
     return v
+
+
+def _coords(v):
+    """A coordinate, length or tuple of them [m], each finite with |x| <= COORD_MAX."""
+    if v is None:
+        return v
+    for x in (v if isinstance(v, (tuple, list)) else [v]):
+        _finite(x)
+        if abs(x) > COORD_MAX:
+            raise ValueError(f"|x| must be at most {COORD_MAX:.0e} m (got {x:g})")
+    return v
+
+
+def _direction(v):
+    if not all(math.isfinite(x) for x in v) or sum(x * x for x in v) == 0:
+        raise ValueError(f"must be a non-zero finite vector (got {list(v)})")
+    return v
+
+
+def _strict_int(v):
+    """Integers only: a YAML ``true`` is not 1; an integral float (2e5) is its integer."""
+    if isinstance(v, bool):
+        raise ValueError(f"must be an integer (got {str(v).lower()})")
+    if isinstance(v, float):
+        if not v.is_integer():
+            raise ValueError(f"must be an integer (got {v})")
+        return int(v)
+    return v
+
+
+#: an int field that refuses booleans (pydantic would take true as 1)
+Int = Annotated[int, BeforeValidator(_strict_int)]
 
 
 class MaterialSpec(_Strict):
@@ -66,7 +112,7 @@ class MaterialSpec(_Strict):
     @field_validator("scale")
     @classmethod
     def _scale(cls, v):
-        return _positive(v)
+        return _positive(v, 1e6)
 
     @model_validator(mode="after")
     def _check(self):
@@ -98,7 +144,7 @@ class Fabric(_Strict):
 
     size: tuple[float, float] | None = None
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    divisions: tuple[int, int] | None = None
+    divisions: tuple[Int, Int] | None = None
     thickness: float | None = None
     warp: MaterialSpec
     weft: MaterialSpec
@@ -107,15 +153,13 @@ class Fabric(_Strict):
     @classmethod
     def _size(cls, v):
         for x in v or ():
-            _positive(x)
+            _positive(x, COORD_MAX, "m")
         return v
 
     @field_validator("origin")
     @classmethod
     def _origin(cls, v):
-        for x in v:
-            _finite(x)
-        return v
+        return _coords(v)
 
     @field_validator("divisions")
     @classmethod
@@ -132,7 +176,7 @@ class Fabric(_Strict):
     @field_validator("thickness")
     @classmethod
     def _thick(cls, v):
-        return _positive(v)
+        return _positive(v, 1.0, "m")
 
     @model_validator(mode="after")
     def _needs_thickness(self):
@@ -140,10 +184,14 @@ class Fabric(_Strict):
             m = getattr(self, name)
             if m.stress is not None and self.thickness is None:
                 raise ValueError(f"thickness: needed because {name} is given as stress [Pa]")
+        for name in ("warp", "weft"):  # tables in the file (CSV tables warn when read)
+            m = getattr(self, name)
+            if m.strain is not None:
+                warn_implausible_strain(m.strain, f"fabric.{name}.strain")
         return self
 
 
-IndexRange = tuple[int, int]
+IndexRange = tuple[Int, Int]
 
 
 class NodeRange(_Strict):
@@ -154,11 +202,11 @@ class NodeRange(_Strict):
     ``[v0, v1]`` the lattice nodes along the panel's outline from vertex v0 to vertex v1
     (counter-clockwise), ordered along it."""
 
-    i: IndexRange | int | None = None
-    j: IndexRange | int | None = None
+    i: IndexRange | Int | None = None
+    j: IndexRange | Int | None = None
     panel: str | None = None
     side: Literal[NODE_SETS] | None = None  # type: ignore[valid-type]
-    edge: tuple[int, int] | None = None
+    edge: tuple[Int, Int] | None = None
 
     @model_validator(mode="after")
     def _one_kind(self):
@@ -208,15 +256,14 @@ class Constraint(_Strict):
         for s in vals:
             if not (math.isfinite(s) and s > 0):
                 raise ValueError(f"must be positive (got {s})")
+            if s > 1e3:
+                raise ValueError(f"at most 1e+03 (got {s:g})")
         return v
 
     @field_validator("displacement")
     @classmethod
     def _disp(cls, v):
-        if v is not None:
-            for x in v:
-                _finite(x)
-        return v
+        return _coords(v)
 
 
 class PanelTransform(_Strict):
@@ -226,12 +273,17 @@ class PanelTransform(_Strict):
     rotate: tuple[float, float, float] = (0.0, 0.0, 0.0)
     translate: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
-    @field_validator("rotate", "translate")
+    @field_validator("rotate")
     @classmethod
     def _fin(cls, v):
         for x in v:
             _finite(x)
         return v
+
+    @field_validator("translate")
+    @classmethod
+    def _translate(cls, v):
+        return _coords(v)
 
 
 class Wrap(_Strict):
@@ -240,8 +292,28 @@ class Wrap(_Strict):
 
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     center: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    radius: float = Field(gt=0)
+    radius: float
     start_angle: float = 0.0  # degrees, where the sheet's left edge sits
+
+    @field_validator("axis")
+    @classmethod
+    def _axis(cls, v):
+        return _direction(v)
+
+    @field_validator("center")
+    @classmethod
+    def _center(cls, v):
+        return _coords(v)
+
+    @field_validator("radius")
+    @classmethod
+    def _radius(cls, v):
+        return _positive(v, COORD_MAX, "m")
+
+    @field_validator("start_angle")
+    @classmethod
+    def _angle(cls, v):
+        return _finite(v)
 
 
 class PanelPlacement(_Strict):
@@ -271,7 +343,7 @@ class Panel(_Strict):
     outline: list[tuple[float, float]]
     grain: tuple[float, float] = (1.0, 0.0)
     spacing: float | tuple[float, float] | None = None
-    divisions: tuple[int, int] | None = None
+    divisions: tuple[Int, Int] | None = None
     warp: MaterialSpec | None = None
     weft: MaterialSpec | None = None
     thickness: float | None = None
@@ -292,7 +364,7 @@ class Panel(_Strict):
     @classmethod
     def _spacing(cls, v):
         for x in ([v] if isinstance(v, (int, float)) else (v or [])):
-            _positive(x)
+            _positive(x, COORD_MAX, "m")
         return v
 
     @field_validator("divisions")
@@ -330,36 +402,50 @@ class Initial(_Strict):
     file: str | None = None
     wrap: Wrap | None = None
     perturb: float = 0.0
-    seed: int = 0
+    seed: Int = 0
     auto_clearance: bool = False
     interpolate: bool = True
 
     @field_validator("lift", "perturb")
     @classmethod
     def _fin(cls, v):
-        return _finite(v)
+        return _coords(v)
 
 
 class Gravity(_Strict):
     """Gravity (eq. 1, W): areal density [kg/m^2] times g [m/s^2] along direction."""
 
-    areal_density: float = Field(gt=0)
+    areal_density: float
     direction: tuple[float, float, float] = (0.0, 0.0, -1.0)
     g: float = 9.80665
+
+    @field_validator("areal_density")
+    @classmethod
+    def _rho(cls, v):
+        return _positive(v, DENSITY_MAX, "kg/m^2")
+
+    @field_validator("g")
+    @classmethod
+    def _g(cls, v):
+        return _positive(v, G_MAX, "m/s^2")
 
     @field_validator("direction")
     @classmethod
     def _dir(cls, v):
-        if not all(math.isfinite(x) for x in v) or sum(x * x for x in v) == 0:
-            raise ValueError(f"must be a non-zero finite vector (got {list(v)})")
-        return v
+        return _direction(v)
 
 
 class SpringTerm(_Strict):
     """An optional linear spring family (shear diagonals or bending skip-one springs) with
-    tension per width ``stiffness * strain`` [N/m], resisting tension and compression."""
+    tension per width ``stiffness * strain`` [N/m], resisting tension and compression.
+    stiffness: positive, at most 1e9 N/m (see clothsim.material.TENSION_MAX)."""
 
-    stiffness: float = Field(gt=0)
+    stiffness: float
+
+    @field_validator("stiffness")
+    @classmethod
+    def _k(cls, v):
+        return _positive(v, TENSION_MAX, "N/m")
 
 
 class Seam(_Strict):
@@ -387,20 +473,21 @@ class Seam(_Strict):
     @field_validator("stiffness")
     @classmethod
     def _k(cls, v):
-        return _positive(v)
+        return _positive(v, SEAM_STIFFNESS_MAX, "N/m^2")
 
 
 class SolverSettings(_Strict):
     """method: which solver; C: the paper's step divisor (eq. 4, > 1); e: the convergence limit on
-    ||V||_inf [N] (eq. 6); max_iterations; time_limit_s: wall-clock bound (None = none)."""
+    ||V||_inf [N] (eq. 6); max_iterations; time_limit_s: wall-clock bound [s], positive and
+    finite (omitted = none)."""
 
     method: Literal[SOLVER_METHODS] = "auto"  # type: ignore[valid-type]
     C: float = 2.0
     e: float = 1e-6
-    max_iterations: int = 200_000
+    max_iterations: Int = 200_000
     time_limit_s: float | None = None
-    max_retries: int = 60
-    stall_iterations: int = 2000
+    max_retries: Int = 60
+    stall_iterations: Int = 2000
     # newton only: stiffness used at and below strain 0 on tension-only springs, as a fraction of
     # the table's first slope (regularises the singular Hessian of slack springs; shapes the
     # search direction only, never the forces); and whether to solve coarser grids first
@@ -420,6 +507,11 @@ class SolverSettings(_Strict):
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"must be positive (got {v})")
         return v
+
+    @field_validator("time_limit_s")
+    @classmethod
+    def _time(cls, v):
+        return _positive(v)
 
     @field_validator("max_iterations", "max_retries", "stall_iterations")
     @classmethod
@@ -744,7 +836,12 @@ class Scene(_Strict):
             if thickness is None:
                 raise SceneError(f"fabric.thickness: needed because {name} is given as stress [Pa]")
             value = value * thickness
-        return Table(strain, value * (m.scale or 1.0))
+        value = value * (m.scale or 1.0)
+        if value.size and value.max() > TENSION_MAX:
+            field = name if "." in name else f"fabric.{name}"
+            raise SceneError(f"{field}: tension reaches {value.max():g} N/m (after thickness and scale); "
+                             f"at most {TENSION_MAX:.0e} N/m")
+        return Table(strain, value)
 
     def to_dict(self) -> dict:
         return self.model_dump(mode="json", exclude_none=True)
@@ -809,8 +906,11 @@ def _clean_loc(loc: tuple) -> tuple:
     return tuple(out)
 
 
-def format_validation_error(exc: ValidationError, source: str, root: yaml.Node | None) -> str:
-    """One line per problem: ``file:line: field.path: message``."""
+def format_validation_error(exc: ValidationError, source: str, root: yaml.Node | None,
+                            blame: dict[str, str] | None = None) -> str:
+    """One line per problem: ``file:line: field.path: message``. ``blame`` maps a field path
+    (``solver.C``) to the label of what set it (``--set solver.C=0.5``): a problem at or under
+    that path is reported against the label instead of a line of the file."""
     lines = []
     seen = set()
     for err in exc.errors():
@@ -831,8 +931,9 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
             msg = "unknown field"
         elif err["type"] == "missing":
             msg = "missing"
-        line = _yaml_line(root, loc) if root is not None else None
-        where = f"{source}:{line}" if line else source
+        culprit = _blamed(loc, blame)
+        line = _yaml_line(root, loc) if root is not None and culprit is None else None
+        where = culprit or (f"{source}:{line}" if line else source)
         text = f"{where}: {field}: {msg}" if field else f"{where}: {msg}"
         if (field, msg) in seen:
             continue
@@ -840,6 +941,17 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
         lines.append(text)
     # union errors produce one entry per branch; keep the most specific ones
     return "\n".join(lines)
+
+
+def _blamed(loc: tuple, blame: dict[str, str] | None) -> str | None:
+    """The label of the longest override path that is a prefix of loc, if any."""
+    best = None
+    for path, label in (blame or {}).items():
+        parts = path.split(".")
+        if len(parts) <= len(loc) and all(str(a) == b for a, b in zip(loc, parts)):
+            if best is None or len(parts) > best[0]:
+                best = (len(parts), label)
+    return best[1] if best else None
 
 
 def _set_path(data: dict, path: str, value: Any) -> None:
@@ -873,34 +985,40 @@ def apply_overrides(data: dict, overrides: list[str] | dict[str, Any] | None) ->
     """Return a copy of the raw scene dict with ``field.path=value`` overrides applied (values
     are parsed as YAML, so ``[80, 80]`` is a list and ``3`` a number)."""
     data = copy.deepcopy(data)
-    if not overrides:
-        return data
-    items = overrides.items() if isinstance(overrides, dict) else []
-    if not isinstance(overrides, dict):
-        parsed = []
-        for o in overrides:
-            if "=" not in o:
-                raise SceneError(f"--set {o}: expected field.path=value")
-            k, v = o.split("=", 1)
-            try:
-                parsed.append((k.strip(), yaml.safe_load(v)))
-            except yaml.YAMLError as exc:
-                raise SceneError(f"--set {o}: value is not valid YAML ({exc})") from None
-        items = parsed
-    for k, v in items:
+    for k, v, _ in parse_overrides(overrides):
         _set_path(data, k, v)
     return data
 
 
-def scene_from_dict(data: dict, source: str | Path | None = None, root: yaml.Node | None = None) -> Scene:
-    """Validate a raw dict into a Scene; errors become SceneError with file:line: field: message."""
+def parse_overrides(overrides: list[str] | dict[str, Any] | None) -> list[tuple[str, Any, str]]:
+    """(field path, value, label) of each override; ``--set`` strings are parsed as YAML (aliases
+    bounded as in scene files) and labelled ``--set path=value``."""
+    if not overrides:
+        return []
+    if isinstance(overrides, dict):
+        return [(k, v, f"{k}={v!r}") for k, v in overrides.items()]
+    from .fileio import load_yaml
+
+    parsed = []
+    for o in overrides:
+        if "=" not in o:
+            raise SceneError(f"--set {o}: expected field.path=value")
+        k, v = o.split("=", 1)
+        parsed.append((k.strip(), load_yaml(v, f"--set {o}", SceneError)[0], f"--set {o}"))
+    return parsed
+
+
+def scene_from_dict(data: dict, source: str | Path | None = None, root: yaml.Node | None = None,
+                    blame: dict[str, str] | None = None) -> Scene:
+    """Validate a raw dict into a Scene; errors become SceneError with file:line: field: message
+    (or ``--set ...: field: message`` for a field an override set, see format_validation_error)."""
     label = str(source) if source is not None else "<scene>"
     if not isinstance(data, dict):
         raise SceneError(f"{label}: a scene must be a mapping (got {type(data).__name__})")
     try:
         scene = Scene.model_validate(data)
     except ValidationError as exc:
-        raise SceneError(format_validation_error(exc, label, root)) from None
+        raise SceneError(format_validation_error(exc, label, root, blame)) from None
     if source is not None:
         scene._source = Path(source).resolve()
     return scene
@@ -908,18 +1026,13 @@ def scene_from_dict(data: dict, source: str | Path | None = None, root: yaml.Nod
 
 def read_yaml(path: str | Path, error: type[Exception] = SceneError) -> tuple[Any, yaml.Node | None]:
     """(data, node tree) of a YAML file; the tree gives line numbers for error messages. Failures
-    raise ``error`` naming the file (and the line of a syntax error)."""
+    raise ``error`` naming the file (and the line of a syntax error or of a byte that is not
+    UTF-8). Refused before parsing: anything but a regular file, a file over 10 MB; before
+    building any object: aliases expanding past a budget (a YAML bomb), see clothsim.fileio."""
+    from .fileio import load_yaml, read_text
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    try:
-        return yaml.safe_load(text), yaml.compose(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise error(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    return load_yaml(read_text(path, error), str(path), error)
 
 
 def load_scene(path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Scene:
@@ -928,8 +1041,13 @@ def load_scene(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
     data, root = read_yaml(path)
     if data is None:
         raise SceneError(f"{path}: empty scene file")
-    data = apply_overrides(data, overrides)
-    return scene_from_dict(data, path, root)
+    items = parse_overrides(overrides)
+    if items and not isinstance(data, dict):
+        raise SceneError(f"{path}: a scene must be a mapping (got {type(data).__name__})")
+    data = copy.deepcopy(data)
+    for k, v, _ in items:
+        _set_path(data, k, v)
+    return scene_from_dict(data, path, root, {k: label for k, _, label in items})
 
 
 def dump_scene(scene: Scene, path: str | Path) -> None:

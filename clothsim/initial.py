@@ -38,14 +38,8 @@ def initial_state(model: Model, initial, file: Path | None = None) -> State:
     pos = model.placement.apply(flat)
     if file is not None:
         path = file
-        try:
-            with np.load(path) as data:
-                if "positions" not in data:
-                    raise SceneError(f"{path}: initial.file: no 'positions' array")
-                p = np.asarray(data["positions"], float)
-        except (OSError, ValueError) as exc:
-            raise SceneError(f"{path}: initial.file: cannot read ({exc})") from None
         want = topo.to_grid(np.zeros((model.node_count, 3))).shape if topo.is_grid else (model.node_count, 3)
+        p = _read_positions(Path(path), want)
         if p.shape != want:
             raise SceneError(f"{path}: initial.file: positions have shape {p.shape}, the scene needs "
                              f"{want}")
@@ -66,6 +60,36 @@ def initial_state(model: Model, initial, file: Path | None = None) -> State:
     if model.mold is not None:
         _check_clearance(ini, model, state)
     return state
+
+
+def _read_positions(path, shape: tuple) -> np.ndarray:
+    """The ``positions`` array [m] of an earlier result.npz; SceneError ``file: initial.file: why``
+    for anything else (not a regular file, not an npz, a truncated or oversized member, a
+    non-real dtype)."""
+    import stat
+    import zipfile
+    import zlib
+
+    where = f"{path}: initial.file"
+    try:
+        if not stat.S_ISREG(path.stat().st_mode):
+            raise SceneError(f"{where}: not a regular file")
+        with np.load(path, allow_pickle=False) as data:
+            if not hasattr(data, "files"):
+                raise SceneError(f"{where}: not an .npz archive (an earlier run's result.npz)")
+            if "positions" not in data.files:
+                raise SceneError(f"{where}: no 'positions' array")
+            info = data.zip.getinfo("positions.npy")
+            if info.file_size > 8 * int(np.prod(shape)) + 4096:  # refuse before inflating
+                raise SceneError(f"{where}: 'positions' is larger than the scene's {shape}")
+            p = data["positions"]
+    except SceneError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise SceneError(f"{where}: cannot read ({type(exc).__name__}: {str(exc)[:120]})") from None
+    if p.dtype.kind not in "fiu":
+        raise SceneError(f"{where}: positions must be real numbers (got dtype {p.dtype})")
+    return np.asarray(p, float)
 
 
 def _spread_in_plane(model: Model) -> np.ndarray:

@@ -28,6 +28,33 @@ class MaterialError(ValueError):
     """A material table is invalid; the message names what is wrong (and the file/line for CSV)."""
 
 
+class MaterialWarning(UserWarning):
+    """A material table is valid but implausible (e.g. strains typed as percent)."""
+
+
+#: largest table value accepted: tension per width [N/m] and stress [Pa]. A 1 mm steel sheet
+#: (E = 200 GPa) has 2e8 N/m per unit strain, so no fabric comes near; with coordinates bounded
+#: by 1e6 m (clothsim.config.COORD_MAX) spring forces stay below about 1e15 N and their squares
+#: (energies, norms) far from float overflow (1.8e308), where 1e308 would overflow at once.
+TENSION_MAX = 1e9
+STRESS_MAX = 1e12
+VALUE_MAX = {"tension": (TENSION_MAX, "N/m"), "stress": (STRESS_MAX, "Pa")}
+#: a table strain above this (500 %) suggests percent typed as a fraction: warn
+STRAIN_WARN = 5.0
+
+
+def warn_implausible_strain(strain, where: str) -> None:
+    """Warn (MaterialWarning) if the largest strain exceeds STRAIN_WARN; ``where`` names the
+    file or field (``fabric.warp.strain``)."""
+    m = max((float(x) for x in strain), default=0.0)
+    if m > STRAIN_WARN:
+        import warnings
+
+        warnings.warn(MaterialWarning(
+            f"{where}: {m:g} ({m * 100:g} %) is implausible for a fabric: was a percentage typed as a "
+            f"strain? (strain is a fraction, 0.3 = 30 %; a CSV header 'strain [%]' reads percent)"), stacklevel=2)
+
+
 def check_table(strain, value, value_name: str = "stress") -> None:
     """Raise MaterialError (message without field prefix) if (strain, value) is not a valid table.
 
@@ -52,6 +79,11 @@ def check_table(strain, value, value_name: str = "stress") -> None:
     for x in value:
         if float(x) < 0.0:
             raise MaterialError(f"{value_name}: must be non-negative (got {x})")
+    if value_name in VALUE_MAX:
+        hi, unit = VALUE_MAX[value_name]
+        for x in value:
+            if float(x) > hi:
+                raise MaterialError(f"{value_name}: at most {hi:.0e} {unit} (got {float(x):g})")
     for a, b in zip(value, value[1:]):
         if float(b) < float(a):
             raise MaterialError(f"{value_name}: must be non-decreasing ({b} after {a})")
@@ -63,13 +95,13 @@ def read_table_csv(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
     The header names the second column: ``stress`` (Pa) or ``tension`` (N/m); a unit in brackets or
     parentheses after the name is allowed (``tension [N/m]``). Strain may be given in percent with
     a header ``strain [%]``. Returns (strain, value, kind) with kind "stress" or "tension".
-    Errors name the file and the line.
+    Errors name the file and the line; the file must be a regular UTF-8 file of at most 10 MB.
+    A largest strain above 500 % warns (MaterialWarning: percent typed as a fraction?).
     """
+    from .fileio import read_text
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise MaterialError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    text = read_text(path, MaterialError, encoding="utf-8-sig")
     return parse_table_csv(text, str(path))
 
 
@@ -118,6 +150,7 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
         check_table(strain, value, kind)
     except MaterialError as exc:
         raise MaterialError(f"{source}: {exc}") from None
+    warn_implausible_strain(strain, f"{source}: strain")
     return np.asarray(strain, float), np.asarray(value, float), kind
 
 

@@ -1,7 +1,8 @@
 """Result: what users read and export (positions, contact, strains, tensions, contact pressure).
 
 Files written by :meth:`Result.save` (each written to a temporary name, then renamed, so an
-interrupted run never leaves a half-written file):
+interrupted run never leaves a half-written file; summary.json is removed first and written last,
+so a folder is complete exactly when it holds summary.json):
 
 - ``result.npz``: positions (nx+1, ny+1, 3) [m]; in_contact (nx+1, ny+1) bool; strain_warp
   (nx, ny+1); strain_weft (nx+1, ny); tension_warp / tension_weft [N per spring]; contact_force
@@ -9,7 +10,8 @@ interrupted run never leaves a half-written file):
   energy_history [J].
 - ``summary.json``: converged, status, message, iterations, residual [N], relative_residual,
   energy [J], wall_time_s (the relaxation), startup_s (mold loading, model building, JIT
-  compilation), solver, contact_count, diagnostics, clothsim version.
+  compilation), solver, contact_count, diagnostics, clothsim version. Strict JSON: a
+  non-finite number (a diverged run's NaN residual) is written as null.
 - ``history.csv``: iteration, residual [N], energy [J], elapsed [s].
 - ``sheet.ply``: the deformed grid as triangles with per-vertex colours (strain or pressure).
 - ``scene.yaml``: the fully resolved scene.
@@ -19,26 +21,31 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .kernels import spring_strains_tensions
+from .fileio import atomic_write_bytes  # noqa: F401  (re-exported: sweeps and the viewer use it)
 from .grid import FAMILY_SEAM
 
 MMHG = 133.322387415  # Pa per mmHg
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+def strict_json(obj) -> str:
+    """JSON text in which every non-finite float (NaN, inf) is null, as strict JSON parsers
+    require (a diverged run's residual is NaN)."""
+    def clean(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+
+    return json.dumps(clean(obj), indent=2, allow_nan=False)
 
 
 def grid_faces(nx1: int, ny1: int) -> np.ndarray:
@@ -339,14 +346,42 @@ class Result:
         )
         return buf.getvalue()
 
+    def files(self, ply_field: str = "strain") -> dict[str, bytes]:
+        """Every output file's name and bytes, in writing order (summary.json last)."""
+        return {
+            "result.npz": self.npz_bytes(),
+            "history.csv": self.history_csv().encode(),
+            "sheet.ply": self.colored_mesh(ply_field).export(file_type="ply"),
+            "scene.yaml": self.scene.resolved().to_yaml().encode(),
+            "summary.json": strict_json(self.summary()).encode(),
+        }
+
     def save(self, out_dir: str | Path, ply_field: str = "strain") -> Path:
-        """Write every output file into out_dir (created); returns out_dir."""
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(out / "result.npz", self.npz_bytes())
-        atomic_write_bytes(out / "history.csv", self.history_csv().encode())
-        atomic_write_bytes(out / "sheet.ply", self.colored_mesh(ply_field).export(file_type="ply"))
-        atomic_write_bytes(out / "scene.yaml", self.scene.resolved().to_yaml().encode())
-        # summary last: its presence marks a complete run folder (sweeps rely on it)
-        atomic_write_bytes(out / "summary.json", json.dumps(self.summary(), indent=2).encode())
+        """Write every output file into out_dir (created); returns out_dir.
+
+        The set is replaced as a whole: summary.json (whose presence marks a complete run folder)
+        is removed first and written last, so a folder holding an earlier result never looks
+        complete with a mix of old and new files. Free space is checked before the first write;
+        on any failure (a full disk included) no temporary file is left behind and
+        :class:`clothsim.fileio.OutputError` or the OSError is raised."""
+        from .fileio import check_free_space, check_out_dir
+
+        out = check_out_dir(out_dir)
+        files = self.files(ply_field)
+        check_free_space(out, sum(len(b) for b in files.values()))
+        write_result_files(out, files)
         return out
+
+
+def write_result_files(out: Path, files: dict[str, bytes], finished: str = "summary.json") -> None:
+    """Write files into out, each atomically: stale temporary files and ``finished`` removed
+    first, ``finished`` written last."""
+    out = Path(out)
+    (out / finished).unlink(missing_ok=True)
+    for tmp in out.glob(".*.tmp*"):  # left by a write that was killed half-way
+        tmp.unlink(missing_ok=True)
+    for name, data in files.items():
+        if name != finished:
+            atomic_write_bytes(out / name, data)
+    if finished in files:
+        atomic_write_bytes(out / finished, files[finished])

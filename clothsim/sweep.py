@@ -36,7 +36,16 @@ Design decisions (why):
 * **A finished run is a folder with summary.json.** ``summary.csv`` is rebuilt from the folders,
   so an interrupted sweep (Ctrl-C, killed driver or worker) keeps every finished run and rerunning
   the same command runs only the rest (``--force`` reruns all). A finished run whose scene no
-  longer matches what the sweep file now expands to (the base scene was edited) is rerun.
+  longer matches what the sweep file now expands to (the base scene was edited) is rerun, and so
+  is one that ended in status ``error`` (``--skip-errors`` keeps those).
+* **One sweep per folder.** The driver holds ``fcntl.flock`` on ``out/.clothsim-sweep.lock``
+  (holding its pid) while it runs; a second sweep is refused naming that pid. The kernel drops the
+  lock with the driver, however it ends, so a stale lock file never blocks.
+* **Workers die with the driver.** SIGTERM/SIGHUP act as Ctrl-C (the pool is terminated). Local
+  workers (children of the forkserver, not of the driver) set PR_SET_PDEATHSIG and poll the
+  driver's pid, so even ``kill -9`` of the driver leaves no worker behind.
+* **A full disk** stops the sweep with SweepError (exit 2): free space is checked before each
+  run's files are written and a failed write leaves no temporary file.
 * **A failing run never stops the sweep.** The worker catches every exception (SceneError,
   MoldError, unexpected ones) and reports status ``error`` with the message; a run that diverges
   or hits a limit keeps its solver status. A worker process that dies is reported as ``crashed``
@@ -59,6 +68,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -90,6 +100,8 @@ EXTRA_KEYS = {
 TIMING_KEYS = ("wall_time_s", "startup_s", "run_time_s")
 DEFAULT_OUTPUTS = ["iterations", "residual", "energy", "wall_time_s"]
 FINISHED_FILE = "summary.json"
+#: held (fcntl.flock) by the sweep writing a folder; holds that driver's pid
+LOCK_FILE = ".clothsim-sweep.lock"
 
 
 class SweepError(ValueError):
@@ -243,10 +255,7 @@ def load_sweep(path: str | Path) -> Sweep:
 
 def expand(spec: SweepFile, base_path: Path) -> list[Run]:
     """The runs of a sweep, in a deterministic order (grid: first parameter slowest)."""
-    try:
-        base = yaml.safe_load(base_path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise SweepError(f"{base_path}: cannot read the base scene ({exc})") from None
+    base = read_yaml(base_path, SweepError)[0]  # bounded, UTF-8, aliases budgeted
     if not isinstance(base, dict):
         raise SweepError(f"{base_path}: the base scene must be a mapping")
     values = spec.sweep.expanded()
@@ -421,8 +430,11 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 def write_run(out: Path, payload: dict) -> None:
     """Write a worker's files into out/<run_id>/, each atomically, summary.json last."""
+    from .fileio import check_free_space
+
     d = out / payload["run_id"]
     d.mkdir(parents=True, exist_ok=True)
+    check_free_space(out, sum(len(b) for b in payload["files"].values()))
     # an older result must not look finished while the new files replace it
     for stale in (FINISHED_FILE, "crashed.json", "error.txt"):
         (d / stale).unlink(missing_ok=True)
@@ -443,8 +455,9 @@ def write_crashed(out: Path, run: Run, message: str) -> None:
     _atomic_write(d / "crashed.json", json.dumps({"status": "crashed", "message": message}, indent=2).encode())
 
 
-def finished(out: Path, run: Run) -> bool:
-    """True if out/<run_id> holds a complete run of this very scene."""
+def finished(out: Path, run: Run, skip_errors: bool = True) -> bool:
+    """True if out/<run_id> holds a complete run of this very scene (one that ended in status
+    ``error`` counts only with skip_errors)."""
     d = out / run.run_id
     if not (d / FINISHED_FILE).is_file():
         return False
@@ -452,7 +465,52 @@ def finished(out: Path, run: Run) -> bool:
         rec = json.loads((d / "sweep_run.json").read_text())
     except (OSError, ValueError):
         return False
-    return rec.get("scene_hash") == run.scene_hash
+    if rec.get("scene_hash") != run.scene_hash:
+        return False
+    return skip_errors or _status(d) != "error"
+
+
+def _status(d: Path) -> str | None:
+    try:
+        return json.loads((d / FINISHED_FILE).read_text()).get("status")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+class _FolderLock:
+    """An exclusive lock on a sweep's output folder: fcntl.flock on out/LOCK_FILE, which holds
+    the driver's pid. Released when the driver exits, however it exits (the kernel drops the
+    lock with the file descriptor). Raises SweepError naming the holder if another sweep has it."""
+
+    def __init__(self, out: Path):
+        self.path = out / LOCK_FILE
+        self.fh = None
+
+    def __enter__(self):
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover (not POSIX): no lock
+            return self
+        fh = open(self.path, "a+")
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.seek(0)
+            holder = fh.read().strip() or "unknown"
+            fh.close()
+            raise SweepError(f"--out {self.path.parent}: in use by another sweep (pid {holder}); wait for it to "
+                             f"finish or stop it, or choose another --out") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(str(os.getpid()))
+        fh.flush()
+        self.fh = fh
+        return self
+
+    def __exit__(self, *exc):
+        if self.fh is not None:
+            self.fh.close()  # the lock goes with the descriptor; the file stays (no unlink race)
+            self.fh = None
 
 
 def read_row(out: Path, run: Run) -> dict:
@@ -669,6 +727,62 @@ def _task(run: Run, sweep: Sweep) -> dict:
 _THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to SIGKILL this process when its parent dies (prctl PR_SET_PDEATHSIG); a no-op
+    elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def _process_start(pid: int) -> str | None:
+    """The start time of process pid (field 22 of /proc/pid/stat), None if gone or unknown."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat[stat.rindex(")") + 2:].split()[19]
+
+
+def _worker_init(driver_pid: int, driver_start: str | None, poll_s: float = 0.5) -> None:
+    """Pool worker initializer: the worker dies with the sweep driver, however the driver ends.
+
+    A local worker's parent is the forkserver, not the driver, so two guards: PR_SET_PDEATHSIG
+    (the worker is killed when the forkserver dies) and a daemon thread that polls the driver's
+    pid (with its start time, against pid reuse) and exits the worker when the driver is gone
+    (kill -9 included). The thread runs between kernel calls: a worker notices within one
+    solver iteration."""
+    import threading
+
+    _die_with_parent()
+
+    def alive() -> bool:
+        if driver_start is not None:
+            return _process_start(driver_pid) == driver_start
+        try:
+            os.kill(driver_pid, 0)
+            return True
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
+
+    def watch() -> None:
+        while alive():
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="clothsim-driver-watch", daemon=True).start()
+
+
 def _local_pool(workers: int):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
@@ -682,7 +796,9 @@ def _local_pool(workers: int):
         ctx.set_forkserver_preload(["clothsim.simulation", "clothsim.sweep"])
     else:
         ctx = mp.get_context("spawn")
-    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+    me = os.getpid()
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                               initargs=(me, _process_start(me)))
 
 
 def _run_local(todo, sweep, out, workers, on_done, on_warm):
@@ -719,13 +835,36 @@ def _run_local(todo, sweep, out, workers, on_done, on_warm):
 
 
 def _terminate_pool(pool) -> None:
-    """Stop our own worker processes at once (Ctrl-C): only the pool's processes, by id."""
+    """Stop our own worker processes at once (Ctrl-C, SIGTERM): only the pool's processes, by id;
+    then the forkserver that started them, if this driver started one."""
     procs = getattr(pool, "_processes", None) or {}
     for p in list(procs.values()):
         try:
             p.terminate()
         except Exception:
             pass
+    for p in list(procs.values()):
+        try:
+            p.join(timeout=2.0)
+        except Exception:
+            pass
+    try:
+        from multiprocessing import forkserver
+
+        pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
+        if pid:
+            os.kill(pid, signal.SIGTERM)
+    except (ImportError, AttributeError, ProcessLookupError, PermissionError):
+        pass
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP reached the sweep driver: it stops as on Ctrl-C (workers terminated,
+    finished runs kept)."""
+
+
+def _on_terminate(signum, frame):
+    raise Terminated(signal.Signals(signum).name)
 
 
 def _run_dask(todo, sweep, out, workers, address, on_done, on_warm):
@@ -770,21 +909,40 @@ def _run_dask(todo, sweep, out, workers, address, on_done, on_warm):
 
 
 def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, dask: str | None = None,
-              force: bool = False, stream=sys.stderr, plots: bool = True) -> dict:
+              force: bool = False, skip_errors: bool = False, stream=sys.stderr, plots: bool = True) -> dict:
     """Validate, run (what is not finished) and summarize a sweep. Returns a report dict:
     total, ran, skipped, not_converged, statuses, numba_compiled, numba_cache_hits, seconds.
 
-    Raises SweepError for bad input (nothing has run then)."""
+    Runs that ended in status ``error`` are retried unless skip_errors; force reruns all. The
+    output folder is locked while the sweep runs (see _FolderLock). Raises SweepError for bad
+    input (nothing has run then), a folder in use by another sweep, a folder that cannot be
+    written or a full disk (the message says which; finished runs are kept)."""
+    from .fileio import OutputError, check_free_space, check_out_dir, describe_write_error
+
     sweep = load_sweep(path)
     errors = validate_runs(sweep)
     if errors:
         raise SweepError(f"{len(sweep.runs)} runs expanded from {path}; invalid runs (nothing was run):\n"
                          + "\n".join("  " + e for e in errors))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        check_out_dir(out)
+    except OutputError as exc:
+        raise SweepError(str(exc)) from None
+    with _FolderLock(out):
+        try:
+            check_free_space(out, 0)
+            return _run_locked(sweep, out, workers, dask, force, skip_errors, stream, plots)
+        except OSError as exc:  # a full disk (or the folder made read-only) while writing
+            raise SweepError(describe_write_error(exc, out) + "; finished runs are kept, rerun to continue") from None
+
+
+def _run_locked(sweep: Sweep, out: Path, workers, dask, force, skip_errors, stream, plots) -> dict:
     _atomic_write(out / "sweep.yaml", sweep.path.read_bytes())
-    todo = [r for r in sweep.runs if force or not finished(out, r)]
+    todo = [r for r in sweep.runs if force or not finished(out, r, skip_errors)]
     skipped = len(sweep.runs) - len(todo)
+    retried = 0 if force or skip_errors else sum(
+        1 for r in todo if finished(out, r, skip_errors=True))
     known = {r.run_id for r in sweep.runs}
     strays = [p.name for p in out.iterdir() if p.is_dir() and p.name.startswith("run-") and p.name not in known]
     n_workers = workers or os.cpu_count() or 1
@@ -792,6 +950,8 @@ def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, 
              f"a Dask LocalCluster of {n_workers} workers" if dask else f"{min(n_workers, max(1, len(todo)))} local worker processes")
     stream.write(f"sweep {sweep.path.name}: {len(sweep.runs)} runs ({sweep.spec.sweep.mode} over "
                  f"{', '.join(sweep.varied)}); {skipped} already finished (skipped), {len(todo)} to run on {where}\n")
+    if retried:
+        stream.write(f"  {retried} ended in error (retried; --skip-errors keeps them)\n")
     if strays:
         stream.write(f"  note: {len(strays)} run folders in {out} belong to no run of this sweep (left alone)\n")
     stream.flush()
@@ -820,17 +980,25 @@ def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, 
         report["warm_s"] += rec["seconds"]
 
     interrupted = False
+    failed: OSError | None = None
     try:
         if todo:
             if dask:
                 _run_dask(todo, sweep, out, n_workers, dask, on_done, on_warm)
             else:
                 _run_local(todo, sweep, out, min(n_workers, len(todo)), on_done, on_warm)
-    except KeyboardInterrupt:
-        interrupted = True
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (Terminated)
+        interrupted = str(exc) or True
+    except OSError as exc:  # writing a run failed (full disk): the pool is already stopped
+        failed = exc
     finally:
         prog.close()
-        rows = build_summary(sweep, out)
+        try:
+            rows = build_summary(sweep, out)
+        except OSError as exc:
+            failed = failed or exc
+    if failed is not None:
+        raise failed
     if plots:
         make_plots(sweep, rows, out)
     statuses: dict[str, int] = {}
@@ -844,18 +1012,31 @@ def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, 
 
 
 def main(args) -> int:
-    """``python app.py sweep FILE --out DIR [--workers N] [--dask local|tcp://host:8786] [--force]``.
+    """``python app.py sweep FILE --out DIR [--workers N] [--dask local|tcp://host:8786] [--force]
+    [--skip-errors]``.
 
     Exit status: 0 all runs converged, 1 some did not converge or failed (the count is printed),
-    2 bad input (nothing run), 130 interrupted (finished runs are kept; rerun to continue)."""
+    2 bad input (nothing run), an --out in use by another sweep, or a full disk; 130 interrupted
+    (Ctrl-C, SIGTERM or SIGHUP: workers stopped, finished runs kept; rerun to continue)."""
     if args.workers is not None and args.workers < 1:
         print("error: --workers must be at least 1", file=sys.stderr)
         return 2
+    import threading
+
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+            if sig is not None:
+                handlers[sig] = signal.signal(sig, _on_terminate)
     try:
-        rep = run_sweep(args.sweep, args.out, workers=args.workers, dask=args.dask, force=args.force)
+        rep = run_sweep(args.sweep, args.out, workers=args.workers, dask=args.dask, force=args.force,
+                        skip_errors=getattr(args, "skip_errors", False))
     except SweepError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        for sig, h in handlers.items():
+            signal.signal(sig, h)
     out = Path(args.out)
     st = ", ".join(f"{n} {s}" for s, n in sorted(rep["statuses"].items(), key=lambda kv: -kv[1]))
     print(f"{rep['total']} runs: {st}; ran {rep['ran']} in {rep['seconds']:.1f} s, skipped {rep['skipped']} "

@@ -103,8 +103,9 @@ def test_set_overrides(tmp_path):
     assert s.solver.C == 3 and s.fabric.divisions == (80, 80) and s.constraints[0].axes == "xz"
     with pytest.raises(SceneError, match=r"--set constraints.5.axes: index 5 out of range \(list has 1 items\)"):
         load_scene(p, ["constraints.5.axes=x"])
+    # a bad value given by --set is blamed on the --set argument, not a line of the file (issue 15.23)
     msg = _err(tmp_path, GOOD, ["solver.C=0.5"])
-    assert msg == "x.yaml:10: solver.C: must be greater than 1 (got 0.5)"
+    assert msg == "--set solver.C=0.5: solver.C: must be greater than 1 (got 0.5)"
 
 
 def test_relative_paths_resolve_against_scene_folder(tmp_path):

@@ -224,7 +224,8 @@ def test_sweep_on_a_separate_dask_scheduler_over_tcp(tmp_path):
 def test_failing_run_recorded_exit_status_counts_it_and_force_reruns(tmp_path, capsys):
     """A run that raises (the initial sheet penetrates the mold) records status 'error' and the
     message; one stopped by max_iterations records its status; the others still run; exit 1 says
-    how many did not converge. A rerun skips finished runs (failed ones included); --force reruns
+    how many did not converge. A rerun with skip_errors skips finished runs (failed ones
+    included); without it the run that ended in error is retried (issue 15.14); --force reruns
     them all. Plots are written per (output, parameter)."""
     p = _cap_sweep(tmp_path, {"initial.lift": [0.03, 0.0, 0.03], "solver.max_iterations": [100000, 100000, 3]},
                    mode="zip", outputs=("iterations", "max_contact_pressure_mmhg"))
@@ -241,9 +242,15 @@ def test_failing_run_recorded_exit_status_counts_it_and_force_reruns(tmp_path, c
         f"{o}__vs__{q}.png" for o in ("iterations", "max_contact_pressure_mmhg")
         for q in ("initial.lift", "solver.max_iterations"))
     mtimes = {d.name: (d / "summary.json").stat().st_mtime_ns for d in out.glob("run-*")}
-    rep = sw.run_sweep(p, out, workers=2, stream=io.StringIO(), plots=False)
+    rep = sw.run_sweep(p, out, workers=2, stream=io.StringIO(), plots=False, skip_errors=True)
     assert rep["ran"] == 0 and rep["skipped"] == 3
     assert mtimes == {d.name: (d / "summary.json").stat().st_mtime_ns for d in out.glob("run-*")}
+    rep = sw.run_sweep(p, out, workers=2, stream=io.StringIO(), plots=False)
+    assert rep["ran"] == 1 and rep["skipped"] == 2  # the error run is retried by default
+    err_id = rows[1]["run_id"]
+    assert {n: t for n, t in mtimes.items() if n != err_id} == {
+        d.name: (d / "summary.json").stat().st_mtime_ns for d in out.glob("run-*") if d.name != err_id}
+    mtimes = {d.name: (d / "summary.json").stat().st_mtime_ns for d in out.glob("run-*")}
     rep = sw.run_sweep(p, out, workers=2, force=True, stream=io.StringIO(), plots=False)
     assert rep["ran"] == 3 and rep["skipped"] == 0
     assert all((d / "summary.json").stat().st_mtime_ns > mtimes[d.name] for d in out.glob("run-*"))

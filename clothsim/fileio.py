@@ -1,0 +1,189 @@
+"""Reading input files with bounds and writing output files safely.
+
+Reading: :func:`read_text` refuses what is not a regular file (``/dev/zero``, a FIFO), a file
+larger than a stated cap and text that is not UTF-8 (naming the line), each with one line
+``file[:line]: what`` in the caller's error class. :func:`load_yaml` also refuses YAML whose
+aliases expand past a budget (billion-laughs "YAML bombs") before anything is built from it.
+
+Writing: :func:`atomic_write_bytes` writes a temporary name beside the target and renames it, and
+removes the temporary file if anything fails (a full disk included); :func:`check_out_dir` makes
+sure an output folder can be written, and :func:`check_free_space` that it has room, before a
+long computation starts.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+#: largest scene, sweep or CSV table file read [bytes]
+TEXT_LIMIT = 10 * 2**20
+#: most YAML nodes that aliases may add by repeating an anchored node (a scene with shared tables
+#: uses a few hundred; a billion-laughs bomb needs millions)
+ALIAS_BUDGET = 100_000
+#: free space kept beyond the estimated size of the files about to be written [bytes]
+SPACE_MARGIN = 1 * 2**20
+
+
+class OutputError(OSError):
+    """An output folder cannot be written (exists as a file, read-only, full disk); ``str`` is the
+    user-facing message."""
+
+    def __str__(self) -> str:  # OSError's str would prefix the errno
+        return self.args[0] if self.args else ""
+
+
+def read_text(path: str | Path, error: type[Exception], *, limit: int = TEXT_LIMIT,
+              encoding: str = "utf-8") -> str:
+    """The text of a regular file of at most ``limit`` bytes, decoded as UTF-8 (``utf-8-sig`` also
+    strips a byte-order mark). Raises ``error("file[:line]: what")`` otherwise."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    import stat
+
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{path}: not a regular file")
+    if st.st_size > limit:
+        raise error(f"{path}: too large ({st.st_size / 2**20:.1f} MB; at most {limit / 2**20:.0f} MB)")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(data) > limit:  # grew since the stat
+        raise error(f"{path}: too large (at most {limit / 2**20:.0f} MB)")
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise error(f"{path}:{line}: not UTF-8 text (byte 0x{data[exc.start]:02x}; save the file as UTF-8)") from None
+
+
+def _expanded_size(node: yaml.Node, memo: dict[int, int]) -> int:
+    """Number of nodes the tree under ``node`` has once every alias is expanded (memoised per
+    node, so the count itself costs one pass over the distinct nodes)."""
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    memo[key] = 1  # a recursive structure counts once per cycle
+    n = 1
+    if isinstance(node, yaml.SequenceNode):
+        n += sum(_expanded_size(v, memo) for v in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        n += sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+    memo[key] = n
+    return n
+
+
+def _distinct_nodes(node: yaml.Node, seen: set[int]) -> None:
+    stack = [node]
+    while stack:
+        nd = stack.pop()
+        if id(nd) in seen:
+            continue
+        seen.add(id(nd))
+        if isinstance(nd, yaml.SequenceNode):
+            stack.extend(nd.value)
+        elif isinstance(nd, yaml.MappingNode):
+            for k, v in nd.value:
+                stack.extend((k, v))
+
+
+def load_yaml(text: str, source: str, error: type[Exception], *,
+              budget: int = ALIAS_BUDGET) -> tuple[Any, yaml.Node | None]:
+    """(data, node tree) of YAML text with the safe loader; the tree gives line numbers for error
+    messages. Refuses, before building any object, a document whose aliases would add more than
+    ``budget`` nodes when expanded (a YAML bomb). Syntax errors raise ``error`` with the line."""
+    try:
+        loader = yaml.SafeLoader(text)
+        try:
+            root = loader.get_single_node()
+            if root is None:
+                return None, None
+            seen: set[int] = set()
+            _distinct_nodes(root, seen)
+            extra = _expanded_size(root, {}) - len(seen)
+            if extra > budget:
+                raise error(f"{source}: aliases expand to {extra:,} more YAML nodes than the file holds "
+                            f"(at most {budget:,}): refused as a YAML bomb")
+            return loader.construct_document(root), root
+        finally:
+            loader.dispose()
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{source}:{mark.line + 1}" if mark is not None else str(source)
+        raise error(f"{where}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
+    except RecursionError:
+        raise error(f"{source}: YAML nested too deeply") from None
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary name beside ``path``, fsync, rename over ``path``. On any
+    failure the temporary file is removed and the error raised (``path`` is left as it was)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def check_out_dir(out: str | Path, flag: str = "--out") -> Path:
+    """Create the output folder if needed and prove it writable (a probe file is created and
+    removed: permission bits do not stop root, a read-only file system does). Raises OutputError
+    ``--out DIR: why``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{flag} {out}: exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{flag} {out}: cannot create the folder ({exc.strerror or exc})") from None
+    probe = out / f".clothsim-probe{os.getpid()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"{flag} {out}: cannot write there ({exc.strerror or exc})") from None
+    return out
+
+
+def check_free_space(out: str | Path, need: int, flag: str = "--out") -> None:
+    """Raise OutputError unless the file system of ``out`` has ``need`` bytes (+ a margin) free."""
+    try:
+        free = shutil.disk_usage(out).free
+    except OSError:
+        return  # unknown: the writes themselves will tell
+    if free < need + SPACE_MARGIN:
+        raise OutputError(f"{flag} {out}: not enough free space (need about {(need + SPACE_MARGIN) / 2**20:.1f} MB, "
+                          f"{free / 2**20:.1f} MB free)")
+
+
+def describe_write_error(exc: OSError, out: str | Path, flag: str = "--out") -> str:
+    """The one-line message for a failed write into ``out``."""
+    if isinstance(exc, OutputError):
+        return str(exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{flag} {out}: the disk is full ({exc.strerror}); nothing partial was left behind"
+    return f"{flag} {out}: cannot write ({exc.strerror or exc})"

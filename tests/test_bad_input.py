@@ -1,0 +1,308 @@
+"""Every bad input is refused with exit status 2 and a one-line ``file:line: field: message``,
+never a traceback (issue 15, items 15, 16, 17, 21, 23): unreadable files, YAML bombs, values
+whose forces would overflow, --out that cannot be written (checked before the solve)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT, scene_dict
+
+from clothsim import cli
+from clothsim.config import SceneError, load_scene
+from clothsim.material import MaterialError, MaterialWarning, parse_table_csv
+
+
+def _write(tmp_path, d, name="s.yaml"):
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(d, sort_keys=False))
+    return p
+
+
+def _main(capsys, *argv):
+    """(exit status, stderr) of the command line run in this process."""
+    try:
+        rc = cli.main(list(argv))
+    except SystemExit as exc:  # argparse refusals
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return rc, err
+
+
+@pytest.fixture
+def no_solve(monkeypatch):
+    """Fail the test if a solve starts (the input must be refused before it)."""
+    import clothsim.simulation as simulation
+
+    def boom(*a, **k):
+        raise AssertionError("the solve ran before the bad input was refused")
+
+    monkeypatch.setattr(simulation, "solve", boom)
+
+
+# ----------------------------------------------------------------------------- unreadable files
+
+
+def test_non_utf8_scene_refused_for_run_and_view(tmp_path, capsys, no_solve):
+    p = tmp_path / "latin.yaml"
+    p.write_bytes(yaml.safe_dump(scene_dict()).encode() + "# caf\xe9\n".encode("latin-1"))
+    line = p.read_bytes().count(b"\n")
+    rc, err = _main(capsys, "run", str(p))
+    assert rc == 2 and f"latin.yaml:{line}: not UTF-8 text" in err
+    rc, err = _main(capsys, "view", str(p), "--no-browser")
+    assert rc == 2 and f"latin.yaml:{line}: not UTF-8 text" in err
+
+
+def test_latin1_csv_table_refused_with_its_line(tmp_path, capsys):
+    csv = tmp_path / "t.csv"
+    csv.write_bytes("strain,tension\n0,0\n0.1,10\n# mesur\xe9\n".encode("latin-1"))
+    s = _write(tmp_path, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}))
+    with pytest.raises(MaterialError, match=r"t\.csv:4: not UTF-8 text"):
+        load_scene(s).tables()
+    rc, err = _main(capsys, "run", str(s))
+    assert rc == 2 and "t.csv:4: not UTF-8 text" in err
+
+
+@pytest.mark.parametrize("what", ["scene", "csv"])
+def test_dev_zero_and_oversized_files_refused(tmp_path, capsys, what):
+    if what == "scene":
+        rc, err = _main(capsys, "run", "/dev/zero")
+        assert rc == 2 and "/dev/zero: not a regular file" in err
+        big = tmp_path / "big.yaml"
+        with open(big, "wb") as fh:
+            fh.write(b"name: x\n")
+            fh.seek(11 * 2**20)
+            fh.write(b"\n")
+        rc, err = _main(capsys, "run", str(big))
+        assert rc == 2 and "big.yaml: too large" in err
+    else:
+        s = _write(tmp_path, scene_dict(**{"fabric.weft": {"csv": "/dev/zero"}}))
+        rc, err = _main(capsys, "run", str(s))
+        assert rc == 2 and "/dev/zero: not a regular file" in err
+
+
+def test_bad_initial_file_refused(tmp_path, capsys):
+    s = _write(tmp_path, scene_dict())
+    good = tmp_path / "good.npz"
+    np.savez_compressed(good, positions=np.zeros((11, 3, 3)))
+    data = good.read_bytes()
+    bad = {
+        "trunc.npz": data[: len(data) // 2],
+        "zeros.npz": b"PK\x03\x04" + bytes(60),
+        "text.npz": b"not an npz at all\n",
+    }
+    for name, b in bad.items():
+        (tmp_path / name).write_bytes(b)
+    np.savez(tmp_path / "complex.npz", positions=np.zeros((11, 3, 3), complex))
+    for name in [*bad, "complex.npz"]:
+        rc, err = _main(capsys, "run", str(s), "--quiet", "--set", f"initial.file={tmp_path / name}")
+        assert rc == 2, (name, err)
+        assert f"{name}: initial.file:" in err, err
+
+
+# ----------------------------------------------------------------------------- --out checked first
+
+
+def test_out_that_is_a_file_refused_before_the_solve(tmp_path, capsys, no_solve):
+    s = _write(tmp_path, scene_dict())
+    rc, err = _main(capsys, "run", str(s), "--out", "/etc/passwd")
+    assert rc == 2 and "--out /etc/passwd: exists and is not a folder" in err
+
+
+def test_out_in_a_read_only_folder_refused_before_the_solve(tmp_path, capsys, monkeypatch, no_solve):
+    s = _write(tmp_path, scene_dict())
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    import errno
+
+    import clothsim.fileio as fileio
+
+    real_open = os.open
+
+    def ro_open(path, flags, *a, **k):  # a read-only file system refuses creation even to root
+        if str(path).startswith(str(ro)) and flags & os.O_CREAT:
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real_open(path, flags, *a, **k)
+
+    monkeypatch.setattr(fileio.os, "open", ro_open)
+    rc, err = _main(capsys, "run", str(s), "--out", str(ro))
+    assert rc == 2 and f"--out {ro}: cannot write there (Read-only file system)" in err
+    assert list(ro.iterdir()) == []
+
+
+def test_upload_limit_nan_refused():
+    r = subprocess.run([sys.executable, str(ROOT / "app.py"), "view", "--upload-limit-mb", "nan", "--no-browser"],
+                       capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2 and "--upload-limit-mb: must be a positive finite number" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+# ----------------------------------------------------------------------------- values refused
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("gravity", {"areal_density": math.inf}, "gravity.areal_density: must be positive and finite"),
+    ("gravity", {"areal_density": 0.2, "g": math.nan}, "gravity.g: must be positive and finite"),
+    ("gravity", {"areal_density": 1e300}, "gravity.areal_density: at most 1e+04 kg/m^2"),
+    ("shear", {"stiffness": math.inf}, "shear.stiffness: must be positive and finite"),
+    ("bending", {"stiffness": 1e308}, "bending.stiffness: at most 1e+09 N/m"),
+    ("fabric.warp", {"strain": [0, 1], "tension": [0, 1e300]}, "fabric.warp.tension: at most 1e+09 N/m"),
+    ("fabric.warp", {"strain": [0, 1], "stress": [0, 1e300]}, "fabric.warp.stress: at most 1e+12 Pa"),
+    ("initial.wrap", {"radius": 0.1, "axis": [0, 0, 0]}, "initial.wrap.axis: must be a non-zero finite vector"),
+    ("initial.wrap", {"radius": 0.1, "axis": [math.nan, 0, 1]}, "initial.wrap.axis: must be a non-zero finite vector"),
+    ("initial.wrap", {"radius": math.inf}, "initial.wrap.radius: must be positive and finite"),
+    ("initial.wrap", {"radius": 0.1, "center": [1e300, 0, 0]}, "initial.wrap.center: |x| must be at most 1e+06 m"),
+    ("solver.time_limit_s", math.nan, "solver.time_limit_s: must be positive and finite"),
+    ("solver.time_limit_s", -1, "solver.time_limit_s: must be positive and finite"),
+    ("solver.time_limit_s", math.inf, "solver.time_limit_s: must be positive and finite"),
+    ("fabric.origin", [1e308, 1e308, 1e308], "fabric.origin: |x| must be at most 1e+06 m"),
+    ("fabric.size", [1e300, 1], "fabric.size: at most 1e+06 m"),
+    ("fabric.divisions", [True, True], "fabric.divisions.0: must be an integer"),
+    ("solver.max_iterations", True, "solver.max_iterations: must be an integer"),
+    ("initial.lift", 1e300, "initial.lift: |x| must be at most 1e+06 m"),
+    ("constraints.1.displacement", [1e300, 0, 0], "constraints.1.displacement: |x| must be at most 1e+06 m"),
+])
+def test_values_that_would_overflow_or_mean_nothing_are_refused(tmp_path, field, value, message):
+    s = _write(tmp_path, scene_dict(**{field: value}))
+    with pytest.raises(SceneError) as exc:
+        load_scene(s)
+    assert "s.yaml:" in str(exc.value) and message in str(exc.value), str(exc.value)
+
+
+def test_time_limit_still_accepts_none_and_positive(tmp_path):
+    assert load_scene(_write(tmp_path, scene_dict(**{"solver.time_limit_s": 2.5}))).solver.time_limit_s == 2.5
+    assert load_scene(_write(tmp_path, scene_dict())).solver.time_limit_s is None
+    # an integer-valued float is still an integer count
+    assert load_scene(_write(tmp_path, scene_dict(**{"solver.max_iterations": 2e5}))).solver.max_iterations == 200000
+
+
+def test_summary_of_a_diverged_run_is_strict_json(tmp_path):
+    from clothsim.simulation import solve
+
+    res = solve(load_scene(_write(tmp_path, scene_dict(**{"solver.max_iterations": 2}))))
+    res.solve.residual = math.nan
+    res.solve.relative_residual = math.inf
+    res.solve.energy = -math.inf
+    res.save(tmp_path / "out")
+
+    def refuse(name):
+        raise ValueError(f"not strict JSON: {name}")
+
+    s = json.loads((tmp_path / "out" / "summary.json").read_text(), parse_constant=refuse)
+    assert s["residual"] is None and s["relative_residual"] is None and s["energy"] is None
+
+
+# ----------------------------------------------------------------------------- YAML bombs
+
+BOMB = """\
+a: &a [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]
+b: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a]
+c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b, *b]
+d: &d [*c, *c, *c, *c, *c, *c, *c, *c, *c, *c]
+e: &e [*d, *d, *d, *d, *d, *d, *d, *d, *d, *d]
+f: &f [*e, *e, *e, *e, *e, *e, *e, *e, *e, *e]
+g: &g [*f, *f, *f, *f, *f, *f, *f, *f, *f, *f]
+h: &h [*g, *g, *g, *g, *g, *g, *g, *g, *g, *g]
+i: &i [*h, *h, *h, *h, *h, *h, *h, *h, *h, *h]
+"""
+
+
+def test_yaml_bomb_scene_refused_before_validation(tmp_path, capsys, no_solve):
+    body = yaml.safe_dump(scene_dict(**{"mold": {"sphere": {"center": [0, 0, -1], "radius": 0.5}}}), sort_keys=False)
+    p = tmp_path / "bomb.yaml"
+    p.write_text("x-bomb:\n" + "\n".join("  " + ln for ln in BOMB.splitlines()) + "\n" + body.replace(
+        "mold:\n", "mold:\n  closed: *i\n", 1))
+    rc, err = _main(capsys, "run", str(p), "--out", str(tmp_path / "out"))
+    assert rc == 2 and "bomb.yaml:" in err and "aliases expand" in err
+    # ordinary anchors and aliases (a shared table) still work
+    ok = tmp_path / "ok.yaml"
+    d = scene_dict()
+    ok.write_text(yaml.safe_dump(d, sort_keys=False).replace("warp:\n", "warp: &tab\n", 1).split("weft:")[0]
+                  + "weft: *tab\n" + yaml.safe_dump({k: v for k, v in d.items() if k != "fabric"}, sort_keys=False))
+    sc = load_scene(ok)
+    assert sc.fabric.weft == sc.fabric.warp
+
+
+def test_yaml_bomb_in_set_and_sweep_file_refused(tmp_path):
+    from clothsim import sweep as sw
+
+    s = _write(tmp_path, scene_dict())
+    flow = "[" + ", ".join(["x"] * 10) + "]"
+    with pytest.raises(SceneError, match="aliases expand"):
+        load_scene(s, ["name=" + "{a: &a " + flow + ", b: &b [" + ", ".join(["*a"] * 10) + "], c: &c ["
+                       + ", ".join(["*b"] * 10) + "], d: &d [" + ", ".join(["*c"] * 10) + "], e: &e ["
+                       + ", ".join(["*d"] * 10) + "], f: [" + ", ".join(["*e"] * 10) + "]}"])
+    p = tmp_path / "sweep.yaml"
+    p.write_text(BOMB.replace("i: &i", "i: &i") + f"base: {s}\nsweep:\n  parameters:\n    solver.C: *i\n")
+    with pytest.raises(sw.SweepError, match="aliases expand"):
+        sw.load_sweep(p)
+    # a bomb in the sweep's base scene too
+    base = tmp_path / "base.yaml"
+    base.write_text(BOMB.replace("a: &a", "x-a: &a") + s.read_text())
+    p.write_text(f"base: {base}\nsweep:\n  parameters:\n    solver.C: [2, 3]\n")
+    with pytest.raises(sw.SweepError, match=r"base\.yaml: aliases expand"):
+        sw.load_sweep(p)
+
+
+# ----------------------------------------------------------------------------- implausible strains
+
+
+def test_strain_typed_as_percent_warns(tmp_path):
+    with pytest.warns(MaterialWarning, match=r"t\.csv: strain: 30 \(3000 %\)"):
+        parse_table_csv("strain,tension\n0,0\n10,20\n30,80\n", "t.csv")
+    with pytest.warns(MaterialWarning, match=r"fabric\.weft\.strain: 30 \(3000 %\)"):
+        load_scene(_write(tmp_path, scene_dict(**{"fabric.weft": {"strain": [0, 10, 30], "tension": [0, 20, 80]}})))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scene(_write(tmp_path, scene_dict()))  # a plausible table: no warning
+        parse_table_csv("strain [%],tension\n0,0\n10,20\n30,80\n", "t.csv")
+
+
+def test_strain_warning_printed_by_the_cli(tmp_path, capsys):
+    s = _write(tmp_path, scene_dict(**{"fabric.weft": {"strain": [0, 10, 30], "tension": [0, 20, 80]}}))
+    rc, err = _main(capsys, "run", str(s), "--quiet")
+    assert rc == 0
+    assert "warning: fabric.weft.strain: 30 (3000 %)" in err
+
+
+# ----------------------------------------------------------------------------- the CLI for a newcomer
+
+
+def test_set_errors_blamed_on_the_set_argument(tmp_path, capsys, no_solve):
+    s = _write(tmp_path, scene_dict())
+    rc, err = _main(capsys, "run", str(s), "--set", "solver.Cx=1")
+    assert rc == 2 and "--set solver.Cx=1: solver.Cx: unknown field" in err
+    assert "s.yaml:" not in err
+    rc, err = _main(capsys, "run", str(s), "--set", "solver.C=0.5")
+    assert rc == 2 and "--set solver.C=0.5: solver.C: must be greater than 1" in err
+
+
+def test_scene_path_alone_opens_the_viewer(tmp_path, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(cli, "cmd_view", lambda args: seen.setdefault("scene", args.scene) and 0)
+    s = _write(tmp_path, scene_dict())
+    assert cli.main([str(s), "--no-browser"]) == 0
+    assert seen["scene"] == str(s)
+
+
+def test_every_option_has_help_and_bench_writes_to_results():
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    for name, p in sub.choices.items():
+        for a in p._actions:
+            if a.dest == "help":
+                continue
+            assert a.help, f"{name} {a.option_strings or a.dest}: no help text"
+            if a.default not in (None, False, [], "==SUPPRESS==") and a.option_strings:
+                assert "%(default)s" in a.help or str(a.default) in a.help, f"{name} {a.option_strings}: default not shown"
+    assert sub.choices["bench"].parse_args([]).out == os.path.join("results", "bench")
