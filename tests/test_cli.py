@@ -77,17 +77,17 @@ def test_exit_status_2_and_message_on_bad_scene(tmp_path):
 
 
 def test_exit_status_2_on_bad_mold_input(tmp_path):
-    """Bad mold specs and mold files end in exit 2 with one "file:line: mold.field: message"
-    or "mold file: line: reason" line and no traceback (issue 15: these gave a traceback and
+    """Bad mold specs and mold files end in exit 2 with one "--set ...: mold.field: message"
+    (the argument that gave the value) or "mold file: line: reason" line and no traceback (issue 15: these gave a traceback and
     exit 1, or unbounded memory for /dev/zero)."""
     cfg = str(ROOT / "configs" / "thermoform.yaml")
     huge = tmp_path / "huge.txt"
     huge.write_text("0 0 0 0\n1 1 0 0\n99999999999999999999999 0 1 0\n0 1 2\n")
     cases = [
-        ("mold.scale=abc", "thermoform.yaml:14: mold.scale: must be a positive number"),
-        ("mold.scale={a: 1}", "thermoform.yaml:14: mold.scale: must be a positive number"),
-        ("mold.path=5", "thermoform.yaml:14: mold.path: Input should be a valid string"),
-        ("mold.closed=maybe", "thermoform.yaml:14: mold.closed: Input should be a valid boolean"),
+        ("mold.scale=abc", "--set mold.scale=abc: mold.scale: must be a positive number"),
+        ("mold.scale={a: 1}", "--set mold.scale={a: 1}: mold.scale: must be a positive number"),
+        ("mold.path=5", "--set mold.path=5: mold.path: Input should be a valid string"),
+        ("mold.closed=maybe", "--set mold.closed=maybe: mold.closed: Input should be a valid boolean"),
         (f"mold.path={huge}", "huge.txt: line 3: point index: '99999999999999999999999' is out of range"),
         ("mold.path=/dev/zero", "/dev/zero: not a regular file"),
     ]

@@ -134,13 +134,13 @@ MOLD_GOOD = GOOD + "mold: {path: m.stl, scale: 0.001}\n"
     "overrides, text, message",
     [
         (["mold.scale=abc"], MOLD_GOOD,
-         "x.yaml:11: mold.scale: must be a positive number or three positive numbers (got 'abc')"),
+         "--set mold.scale=abc: mold.scale: must be a positive number or three positive numbers (got 'abc')"),
         (["mold.scale={a: 1}"], MOLD_GOOD,
-         "x.yaml:11: mold.scale: must be a positive number or three positive numbers (got {'a': 1})"),
+         "--set mold.scale={a: 1}: mold.scale: must be a positive number or three positive numbers (got {'a': 1})"),
         (["mold.scale=[1, 2]"], MOLD_GOOD,
-         "x.yaml:11: mold.scale: must be a positive number or three positive numbers (got [1, 2])"),
-        (["mold.path=5"], MOLD_GOOD, "x.yaml:11: mold.path: Input should be a valid string"),
-        (["mold.closed=maybe"], MOLD_GOOD, "x.yaml:11: mold.closed: Input should be a valid boolean"),
+         "--set mold.scale=[1, 2]: mold.scale: must be a positive number or three positive numbers (got [1, 2])"),
+        (["mold.path=5"], MOLD_GOOD, "--set mold.path=5: mold.path: Input should be a valid string"),
+        (["mold.closed=maybe"], MOLD_GOOD, "--set mold.closed=maybe: mold.closed: Input should be a valid boolean"),
         (None, MOLD_GOOD.replace("scale: 0.001}", "closed: 1}"), "x.yaml:11: mold.closed: Input should be a valid boolean"),
         (None, MOLD_GOOD.replace("scale: 0.001}", "rotate: [0, 90]}"), "x.yaml:11: mold.rotate.2: missing"),
         (None, MOLD_GOOD.replace("scale: 0.001}", "colour: red}"), "x.yaml:11: mold.colour: unknown field"),
@@ -160,8 +160,9 @@ MOLD_GOOD = GOOD + "mold: {path: m.stl, scale: 0.001}\n"
 )
 def test_mold_spec_typed_with_file_line(tmp_path, overrides, text, message):
     """The mold spec is a typed union (mesh file or one primitive): every bad key or value is
-    reported like any other scene field, file:line: mold.field: what (issue 15: --set
-    mold.scale=abc, mold.path=5 and a non-bool mold.closed gave tracebacks or passed)."""
+    reported like any other scene field, file:line: mold.field: what, or blamed on the --set
+    argument that gave it (issue 15: --set mold.scale=abc, mold.path=5 and a non-bool
+    mold.closed gave tracebacks or passed)."""
     assert _err(tmp_path, text, overrides) == message
 
 
