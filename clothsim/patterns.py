@@ -40,8 +40,8 @@ circles and circular arcs by the sagitta ``r (1 - cos(phi/2)) <= tolerance`` (ve
 circle); elliptical arcs by the interpolation bound ``h^2 / 8 * max|p''| <= tolerance``; Bezier
 curves (SVG quadratic/cubic, DXF splines through their exact Bezier decomposition, rational ones in
 homogeneous coordinates) by subdividing until every control point lies within ``tolerance`` of the
-chord (the convex-hull property). Only unclamped (periodic) DXF splines use ezdxf's adaptive
-flattening, which checks the error at segment midpoints. Endpoints of boundary pieces are joined
+chord (the convex-hull property); unclamped (periodic) DXF splines of degree <= 3 by the
+interpolation bound with max |p''| taken per knot span. Endpoints of boundary pieces are joined
 when they lie within ``tolerance`` of each other.
 
 **Validation** (shapely): a piece with fewer than 3 points, zero area (|A| <= 1e-9 P^2), or an outline
@@ -158,14 +158,19 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
         if key not in UNITS:
             raise PatternError(f"{label}: unknown units {units!r} (known: {', '.join(UNITS)})")
         unit_m = (key, UNITS[key])
+    data = _read_bytes(label)
     suffix = Path(label).suffix.lower()
     if suffix not in (".dxf", ".svg"):
         raise PatternError(f"{label}: unknown pattern format '{suffix or '(none)'}' (expected .dxf or .svg)")
-    data = _read_bytes(label)
-    if suffix == ".dxf":
-        raw, notes = _dxf_pieces(label, data, unit_m, tolerance)
-    else:
-        raw, notes = _svg_pieces(label, data, unit_m, tolerance)
+    try:
+        if suffix == ".dxf":
+            raw, notes = _dxf_pieces(label, data, unit_m, tolerance)
+        else:
+            raw, notes = _svg_pieces(label, data, unit_m, tolerance)
+    except PatternError:
+        raise
+    except Exception as exc:   # a file that parses but holds broken entities: one clear message
+        raise PatternError(f"{label}: cannot read the pattern ({type(exc).__name__}: {exc})") from exc
     if not raw:
         raise PatternError(f"{label}: no pattern pieces found" + (f" ({notes[-1]})" if notes else ""))
     for note in notes:
@@ -560,7 +565,7 @@ def _is_closed_entity(e) -> bool:
     if t == "CIRCLE":
         return True
     if t == "LWPOLYLINE":
-        return bool(e.closed) or (len(e) > 2 and e[0][:2] == e[-1][:2])
+        return bool(e.closed) or (len(e) > 2 and tuple(e[0][:2]) == tuple(e[-1][:2]))
     if t == "POLYLINE":
         if not (e.is_2d_polyline or e.is_3d_polyline):
             return False
@@ -607,7 +612,7 @@ def _flatten_spline(label: str, name: str, e, scale: float, tol: float) -> np.nd
     except Exception as exc:
         raise PatternError(f"{label}: piece {name}: unusable SPLINE {e.dxf.handle} ({exc})") from None
     if not bs.is_clamped:
-        return np.array([v[:2] for v in bs.flattening(tol / scale / 4)], float) * scale
+        return _flatten_unclamped(label, name, e, bs, scale, tol)
     if bs.is_rational:
         w = np.asarray(bs.weights(), float)
         if not np.all(w > 0):
@@ -618,6 +623,25 @@ def _flatten_spline(label: str, name: str, e, scale: float, tol: float) -> np.nd
     else:
         segs = [np.array([(v.x, v.y) for v in seg]) * scale for seg in bs.bezier_decomposition()]
     return _chain([_flatten_bezier(s, tol) for s in segs])
+
+
+def _flatten_unclamped(label: str, name: str, e, bs, scale: float, tol: float) -> np.ndarray:
+    """An unclamped (e.g. periodic, closed) non-rational B-spline of degree <= 3 [m], over its valid
+    domain [u_p, u_(n+1)]: on each knot span p'' is a polynomial of degree <= 1, so max |p''| is at the
+    span's ends, and steps h with h^2/8 max|p''| <= tol bound the chord error."""
+    p = bs.degree
+    if bs.is_rational or p > 3:
+        raise PatternError(f"{label}: piece {name}: SPLINE {e.dxf.handle} is unclamped and "
+                           f"{'rational' if bs.is_rational else f'of degree {p}'}: not supported")
+    knots = np.asarray(bs.knots(), float)
+    lo, hi = knots[p], knots[len(knots) - p - 1]
+    ends = np.unique(knots[(knots >= lo) & (knots <= hi)])
+    out = [np.array(_xy(bs.point(lo)))]
+    for u0, u1 in zip(ends[:-1], ends[1:]):
+        d2 = max(math.hypot(*_xy(bs.derivative(u, n=2)[2])) for u in (u0, u1)) * scale
+        n = 1 if d2 == 0 else max(1, math.ceil((u1 - u0) / math.sqrt(8.0 * tol / d2) - 1e-9))
+        out.extend(np.array(_xy(bs.point(u))) for u in u0 + (u1 - u0) * np.arange(1, n + 1) / n)
+    return np.array(out) * scale
 
 
 def _detect_units(label: str, ents, bbox) -> tuple[float, str]:
