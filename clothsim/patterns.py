@@ -27,9 +27,9 @@ with a request to declare the units. How the units were found is in every piece'
 **SVG** (read with svgelements). Every closed ``<path>``, ``<polygon>``, ``<rect>``, ``<circle>``,
 ``<ellipse>`` (or a ``<polyline>``/path whose last point meets its first) is a piece, named by its
 ``inkscape:label``, else its ``id``, else its group's label or id, else ``<tag><n>``. Transforms are
-applied. An element whose ``id``, ``class`` or label contains ``grain`` (any case) is a grainline (a
-``<line>``, polyline or path: first to last point), given to the piece of its own group (the one
-holding its midpoint when the group has several). SVG's y axis points down; outlines are returned
+applied. An element whose ``id``, ``class`` or label contains ``grain`` (any case), or that sits in
+a group so named, is a grainline (a ``<line>``, polyline or path: first to last point), given to
+the piece of its own group (the one holding its midpoint when the group has several or none). SVG's y axis points down; outlines are returned
 with y up (y -> -y), so a piece looks as it did on screen. Units: ``units=`` declares the length of
 one user unit (the root ``viewBox``'s unit); else the root ``width``/``height`` with an absolute unit
 (mm, cm, in, pt, pc, px, Q) over the ``viewBox`` give it; else user units are CSS px (1/96 in).
@@ -799,7 +799,7 @@ def _svg_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
                    f"height {attrs.get('height')}, viewBox {attrs.get('viewBox')})")
         else:
             k = UNITS["px"]
-            how = "units: px (1/96 in), the SVG gives no absolute width/height for its viewBox"
+            how = "units: px (1/96 in): the SVG has no viewBox with an absolute width or height"
     A = np.array([[to_user.a, to_user.c], [to_user.b, to_user.d]]) * np.array([[k], [-k]])
     off = np.array([to_user.e * k, -to_user.f * k])
 
@@ -816,21 +816,24 @@ def _svg_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
     def own(e) -> dict:
         return e.values.get("attributes", {}) or {}
 
-    def walk(g, gname: str | None, gkey: int):
+    def ident_of(a: dict) -> str:
+        return " ".join(str(a.get(x, "")) for x in ("id", "class", _INK_LABEL)).lower()
+
+    def walk(g, gname: str | None, gkey: int, grain_group: bool):
         nonlocal open_count
         for e in g:
             if isinstance(e, Group):
                 a = own(e)
                 gid[0] += 1
-                walk(e, a.get(_INK_LABEL) or a.get("id") or gname, gid[0])
+                is_grain = grain_group or "grain" in ident_of(a)   # a grain group belongs to its parent's piece
+                walk(e, a.get(_INK_LABEL) or a.get("id") or gname, gkey if is_grain else gid[0], is_grain)
                 continue
             if not isinstance(e, Shape):
                 continue
             a = own(e)
             tag = str(a.get("tag", type(e).__name__.lower()))
-            ident = " ".join(str(a.get(x, "")) for x in ("id", "class", _INK_LABEL)).lower()
             subpaths = _svg_subpaths(e, to_m, tol)
-            if "grain" in ident:
+            if grain_group or "grain" in ident_of(a):
                 pts = [p for p, _ in subpaths if len(p) >= 2]
                 if pts:
                     grains.append((gkey, np.array([pts[0][0], pts[-1][-1]])))
@@ -847,7 +850,7 @@ def _svg_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
             pieces.append(_RawPiece(str(name), f"{label}: <{tag}> {a.get('id') or name}", closed[0]))
             group_of.append(gkey)
 
-    walk(svg, None, 0)
+    walk(svg, None, 0, False)
     _assign_svg_grain(pieces, group_of, grains)
     notes = [how]
     if not pieces:

@@ -372,6 +372,23 @@ def test_svg_polygon_rect_exact_with_units_names_and_grain(tmp_path):
     np.testing.assert_allclose(back.grain, [1.0, 0.0], atol=1e-15)           # id "back-grain", a path
 
 
+def test_svg_grain_group_and_containment(tmp_path):
+    """Grainlines in a group named *grain* inside a piece's group, and two pieces sharing one group
+    with their grains told apart by containment."""
+    body = """
+    <g id="front"><path id="f" d="M 0 0 H 40 V 60 H 0 Z"/>
+       <g id="grainlines"><line x1="20" y1="50" x2="20" y2="10"/></g></g>
+    <polygon id="a" points="100,0 140,0 140,40 100,40"/>
+    <polygon id="b" points="150,0 190,0 190,40 150,40"/>
+    <line id="grain-b" x1="160" y1="20" x2="180" y2="20"/>
+    <line id="grain-a" x1="110" y1="10" x2="130" y2="30"/>
+    """
+    f, a, b = read_pattern(write_svg(tmp_path / "g.svg", body))
+    np.testing.assert_allclose(f.grain, [0.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(a.grain, [math.sqrt(0.5), -math.sqrt(0.5)], atol=1e-15)
+    np.testing.assert_allclose(b.grain, [1.0, 0.0], atol=1e-15)
+
+
 def test_svg_px_default_and_declared_units(tmp_path):
     """No absolute width: user units are px (1/96 in); ``units=`` declares the user unit."""
     path = write_svg(tmp_path / "px.svg", '<polygon id="a" points="0,0 96,0 96,48"/>', head='viewBox="0 0 500 500"')
