@@ -349,7 +349,7 @@ def _flatten_ellipse(c, a, b, t0: float, sweep: float, tol: float) -> np.ndarray
     else:
         step = math.sqrt(8.0 * tol / smax)
     step = min(step, math.pi / 2)
-    n = max(1, math.ceil(abs(sweep) / step - 1e-9))
+    n = max(1, math.ceil(abs(sweep) / step))
     t = t0 + sweep * np.arange(n + 1) / n
     return c + np.cos(t)[:, None] * a + np.sin(t)[:, None] * b
 
@@ -639,7 +639,7 @@ def _flatten_unclamped(label: str, name: str, e, bs, scale: float, tol: float) -
     out = [np.array(_xy(bs.point(lo)))]
     for u0, u1 in zip(ends[:-1], ends[1:]):
         d2 = max(math.hypot(*_xy(bs.derivative(u, n=2)[2])) for u in (u0, u1)) * scale
-        n = 1 if d2 == 0 else max(1, math.ceil((u1 - u0) / math.sqrt(8.0 * tol / d2) - 1e-9))
+        n = 1 if d2 == 0 else max(1, math.ceil((u1 - u0) / math.sqrt(8.0 * tol / d2)))
         out.extend(np.array(_xy(bs.point(u))) for u in u0 + (u1 - u0) * np.arange(1, n + 1) / n)
     return np.array(out) * scale
 
