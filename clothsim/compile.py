@@ -39,8 +39,15 @@ def scene_panels(scene: Scene) -> list[PanelBuild]:
     out = []
     default = {}
     for n, panel in enumerate(scene.panels):
+        outline, grain = panel.outline, panel.grain
+        if panel.pattern is not None:
+            piece = _pattern_piece(scene, n)
+            outline = piece.outline
+            if grain is None and piece.grain is not None:
+                grain = tuple(piece.grain)
         try:
-            geom = panel_geometry(panel.name, panel.outline, panel.grain, panel.spacing, panel.divisions)
+            geom = panel_geometry(panel.name, outline, grain if grain is not None else (1.0, 0.0),
+                                  panel.spacing, panel.divisions)
         except PanelError as exc:
             raise SceneError(f"panels.{n}: {exc}") from None
         thick = panel.thickness if panel.thickness is not None else fab.thickness
@@ -68,6 +75,28 @@ def scene_panels(scene: Scene) -> list[PanelBuild]:
             placement = Placement(origin, size, None, grain=tuple(g))
         out.append(PanelBuild(geom, tables[0], tables[1], placement, z=0.0))
     return out
+
+
+def _pattern_piece(scene: Scene, n: int):
+    """The piece panels.n.pattern names, read from its file (clothsim.patterns)."""
+    from .patterns import DEFAULT_TOLERANCE, PatternError, read_pattern
+
+    ref = scene.panels[n].pattern
+    where = f"panels.{n}.pattern"
+    try:
+        pieces = read_pattern(scene.resolve(ref.file), units=ref.units,
+                              tolerance=ref.tolerance if ref.tolerance is not None else DEFAULT_TOLERANCE)
+    except PatternError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+    names = [p.name for p in pieces]
+    if ref.piece is None:
+        if len(pieces) == 1:
+            return pieces[0]
+        raise SceneError(f"{where}.piece: the file has {len(pieces)} pieces ({', '.join(names)}): name one")
+    for p in pieces:
+        if p.name == ref.piece:
+            return p
+    raise SceneError(f"{where}.piece: no piece '{ref.piece}' in {ref.file} (pieces: {', '.join(names)})")
 
 
 def scene_topology(scene: Scene) -> Topology:

@@ -331,17 +331,36 @@ class PanelPlacement(_Strict):
         return self
 
 
+class PatternRef(_Strict):
+    """A panel outline read from a pattern file (clothsim.patterns): ``file`` (.dxf or .svg,
+    relative to the scene's folder), ``piece`` (its name; may be omitted when the file has one
+    piece), ``units`` (mm, cm, m, in, px; omitted: declared in the file or detected) and
+    ``tolerance`` [m] (chord error of flattened curves; default 0.5 mm)."""
+
+    file: str
+    piece: str | None = None
+    units: str | None = None
+    tolerance: float | None = None
+
+    @field_validator("tolerance")
+    @classmethod
+    def _tol(cls, v):
+        return _positive(v, 1.0, "m")
+
+
 class Panel(_Strict):
     """A pattern panel: a closed ``outline`` [m] in the panel's own plane (at least 3 points,
     not crossing itself), ``grain`` the warp direction in that plane (default x), the lattice
     ``spacing`` [m] (one value or [dx, dy]) or ``divisions`` [nx, ny] of the outline's extent
     along and across the grain, its own ``warp``/``weft`` tables and ``thickness`` (default: the
-    ``fabric``'s), and a ``placement``. The lattice follows the grain and is cut to the outline
+    ``fabric``'s), and a ``placement``. Instead of ``outline``, ``pattern`` reads the outline (and
+    the grainline, when ``grain`` is omitted) from a DXF or SVG pattern file. The lattice follows the grain and is cut to the outline
     with exact tributary areas (see clothsim.panels)."""
 
     name: str
-    outline: list[tuple[float, float]]
-    grain: tuple[float, float] = (1.0, 0.0)
+    outline: list[tuple[float, float]] | None = None
+    pattern: PatternRef | None = None
+    grain: tuple[float, float] | None = None
     spacing: float | tuple[float, float] | None = None
     divisions: tuple[Int, Int] | None = None
     warp: MaterialSpec | None = None
@@ -354,6 +373,8 @@ class Panel(_Strict):
     def _outline(cls, v):
         from .panels import PanelError, check_outline
 
+        if v is None:
+            return v
         try:
             check_outline(v, "outline")
         except PanelError as exc:
@@ -383,6 +404,8 @@ class Panel(_Strict):
     def _lattice(self):
         if (self.spacing is None) == (self.divisions is None):
             raise ValueError("give spacing or divisions (one of them)")
+        if (self.outline is None) == (self.pattern is None):
+            raise ValueError("give outline or pattern (one of them)")
         return self
 
 
@@ -850,6 +873,9 @@ class Scene(_Strict):
         """A copy whose file references (CSV tables, initial file, mold path) are absolute, so the
         scene can be written anywhere and repeated exactly."""
         d = self.to_dict()
+        for panel in d.get("panels", []):
+            if panel.get("pattern"):
+                panel["pattern"]["file"] = str(self.resolve(panel["pattern"]["file"]))
         for holder in [d["fabric"]] + d.get("panels", []):
             for name in ("warp", "weft"):
                 if (holder.get(name) or {}).get("csv"):
