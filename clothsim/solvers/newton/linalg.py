@@ -76,11 +76,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
-from ..contact import residual_from_forces as _residual_from_forces
-from ..kernels import LENGTH_EPS, first_slope, forces_and_energy, spring_vector, table_eval
-from ..mold import MOLD_MESH, mold_contact_normals, mold_query
-from .common import Driver, model_mold_args
+from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
+from ...contact import residual_from_forces as _residual_from_forces
+from ...kernels import LENGTH_EPS, first_slope, forces_and_energy, spring_vector, table_eval
+from ...mold import MOLD_MESH, mold_contact_normals, mold_query
+from ..common import Driver, model_mold_args
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
 DIRECT_DOFS = 6000
@@ -1259,7 +1259,7 @@ class NewtonLevel:
 
 def coarsen_model(model):
     """The same scene on the grid of every second node (needs even divisions), or None."""
-    from ..grid import FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SEAM, FAMILY_SHEAR, Model, _adjacency
+    from ...grid import FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SEAM, FAMILY_SHEAR, Model, _adjacency
 
     nx1, ny1 = model.grid_shape
     nx, ny = nx1 - 1, ny1 - 1
@@ -1339,7 +1339,7 @@ def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
     two contact nodes) onto its surface as contact nodes."""
-    from ..mold import mold_query_many
+    from ...mold import mold_query_many
 
     nx1, ny1 = fine_model.grid_shape
     cx1, cy1 = coarse_model.grid_shape
@@ -1411,7 +1411,7 @@ def grid_sequence(model, state, settings, kink, deadline):
     """Solve the scene on the coarser grids (coarsest first), each started from the previous
     one's solution, and return the interpolated starting state for ``model`` (or None when the
     grid cannot be coarsened or the interpolation fails)."""
-    from ..grid import State
+    from ...grid import State
 
     chain = sequencing_chain(model)
     if len(chain) < 2:
