@@ -21,13 +21,13 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    the energy (the stall on the torso mesh).
 2. Linear system: (Pi K Pi + mu Pi + (I - Pi)) dx = Pi f, where K = d^2E/dx^2 is assembled from
    ``kernels.spring_hessian_block`` (transverse term clamped >= 0 so K is positive semi-definite;
-   at and below strain 0 the first segment's slope times ``newton_kink`` replaces the zero
-   stiffness of a slack spring: this only shapes the direction, never the forces) and mu is a
-   Levenberg shift (relative to the mean diagonal) raised when a step fails. Solved by conjugate
-   gradients preconditioned with a geometric multigrid V-cycle: bilinear prolongation on the
-   structured node grid (projected by Pi on the finest level), Galerkin coarse operators,
-   symmetric 3x3-block Gauss-Seidel smoothing, a sparse LU (scipy ``splu``) on the coarsest grid.
-   Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly.
+   at and below strain 0 the first segment's slope times ``NewtonOptions.kink`` (default 1e-3)
+   replaces the zero stiffness of a slack spring: this only shapes the direction, never the
+   forces) and mu is a Levenberg shift (relative to the mean diagonal) raised when a step fails.
+   Solved by conjugate gradients preconditioned with a geometric multigrid V-cycle: bilinear
+   prolongation on the structured node grid (projected by Pi on the finest level), Galerkin
+   coarse operators, symmetric 3x3-block Gauss-Seidel smoothing, a sparse LU (scipy ``splu``) on
+   the coarsest grid. Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly.
 3. Line search on the energy along x + a dx with the paper's contact rules applied to every
    trial: a free node's move is clipped where it would enter the mold (``contact.stop_at_surface``) and
    it becomes a contact node; contact nodes are projected back onto the surface
@@ -39,8 +39,8 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    tried too. Backtracking (Armijo, halving). When the energy
    difference is below float64 resolution (close to the solution) the step is accepted if it
    lowers the residual instead; when neither can be lowered even with a large Levenberg shift,
-   the run stops with flag 3 (``stalled``), keeping the best state.
-4. Grid sequencing (``newton_sequencing``): when the grid's divisions are even and large, the
+   the step reports ``StepStatus.NO_PROGRESS`` (run status ``stalled``), keeping the best state.
+4. Grid sequencing (``NewtonOptions.sequencing``): when the grid's divisions are even and large, the
    scene is first solved on the grid with every second node (recursively), and the result is
    interpolated bilinearly and projected onto the mold as the starting point. The coarse solves
    are one recorded iteration.
@@ -68,7 +68,7 @@ Limitations:
 Layout (one module per job): ``linalg`` (BSR pattern and assembly, multigrid, PCG),
 ``active_set`` (projectors, ridge faces, blocking constraints, trial positions at the surface),
 ``iteration`` (``NewtonLevel``: the step, line search, acceptance), ``sequencing`` (coarse grids,
-prolongation, ``grid_sequence``), ``solver`` (``solve``).
+prolongation, ``grid_sequence``), ``solver`` (``NewtonSolver`` and the settings wrapper ``solve``).
 """
 
 # the private kernels are re-exported for the tests that drive one step by hand
@@ -76,7 +76,7 @@ from .active_set import PENETRATION_TOL, _apply_pi, _block_infeasible, _projecto
 from .iteration import DIRECT_DOFS, NewtonLevel
 from .linalg import COARSEST_NODES, Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system  # noqa: F401
 from .sequencing import coarsen_model, grid_sequence, prolong_state, sequencing_chain
-from .solver import solve
+from .solver import STALL_NEWTON, NewtonSolver, solve
 
-__all__ = ["solve", "NewtonLevel", "Multigrid", "coarsen_model", "prolong_state", "sequencing_chain",
-           "grid_sequence", "DIRECT_DOFS", "COARSEST_NODES", "PENETRATION_TOL"]
+__all__ = ["NewtonSolver", "solve", "STALL_NEWTON", "NewtonLevel", "Multigrid", "coarsen_model",
+           "prolong_state", "sequencing_chain", "grid_sequence", "DIRECT_DOFS", "COARSEST_NODES", "PENETRATION_TOL"]

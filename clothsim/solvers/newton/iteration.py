@@ -18,6 +18,7 @@ from ...contact import residual_from_forces as _residual_from_forces
 from ...kernels import first_slope, forces_and_energy
 from ...mold import MOLD_MESH
 from ..common import model_mold_args
+from ..options import NewtonOptions
 from .active_set import (PENETRATION_TOL, _apply_pi, _block_infeasible, _mold_distances, _projectors,
                          _trial_positions)
 from .linalg import Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system
@@ -37,7 +38,8 @@ LM_MAX = 1e4
 class NewtonLevel:
     """Newton iterations for one Model (the fine grid, or a coarse grid of the sequencing)."""
 
-    def __init__(self, model, *, kink: float = 1.0, use_multigrid: bool | None = None):
+    def __init__(self, model, *, kink: float = NewtonOptions.kink, use_multigrid: bool | None = None):
+        """kink: NewtonOptions.kink; use_multigrid: None = by size (``DIRECT_DOFS``)."""
         self.model = model
         self.has_mold, self.margs = model_mold_args(model)
         self.sargs = model.spring_args()

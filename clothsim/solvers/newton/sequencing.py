@@ -160,10 +160,11 @@ def sequencing_chain(model, min_nodes: int = 400):
     return chain[::-1]
 
 
-def grid_sequence(model, state, settings, kink, deadline):
+def grid_sequence(model, state, e, kink, deadline):
     """Solve the scene on the coarser grids (coarsest first), each started from the previous
     one's solution, and return the interpolated starting state for ``model`` (or None when the
-    grid cannot be coarsened or the interpolation fails)."""
+    grid cannot be coarsened or the interpolation fails). e [N]: the run's convergence limit (no
+    level is solved tighter); kink: NewtonOptions.kink; deadline: a ``time.perf_counter`` value."""
     from ...grid import State
 
     chain = sequencing_chain(model)
@@ -189,7 +190,7 @@ def grid_sequence(model, state, settings, kink, deadline):
         # the coarsest grid is solved tightly (it fixes the contact set), the others only as far
         # as their discretisation error matters for the next grid's start
         rel = 1e-8 if li == 0 else 1e-4
-        _solve_level(lvl, cst, max(settings.e, rel * v0), 60, deadline)
+        _solve_level(lvl, cst, max(e, rel * v0), 60, deadline)
         prev_model, prev_state = mdl, cst
     trial = state.copy()
     if not prolong_state(prev_model, prev_state, model, trial):

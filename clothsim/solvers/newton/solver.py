@@ -1,5 +1,5 @@
-"""The Newton solver's entry point: ``solve(model, state, settings, callback)`` (grid sequencing,
-then Newton iterations on the fine grid under the shared driver).
+"""The Newton solver object (grid sequencing, then Newton iterations on the fine grid) and the
+settings-based ``solve(model, state, settings, callback)`` wrapper.
 """
 
 from __future__ import annotations
@@ -9,34 +9,58 @@ import time
 
 import numpy as np
 
-from ..common import Driver
+from ..base import Solver, StepReport, StepStatus
+from ..options import NewtonOptions, newton_options
 from .iteration import NewtonLevel, _forcing
 from .sequencing import grid_sequence
 
 # Newton iterations without a 1 % gain in the best residual before the run counts as stalled
+# (the active set cycling on a faceted mold, or float64's floor); the driver applies it
 STALL_NEWTON = 100
 
 
-def solve(model, state, settings, callback=None):
-    """Relax ``state`` in place with active-set Newton (see the package docstring).
+class NewtonSolver(Solver):
+    """Active-set Newton as a solver object: ``NewtonSolver(model, NewtonOptions(kink,
+    sequencing))`` (see the package docstring for the method, its references and limitations).
 
-    Options (``SolverSettings``): ``newton_kink`` (stiffness used at and below strain 0 on
-    tension-only springs, as a fraction of the table's first slope; default 1),
-    ``newton_sequencing`` (solve coarser grids first; default True), plus the common ``e``,
-    ``max_iterations`` and ``time_limit_s``. One recorded iteration = one Newton step (the
-    grid-sequencing stage counts as one)."""
-    kink = float(getattr(settings, "newton_kink", 1e-3))
-    seq = bool(getattr(settings, "newton_sequencing", True))
-    fine = NewtonLevel(model, kink=kink)
-    drv = Driver(model, state, settings, callback, "newton")
-    holder = {"v": None, "seq_done": not seq, "best": math.inf, "since": 0}
+    One iteration = one Newton step; the grid-sequencing stage (first step, when
+    ``options.sequencing`` and the grid can be coarsened) counts as one. The driver runs one
+    iteration per batch (each is a linear solve) and stops a run whose best residual has not
+    gained 1 % in ``STALL_NEWTON`` iterations."""
 
-    def advance(n):
-        if not holder["seq_done"]:
-            holder["seq_done"] = True
-            t_lim = settings.time_limit_s
-            deadline = time.perf_counter() + (0.5 * t_lim if t_lim else 1e30)
-            trial = grid_sequence(model, state, settings, kink, deadline)
+    name = "newton"
+    Options = NewtonOptions
+    max_batch = 1
+    stall_window = STALL_NEWTON
+
+    def __init__(self, model, options: NewtonOptions | None = None):
+        super().__init__(model, options)
+        self.fine = NewtonLevel(model, kink=self.options.kink)
+        self._seq_done = not self.options.sequencing
+        self._v = None  # ||V||_inf [N] at the current state, when known
+
+    def step(self, state, n, *, e=0.0, time_left_s=None) -> StepReport:
+        res = np.empty(n)
+        en = np.empty(n)
+        done = 0
+        status = StepStatus.OK
+        while done < n:
+            k, v, E, status = self._iteration(state, e, time_left_s)
+            if k:
+                res[done], en[done] = v, E
+                done += 1
+                state.iteration += 1
+            if status != StepStatus.OK:
+                break
+        return StepReport(done, res[:done], en[:done], status)
+
+    def _iteration(self, state, e, time_left_s):
+        """One iteration: (1 or 0 iterations done, residual [N], energy [J], StepStatus)."""
+        model, fine = self.model, self.fine
+        if not self._seq_done:
+            self._seq_done = True
+            deadline = time.perf_counter() + (0.5 * time_left_s if time_left_s else 1e30)
+            trial = grid_sequence(model, state, e, self.options.kink, deadline)
             if trial is not None:
                 E_old = fine.energy_forces(state.positions, fine.F)
                 E_new = fine.energy_forces(trial.positions, fine.F)
@@ -44,35 +68,27 @@ def solve(model, state, settings, callback=None):
                 if math.isfinite(E_new) and math.isfinite(v_new) and E_new <= E_old:
                     state.positions[:] = trial.positions
                     state.in_contact[:] = trial.in_contact
-                    holder["v"] = v_new
-                    drv.record(np.array([v_new]), np.array([E_new]))
-                    return 1, 1 if v_new <= settings.e else 0
-        if holder["v"] is None:
-            holder["v"] = fine.residual(state.positions, state.in_contact)
-        v0 = holder["v"]
+                    self._v = v_new
+                    return 1, v_new, E_new, StepStatus.CONVERGED if v_new <= e else StepStatus.OK
+        if self._v is None:
+            self._v = fine.residual(state.positions, state.in_contact)
+        v0 = self._v
         prev_pos = state.positions.copy()
         prev_c = state.in_contact.copy()
-        v, E, flag = fine.iterate(state, v0, forcing=_forcing(v0, settings.e))
+        v, E, flag = fine.iterate(state, v0, forcing=_forcing(v0, e))
         if flag == 2 or not math.isfinite(v) or not np.isfinite(state.positions).all() \
                 or np.abs(state.positions).max() > fine.blowup:
             state.positions[:] = prev_pos
             state.in_contact[:] = prev_c
-            return 0, 2
+            return 0, v0, math.nan, StepStatus.DIVERGED
         if flag == 3:
-            return 0, 3
-        holder["v"] = v
-        drv.record(np.array([v]), np.array([E]))
-        if v <= settings.e:
-            return 1, 1
-        # stagnation: no 1 % gain in the best residual over STALL_NEWTON iterations (the
-        # active set cycling on a faceted mold, or float64's floor): stop as stalled
-        if v < 0.99 * holder["best"]:
-            holder["best"] = v
-            holder["since"] = 0
-        else:
-            holder["since"] += 1
-            if holder["since"] >= STALL_NEWTON:
-                return 1, 3
-        return 1, 0
+            return 0, v0, math.nan, StepStatus.NO_PROGRESS
+        self._v = v
+        return 1, v, E, StepStatus.CONVERGED if v <= e else StepStatus.OK
 
-    return drv.run(advance)
+
+def solve(model, state, settings, callback=None, history=None):
+    """Relax ``state`` in place with active-set Newton under ``settings`` (a SolverSettings:
+    ``newton_kink`` and ``newton_sequencing`` become the NewtonOptions, plus the driver's limits
+    ``e``, ``max_iterations``, ``time_limit_s``, ``stall_iterations``); returns a SolveResult."""
+    return NewtonSolver(model, newton_options(settings)).solve(state, settings, callback, history)
