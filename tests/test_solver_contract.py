@@ -235,3 +235,25 @@ def test_uniaxial_strip_in_four_load_steps_reaches_the_one_step_equilibrium(meth
     assert len(results) == 4 and all(x.converged for x in results), [x.message for x in results]
     np.testing.assert_array_equal(last.prescribed_positions, model.prescribed_positions)
     assert np.abs(steps.positions - one.positions).max() <= 1e-9
+
+
+def test_a_reused_newton_solver_notices_a_moved_state():
+    """A NewtonSolver keeps the last residual between steps only while the state is where its
+    last step left it: after a Control moves the constrained nodes, the next step starts from the
+    residual of the moved state (one solver object can run every load step)."""
+    from clothsim.solvers.common import residual
+
+    model, state = _strip(**{"solver.method": "newton"})
+    solver = NewtonSolver(model, NewtonOptions(sequencing=False))
+    rep = solver.step(state, 2)
+    assert solver._known_residual(state) == rep.residual
+    p = model.prescribed_positions.copy()
+    p[model.fixed_axes[:, 0], 0] += 1e-3
+    Control(p).apply(model, state)
+    assert solver._known_residual(state) is None
+    moved = state.copy()
+    res = solver.solve(state, RunLimits(e=1e-10))
+    fresh = NewtonSolver(model, NewtonOptions(sequencing=False)).solve(moved, RunLimits(e=1e-10))
+    assert res.converged and fresh.converged
+    assert np.abs(state.positions - moved.positions).max() <= 1e-9
+    assert residual(model, state)[0] <= 1e-10

@@ -37,7 +37,22 @@ class NewtonSolver(Solver):
         super().__init__(model, options)
         self.fine = NewtonLevel(model, kink=self.options.kink)
         self._seq_done = not self.options.sequencing
-        self._v = None  # ||V||_inf [N] at the current state, when known
+        self._v = None  # ||V||_inf [N] at (self._at_pos, self._at_contact), when known
+        self._at_pos = None
+        self._at_contact = None
+
+    def _known_residual(self, state):
+        """The residual [N] of the last iteration when ``state`` is still where it left it (the
+        state may be another one, or moved in between, e.g. by a Control), else None."""
+        if self._v is None or self._at_pos is None or not np.array_equal(self._at_pos, state.positions) \
+                or not np.array_equal(self._at_contact, state.in_contact):
+            return None
+        return self._v
+
+    def _remember(self, state, v):
+        self._v = v
+        self._at_pos = state.positions.copy()
+        self._at_contact = state.in_contact.copy()
 
     def step(self, state, n, *, e=0.0, time_left_s=None) -> StepReport:
         res = np.empty(n)
@@ -68,11 +83,11 @@ class NewtonSolver(Solver):
                 if math.isfinite(E_new) and math.isfinite(v_new) and E_new <= E_old:
                     state.positions[:] = trial.positions
                     state.in_contact[:] = trial.in_contact
-                    self._v = v_new
+                    self._remember(state, v_new)
                     return 1, v_new, E_new, StepStatus.CONVERGED if v_new <= e else StepStatus.OK
-        if self._v is None:
-            self._v = fine.residual(state.positions, state.in_contact)
-        v0 = self._v
+        v0 = self._known_residual(state)
+        if v0 is None:
+            v0 = fine.residual(state.positions, state.in_contact)
         prev_pos = state.positions.copy()
         prev_c = state.in_contact.copy()
         v, E, flag = fine.iterate(state, v0, forcing=_forcing(v0, e))
@@ -83,7 +98,7 @@ class NewtonSolver(Solver):
             return 0, v0, math.nan, StepStatus.DIVERGED
         if flag == 3:
             return 0, v0, math.nan, StepStatus.NO_PROGRESS
-        self._v = v
+        self._remember(state, v)
         return 1, v, E, StepStatus.CONVERGED if v <= e else StepStatus.OK
 
 
