@@ -22,7 +22,7 @@ from .config import Scene, SceneError
 from .compile import compile_model, compile_scene
 from .grid import Model, State
 from .results import Result
-from .solvers import SolveResult, pick_method
+from .solvers import History, SolveResult, pick_method
 from .solvers import solve as run_solver
 
 
@@ -134,15 +134,37 @@ class Simulation:
         self.status = "idle"
         self.message = ""
         self.last_result: SolveResult | None = None
-        self.hist_it: list[int] = []
-        self.hist_res: list[float] = []
-        self.hist_en: list[float] = []
-        self.hist_t: list[float] = []
-        self.total_time = 0.0
+        # the one run record: every run of this scene (start/pause segments, steps) appends to it
+        self.history = History()
         self.residual = math.nan
         self.energy = math.nan
         self.ips = 0.0
         self.version += 1
+
+    @property
+    def hist_it(self) -> np.ndarray:
+        """Iteration numbers of the cumulative history."""
+        return self.history["iteration"]
+
+    @property
+    def hist_res(self) -> np.ndarray:
+        """||V||_inf [N] after each iteration of the cumulative history."""
+        return self.history["residual"]
+
+    @property
+    def hist_en(self) -> np.ndarray:
+        """Energy [J] after each iteration of the cumulative history."""
+        return self.history["energy"]
+
+    @property
+    def hist_t(self) -> np.ndarray:
+        """Time [s] of each iteration of the cumulative history (solver time only)."""
+        return self.history["time"]
+
+    @property
+    def total_time(self) -> float:
+        """Solver wall time [s] summed over this scene's runs."""
+        return self.history.elapsed_s
 
     @property
     def method(self) -> str:
@@ -201,20 +223,13 @@ class Simulation:
             self.status = "running"
             self._pause_requested = False
         try:
-            res = run_solver(self.model, self.state, settings, self._callback)
+            res = run_solver(self.model, self.state, settings, self._callback, self.history)
         except Exception as exc:  # keep the state, report the failure
             with self._lock:
                 self.status = "error"
                 self.message = f"{type(exc).__name__}: {exc}"
             raise
         with self._lock:
-            h = res.history
-            offset = self.total_time
-            self.hist_it.extend(h["iteration"].tolist())
-            self.hist_res.extend(h["residual"].tolist())
-            self.hist_en.extend(h["energy"].tolist())
-            self.hist_t.extend((h["time"] + offset).tolist())
-            self.total_time += res.wall_time_s
             self.residual = res.residual
             self.energy = res.energy
             self.last_result = res
@@ -240,12 +255,7 @@ class Simulation:
                 v, _ = residual_fn(self.model, self.state)
                 r = SolveResult(False, "idle", "not run", 0, v, math.nan, energy_fn(self.model, self.state),
                                 int(self.state.in_contact.sum()), 0.0, self.method)
-            hist = {
-                "iteration": np.asarray(self.hist_it, int),
-                "residual": np.asarray(self.hist_res),
-                "energy": np.asarray(self.hist_en),
-                "time": np.asarray(self.hist_t),
-            }
+            hist = self.history.copy()
             solve = SolveResult(r.converged, r.status, r.message, self.state.iteration, r.residual,
                                 r.relative_residual, r.energy, r.contact_count, self.total_time, r.method,
                                 hist, r.best_residual)
@@ -325,7 +335,7 @@ class Simulation:
         with self._lock:
             return Snapshot(self.state.positions.copy(), self.state.in_contact.copy(), self.state.iteration,
                             self.residual, self.energy, self.status, self.ips,
-                            np.asarray(self.hist_it, int), np.asarray(self.hist_res), self.version,
+                            *self.history.columns("iteration", "residual"), self.version,
                             self.message)
 
 

@@ -220,6 +220,18 @@ class Topology:
         return out
 
     # ------------------------------------------------------------------ coarsening
+    def grid_prolongation(self):
+        """(coarse Topology, P) for a full rectangle: the coarse grid keeps every second node of
+        each line and its last one, and P (N, Nc) scipy CSR interpolates bilinearly in the node
+        indices (multigrid's transfer; with even divisions the coarse grid is :meth:`coarsen`'s)."""
+        import scipy.sparse as sp
+
+        nx1, ny1 = self.grid_shape
+        px = _interp_1d(nx1)
+        py = _interp_1d(ny1)
+        P = sp.kron(px, py, format="csr")
+        return Topology.rectangle(px.shape[1] - 1, py.shape[1] - 1, self.names[0]), P
+
     def coarsen(self) -> tuple["Topology", np.ndarray]:
         """The stride-2 lattice (nodes whose i and j are both even, built by the same
         constructor) and ``sub`` (Nc,) int64: the node of this lattice each coarse node is."""
@@ -228,3 +240,21 @@ class Topology:
         coarse = Topology.from_masks(masks, self.names, outlines)
         sub = np.concatenate([idx[::2, ::2][m] for idx, m in zip(self.index, masks)]).astype(np.int64)
         return coarse, sub
+
+
+def _interp_1d(n: int):
+    """Linear interpolation (n, nc) scipy CSR from the coarse node set (every second node, plus
+    the last) of a line of n nodes."""
+    import scipy.sparse as sp
+
+    coarse = list(range(0, n, 2))
+    if coarse[-1] != n - 1:
+        coarse.append(n - 1)
+    pos = {c: q for q, c in enumerate(coarse)}
+    rows, cols, vals = [], [], []
+    for i in range(n):
+        if i in pos:
+            rows.append(i); cols.append(pos[i]); vals.append(1.0)
+        else:
+            rows += [i, i]; cols += [pos[i - 1], pos[i + 1]]; vals += [0.5, 0.5]
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, len(coarse)))

@@ -192,14 +192,14 @@ def test_auto_hands_a_stalled_newton_run_to_the_paper_relaxation(monkeypatch):
     """When newton stalls, auto continues with the paper's relaxation from the same state within
     the remaining budget: the run converges, says so (method newton+paper) and its history covers
     both phases with contiguous iteration numbers."""
-    from clothsim.solvers import newton, paper
+    from clothsim.solvers import NewtonSolver, PaperSolver
 
-    def stalled(model, state, settings, callback=None):
-        r = paper.solve(model, state, settings.model_copy(update={"max_iterations": 3}), callback)
+    def stalled(self, state, limits, callback=None, history=None, before_batch=None):
+        r = PaperSolver(self.model).solve(state, limits.model_copy(update={"max_iterations": 3}), callback, history)
         r.status, r.converged, r.method = "stalled", False, "newton"
         return r
 
-    monkeypatch.setattr(newton, "solve", stalled)
+    monkeypatch.setattr(NewtonSolver, "solve", stalled)
     res = clothsim.solve(make_scene(**PRE, **{"solver.method": "auto", "solver.e": 1e-9}))
     assert res.converged and res.solve.method == "newton+paper"
     assert "newton stalled" in res.solve.message

@@ -1,14 +1,24 @@
-"""Solvers: one module per method, one signature ``solve(model, state, settings, callback=None)``.
+"""Solvers: objects with one contract (``clothsim.solvers.base``), run by one driver.
 
-``auto`` picks the fastest method available for the scene (see :func:`pick_method`) and falls
-back on the paper's relaxation where it stalls (see :func:`solve`).
+A solver is built from ``(model, options)``: ``PaperSolver(model, PaperOptions(C, max_retries))``,
+``NewtonSolver(model, NewtonOptions(kink, sequencing))``, ``AutoSolver(model, AutoOptions(...))``
+(Newton, then the paper's relaxation on a stall). ``solver.step(state, n)`` performs at most n
+iterations and returns a ``StepReport``; ``solver.solve(state, limits, callback)`` runs the driver
+(limits, stall detection, history) and returns a ``SolveResult`` whose ``status`` is a ``Status``.
+
+For scenes, :func:`solve` keeps the settings-based signature ``solve(model, state, settings,
+callback=None)``: it maps ``settings.method`` and the scene's solver keys onto a solver and its
+options (``options.options_from_settings``, the one place) and runs it.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
+from .base import RunLimits, Solver, Status, StepReport, StepStatus
 from .common import Progress, SolveResult, STATUSES, residual
+from .control import Control, load_steps, solve_load_steps
+from .driver import History, run
+from .options import AutoOptions, NewtonOptions, PaperOptions, live_options, options_from_settings
+from .paper import PaperSolver
 
 
 def pick_method(model, settings) -> str:
@@ -22,51 +32,54 @@ def pick_method(model, settings) -> str:
     return "newton"
 
 
-def _module(method: str):
+def solver_class(method: str) -> type:
+    """The Solver class of ``method`` ("paper", "newton" or "auto")."""
     if method == "paper":
-        from . import paper as mod
+        from .paper import PaperSolver as cls
     elif method == "newton":
-        from . import newton as mod
+        from .newton import NewtonSolver as cls
+    elif method == "auto":
+        from .auto import AutoSolver as cls
     else:  # validated by config, so this is a programming error
         raise ValueError(f"unknown solver method {method!r}")
-    return mod
+    return cls
 
 
-def solve(model, state, settings, callback=None) -> SolveResult:
-    """Advance ``state`` in place to equilibrium with ``settings.method``.
-
-    ``auto`` runs ``newton``; if Newton stalls (no further progress, e.g. nodes sliding over many
-    small mold facets), it hands the state to the paper's relaxation for the rest of the iteration
-    and time budget — the robust method finishes what the fast one could not. The result then says
-    ``method = "newton+paper"`` and its history covers both phases."""
-    method = pick_method(model, settings)
-    res = _module(method).solve(model, state, settings, callback)
-    if settings.method != "auto" or method != "newton" or res.status != "stalled":
-        return res
-    left = settings.max_iterations - res.iterations
-    limit = settings.time_limit_s
-    if left <= 0 or (limit is not None and res.wall_time_s >= limit):
-        return res
-    rest = settings.model_copy(update={
-        "max_iterations": left,
-        "time_limit_s": None if limit is None else max(limit - res.wall_time_s, 1e-3),
-    })
-    res2 = _module("paper").solve(model, state, rest, callback)
-    h1, h2 = res.history, res2.history
-    history = {
-        "iteration": np.concatenate([h1["iteration"], h2["iteration"]]),
-        "residual": np.concatenate([h1["residual"], h2["residual"]]),
-        "energy": np.concatenate([h1["energy"], h2["energy"]]),
-        "time": np.concatenate([h1["time"], h2["time"] + res.wall_time_s]),
-    }
-    return SolveResult(
-        converged=res2.converged, status=res2.status,
-        message=f"newton stalled at {res.residual:.3e} N after {res.iterations} iterations; "
-                f"paper relaxation then: {res2.message}",
-        iterations=res.iterations + res2.iterations, residual=res2.residual,
-        relative_residual=res2.relative_residual, energy=res2.energy, contact_count=res2.contact_count,
-        wall_time_s=res.wall_time_s + res2.wall_time_s, method="newton+paper", history=history,
-        best_residual=min(res.best_residual, res2.best_residual))
+def make_solver(model, settings) -> Solver:
+    """The solver a scene's ``SolverSettings`` asks for, with its typed options: ``auto`` is the
+    composite (Newton, rescued by the paper's relaxation) when Newton is available, else the
+    paper's relaxation."""
+    method = settings.method
+    if method == "auto" and pick_method(model, settings) != "newton":
+        method = "paper"
+    return solver_class(method)(model, options_from_settings(method, settings))
 
 
-__all__ = ["Progress", "SolveResult", "STATUSES", "residual", "solve", "pick_method"]
+def solve(model, state, settings, callback=None, history: History | None = None) -> SolveResult:
+    """Advance ``state`` in place to equilibrium with ``settings.method`` (see :func:`make_solver`).
+
+    ``settings`` (a SolverSettings) is re-read between batches: e, max_iterations and the paper's
+    C and max_retries reach a running solve. ``history``: a History to append to (Simulation keeps
+    one across its runs). ``auto`` runs Newton; if Newton stalls, the paper's relaxation continues
+    for the rest of the budget and the result says ``method = "newton+paper"``."""
+    solver = make_solver(model, settings)
+    return solver.solve(state, settings, callback, history, before_batch=live_options(settings))
+
+
+__all__ = ["Progress", "SolveResult", "STATUSES", "Status", "StepStatus", "StepReport", "RunLimits",
+           "Solver", "History", "run", "PaperSolver", "NewtonSolver", "AutoSolver", "PaperOptions",
+           "NewtonOptions", "AutoOptions", "options_from_settings", "Control", "load_steps",
+           "solve_load_steps", "residual", "solve", "pick_method", "make_solver", "solver_class"]
+
+
+def __getattr__(name):
+    # Newton (scipy) and the composite are loaded on first use, as pick_method expects
+    if name == "NewtonSolver":
+        from .newton import NewtonSolver
+
+        return NewtonSolver
+    if name == "AutoSolver":
+        from .auto import AutoSolver
+
+        return AutoSolver
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,26 +1,27 @@
-"""What every solver shares: the result record, the progress record, the residual, and the
-driver loop (time/iteration bounds, stall and divergence detection, history, callback).
+"""What every solver shares: the result record, the progress record, the residual, the energy.
 
-A solver is ``solve(model, state, settings, callback=None) -> SolveResult``; it advances
-``state`` in place. It never prints; it reports through ``callback(progress)``, which may return
-True to stop the run (scipy.optimize style). The driver re-reads ``settings.C`` and ``settings.e``
-between batches, so a GUI edit reaches a running relaxation.
+The solver contract (``Solver``, ``step``, ``StepReport``, the status enums) is in
+``clothsim.solvers.base``; the driver that runs a solver (limits, stall detection, history,
+callback) is ``clothsim.solvers.driver.run``. Solvers never print; they report through
+``callback(progress)``, which may return True to stop the run (scipy.optimize style).
 """
 
 from __future__ import annotations
 
 import functools
 import math
-import time
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
 
 from ..contact import residual_from_forces
 from ..kernels import forces_and_energy
 
-STATUSES = ("converged", "max_iterations", "time_limit", "stalled", "diverged", "stopped")
+from .base import Status
+
+# the run statuses' strings (``Status`` values), in the order they have always been listed
+STATUSES = tuple(s.value for s in Status)
 
 
 @dataclass
@@ -39,12 +40,17 @@ class Progress:
 
 @dataclass
 class SolveResult:
-    """converged, status (one of STATUSES), message, iterations, residual [N] (||V||_inf, eq. 6),
-    relative_residual (residual / largest spring force), energy [J], contact_count, wall_time_s,
-    history: dict of arrays iteration, residual [N], energy [J], time [s]."""
+    """The outcome of a run (scipy.optimize's ``OptimizeResult`` for this package).
+
+    converged; status (a :class:`Status`, which compares equal to and serialises as its string;
+    ``"idle"`` for a scene never run); message; iterations; residual [N] (||V||_inf, eq. 6);
+    relative_residual (residual / largest spring force); energy [J]; contact_count; wall_time_s
+    [s]; method (the solver's name, ``newton+paper`` for auto's rescue); history: the run's
+    ``History`` (a mapping of arrays iteration, residual [N], energy [J], time [s]);
+    best_residual [N]: the smallest residual reached."""
 
     converged: bool
-    status: str
+    status: Status | str
     message: str
     iterations: int
     residual: float
@@ -99,136 +105,3 @@ def force_scale(model, state) -> float:
     fmax = float(np.max(np.abs(f))) if f.size else 0.0
     gmax = float(np.max(np.linalg.norm(model.external_force, axis=1))) if model.node_count else 0.0
     return max(fmax, gmax)
-
-
-class Driver:
-    """Runs ``advance(n) -> (n_done, flag)`` batches until converged/stopped; records history.
-
-    ``advance`` performs at most n iterations on the state, appends per-iteration residual and
-    energy to the driver's buffers via ``record`` and returns a flag: 0 ok, 1 converged in batch,
-    2 diverged (state restored to the last finite iterate by the solver), 3 no progress possible."""
-
-    def __init__(self, model, state, settings, callback, method: str):
-        self.model = model
-        self.state = state
-        self.settings = settings
-        self.callback = callback
-        self.method = method
-        self.res: list[float] = []
-        self.en: list[float] = []
-        self.t: list[float] = []
-        self.t0 = time.perf_counter()
-        self.best = math.inf
-        self.best_iter = 0
-        self.stall_ref = math.inf
-        self.stall_ref_iter = 0
-
-    def record(self, residuals: np.ndarray, energies: np.ndarray) -> None:
-        now = time.perf_counter() - self.t0
-        n = len(residuals)
-        if n == 0:
-            return
-        prev = self.t[-1] if self.t else 0.0
-        self.t.extend(np.linspace(prev, now, n + 1)[1:].tolist())
-        self.res.extend(np.asarray(residuals, float).tolist())
-        self.en.extend(np.asarray(energies, float).tolist())
-
-    def run(self, advance: Callable[[int], tuple[int, int]], initial_batch: int = 1,
-            target_batch_s: float = 0.05) -> SolveResult:
-        s = self.settings
-        st = self.state
-        start_iter = st.iteration
-        batch = max(1, initial_batch)
-        status, message = None, ""
-        # residual at the start: a state that is already converged needs no iteration
-        r0, _ = residual(self.model, st)
-        if not math.isfinite(r0):
-            status, message = "diverged", "the initial state has a non-finite force"
-        elif r0 <= s.e:
-            status, message = "converged", f"already converged at the start (||V||_inf = {r0:.3e} N)"
-        self.best = r0
-        self.stall_ref = r0
-        self.stall_ref_iter = st.iteration
-        last_report = 0.0
-        while status is None:
-            done_before = st.iteration - start_iter
-            n = min(batch, s.max_iterations - done_before)
-            if n <= 0:
-                status, message = "max_iterations", f"stopped after {s.max_iterations} iterations without converging"
-                break
-            tb = time.perf_counter()
-            n_done, flag = advance(n)
-            dt = time.perf_counter() - tb
-            st.iteration += n_done
-            if n_done and dt < target_batch_s / 2:
-                batch = min(batch * 2, 1 << 20)
-            elif dt > target_batch_s * 2 and batch > 1:
-                batch = max(1, batch // 2)
-            cur = self.res[-1] if self.res else r0
-            if cur < self.best:
-                self.best = cur
-                self.best_iter = st.iteration
-            if flag == 2:
-                status = "diverged"
-                message = (f"diverged at iteration {st.iteration} (non-finite or blown-up positions); "
-                           f"kept the last finite state")
-                break
-            if flag == 1 or cur <= s.e:
-                status, message = "converged", f"||V||_inf = {cur:.3e} N <= e = {s.e:.3e} N"
-                break
-            if flag == 3:
-                status = "stalled"
-                message = (f"no further progress possible at ||V||_inf = {cur:.3e} N (e = {s.e:.3e} N); "
-                           f"smallest residual reached {self.best:.3e} N")
-                break
-            # stall: the best residual has not improved by 1 % within stall_iterations
-            if self.best < 0.99 * self.stall_ref:
-                self.stall_ref = self.best
-                self.stall_ref_iter = st.iteration
-            elif st.iteration - self.stall_ref_iter >= s.stall_iterations:
-                status = "stalled"
-                message = (f"no progress over {s.stall_iterations} iterations at ||V||_inf = {cur:.3e} N "
-                           f"(e = {s.e:.3e} N); smallest residual reached {self.best:.3e} N")
-                break
-            elapsed = time.perf_counter() - self.t0
-            if s.time_limit_s is not None and elapsed >= s.time_limit_s:
-                status, message = "time_limit", f"time limit {s.time_limit_s} s reached at ||V||_inf = {cur:.3e} N"
-                break
-            if self.callback is not None:
-                it_done = st.iteration - start_iter
-                prog = Progress(st.iteration, cur, self.en[-1] if self.en else math.nan, elapsed,
-                                it_done / elapsed if elapsed > 0 else 0.0, int(st.in_contact.sum()), st,
-                                self.method)
-                if self.callback(prog):
-                    status, message = "stopped", f"stopped by request at iteration {st.iteration}"
-                    break
-        wall = time.perf_counter() - self.t0
-        r, _ = residual(self.model, st)
-        en = energy(self.model, st)
-        fs = force_scale(self.model, st)
-        if status == "converged" and not (r <= s.e):
-            # the solver's own bookkeeping said converged but the shared residual disagrees
-            status, message = "stalled", f"residual check failed: ||V||_inf = {r:.3e} N > e"
-        res = SolveResult(
-            converged=status == "converged",
-            status=status,
-            message=message,
-            iterations=st.iteration - start_iter,
-            residual=float(r),
-            relative_residual=float(r / fs) if fs > 0 else float(r),
-            energy=float(en),
-            contact_count=int(st.in_contact.sum()),
-            wall_time_s=wall,
-            method=self.method,
-            history={
-                "iteration": np.arange(start_iter + 1, start_iter + 1 + len(self.res)),
-                "residual": np.asarray(self.res),
-                "energy": np.asarray(self.en),
-                "time": np.asarray(self.t),
-            },
-            best_residual=float(min(self.best, r)),
-        )
-        if self.callback is not None:
-            prog = Progress(st.iteration, r, en, wall, 0.0, res.contact_count, st, self.method)
-            self.callback(prog)
-        return res

@@ -42,7 +42,9 @@ from numba import njit
 from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_from_forces, stop_at_surface
 from ..kernels import forces_and_energy, node_force
 from ..mold import mold_query
-from .common import Driver, model_mold_args
+from .base import Solver, StepReport, StepStatus
+from .common import model_mold_args
+from .options import PaperOptions, live_options, paper_options
 
 # After a projection onto the mold a node must not be inside by more than this [m].
 PENETRATION_TOL = 1e-12
@@ -199,23 +201,39 @@ def blowup_limit(model) -> float:
     return float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
 
 
-def solve(model, state, settings, callback=None):
-    """Relax ``state`` in place with the paper's method; returns a SolveResult."""
-    has_mold, margs = model_mold_args(model)
-    order = paper_order(model)
-    adj = model.adjacency_args()
-    limit = blowup_limit(model)
-    prev = np.empty_like(state.positions)
-    drv = Driver(model, state, settings, callback, "paper")
+class PaperSolver(Solver):
+    """The paper's node relaxation as a solver object: ``PaperSolver(model, PaperOptions(C,
+    max_retries))``; one iteration = one sweep over the nodes (see the module docstring).
+    ``options`` may be replaced between steps (a GUI edit of C reaches a running relaxation)."""
 
-    def advance(n):
+    name = "paper"
+    Options = PaperOptions
+
+    def __init__(self, model, options: PaperOptions | None = None):
+        super().__init__(model, options)
+        self.has_mold, self.margs = model_mold_args(model)
+        self.order = paper_order(model)
+        self.adj = model.adjacency_args()
+        self.limit = blowup_limit(model)
+        self._prev = np.empty((model.node_count, 3))
+
+    def step(self, state, n, *, e=0.0, time_left_s=None) -> StepReport:
+        m = self.model
         res = np.empty(n)
         en = np.empty(n)
-        done, flag = paper_sweeps(state.positions, model.fixed_axes, state.in_contact, order, *adj,
-                                  model.spring_nodes, model.external_force, float(settings.C),
-                                  int(settings.max_retries), has_mold, margs, n, float(settings.e),
-                                  limit, res, en, prev)
-        drv.record(res[:done], en[:done])
-        return done, flag
+        o = self.options
+        done, flag = paper_sweeps(state.positions, m.fixed_axes, state.in_contact, self.order, *self.adj,
+                                  m.spring_nodes, m.external_force, float(o.C), int(o.max_retries),
+                                  self.has_mold, self.margs, n, float(e), self.limit, res, en, self._prev)
+        state.iteration += done
+        return StepReport(done, res[:done], en[:done], _FLAG[flag])
 
-    return drv.run(advance)
+
+_FLAG = {0: StepStatus.OK, 1: StepStatus.CONVERGED, 2: StepStatus.DIVERGED, 3: StepStatus.NO_PROGRESS}
+
+
+def solve(model, state, settings, callback=None, history=None):
+    """Relax ``state`` in place with the paper's method under ``settings`` (a SolverSettings:
+    C and max_retries, re-read between batches, plus the driver's limits); returns a SolveResult."""
+    solver = PaperSolver(model, paper_options(settings))
+    return solver.solve(state, settings, callback, history, before_batch=live_options(settings))

@@ -1,0 +1,324 @@
+"""The active set of the Newton step: per-node projectors onto the directions a node may move in
+(fixed axes, mold faces it presses on, the face a node slides down a ridge), blocking constraints
+for steps that would leave an edge's or vertex's tangent cone, and the trial positions of the line
+search (free nodes stopped at the mold surface, contact nodes projected back onto it).
+
+Shapes: n nodes; positions/forces (n, 3) [m]/[N]; projectors Pi (n, 3, 3) (dimensionless);
+flat step vectors (3n,) [m].
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
+from ...mold import MOLD_MESH, mold_contact_normals, mold_query
+
+# after a projection onto the mold, a node may be inside by at most this [m]
+PENETRATION_TOL = 1e-10
+# a contact node moved farther than this [m] off the surface may leave it (see _trial_positions)
+RELEASE_GAP = 1e-12
+
+
+@njit(cache=True)
+def _ridge_face(x, R, normals, m, margs, probe, act, na):
+    """A node pressed onto a convex edge or vertex (its resultant inside the cone of several face
+    normals) satisfies eq. 6 but is not at a minimum of the energy: sliding down one of the
+    faces lowers it (the springs cut the corner). Among the faces it presses on (R.n_i < 0), the
+    one whose tangential pull R - (R.n_i) n_i is largest (ties to the first) and leads along the surface (a probe
+    point a short way along it is not inside the mold: not a groove) becomes the only active
+    constraint (act[0] = i, returns 1). Otherwise (groove, or no such face) returns na."""
+    p = np.empty(3)
+    q = np.empty(8)
+    best = 0.0
+    ib = -1
+    for i in range(m):
+        rn = R[0] * normals[i, 0] + R[1] * normals[i, 1] + R[2] * normals[i, 2]
+        if not (rn < 0.0):
+            continue
+        t0 = R[0] - rn * normals[i, 0]
+        t1 = R[1] - rn * normals[i, 1]
+        t2 = R[2] - rn * normals[i, 2]
+        tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        # near-ties (a node exactly on a symmetric peak) go to the first face in the feature's
+        # order, so that rounding (a mold in other units) cannot pick a different equilibrium
+        if not (tn > best * (1.0 + 1e-6)):
+            continue
+        p[0] = x[0] + probe * t0 / tn
+        p[1] = x[1] + probe * t1 / tn
+        p[2] = x[2] + probe * t2 / tn
+        sd = mold_query(margs, p, q)
+        if sd < -1e-3 * probe:
+            continue
+        best = tn
+        ib = i
+    if ib < 0:
+        return na
+    act[0] = ib
+    return 1
+
+
+@njit(cache=True)
+def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
+    """Active set and per-node projectors Pi (n,3,3) onto the allowed directions.
+
+    Releases contact nodes whose resultant points out of the mold (in_contact updated in place).
+    With ``probe`` > 0 [m], a node pressed onto a convex edge or vertex keeps only the face it
+    slides down (``_ridge_face``). Returns the number of released nodes."""
+    qbuf = np.empty(8)
+    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
+    act = np.empty(3, np.int64)
+    R = np.empty(3)
+    Q = np.empty((6, 3))
+    released = 0
+    for k in range(pos.shape[0]):
+        nq = 0
+        for a in range(3):
+            if fixed[k, a]:
+                Q[nq, 0] = 0.0
+                Q[nq, 1] = 0.0
+                Q[nq, 2] = 0.0
+                Q[nq, a] = 1.0
+                nq += 1
+        if in_contact[k] and has_mold and nq < 3:
+            for a in range(3):
+                R[a] = 0.0 if fixed[k, a] else F[k, a]
+            m = mold_contact_normals(margs, pos[k], qbuf, nbuf)
+            free_axis_normals(fixed[k], nbuf, m)
+            na = cone_active(R, nbuf, m, act)
+            if na >= 2 and qbuf[6] != 0.0 and probe > 0.0:
+                na = _ridge_face(pos[k], R, nbuf, m, margs, probe, act, na)
+            if na == 0:
+                in_contact[k] = False
+                released += 1
+            else:
+                for t in range(na):
+                    Q[nq, 0] = nbuf[act[t], 0]
+                    Q[nq, 1] = nbuf[act[t], 1]
+                    Q[nq, 2] = nbuf[act[t], 2]
+                    nq += 1
+        # Gram-Schmidt on the constraint directions; Pi = I - sum q q^T
+        for r in range(3):
+            for c in range(3):
+                Pi[k, r, c] = 1.0 if r == c else 0.0
+        kept = 0
+        for t in range(nq):
+            v0, v1, v2 = Q[t, 0], Q[t, 1], Q[t, 2]
+            for u in range(kept):
+                d = v0 * Q[u, 0] + v1 * Q[u, 1] + v2 * Q[u, 2]
+                v0 -= d * Q[u, 0]
+                v1 -= d * Q[u, 1]
+                v2 -= d * Q[u, 2]
+            nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            if nv < 1e-6:
+                continue
+            Q[kept, 0] = v0 / nv
+            Q[kept, 1] = v1 / nv
+            Q[kept, 2] = v2 / nv
+            kept += 1
+            if kept == 3:
+                break
+        for u in range(kept):
+            for r in range(3):
+                for c in range(3):
+                    Pi[k, r, c] -= Q[u, r] * Q[u, c]
+    return released
+
+
+@njit(cache=True)
+def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
+    """Blocking constraints at edges and vertices. The active set (``_projectors``) keeps the
+    normals that carry a positive multiplier; the Newton step of a node on an edge or vertex can
+    still leave the feature's tangent cone through another face (in a groove: into the face
+    beside the active one), and the projection back onto the surface then bends the path at
+    first order, so no step length lowers the energy. A node whose step direction enters the
+    mold within ``probe`` [m] gets the face normal it violates most added to its constraints
+    (Pi updated in place). Returns how many nodes were blocked."""
+    if not has_mold:
+        return 0
+    q = np.empty(8)
+    p = np.empty(3)
+    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
+    blocked = 0
+    for k in range(pos.shape[0]):
+        if not contact[k]:
+            continue
+        d0 = dx[3 * k]
+        d1 = dx[3 * k + 1]
+        d2 = dx[3 * k + 2]
+        dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if dn == 0.0:
+            continue
+        mold_query(margs, pos[k], q)
+        if q[6] == 0.0:
+            continue
+        p[0] = pos[k, 0] + probe * d0 / dn
+        p[1] = pos[k, 1] + probe * d1 / dn
+        p[2] = pos[k, 2] + probe * d2 / dn
+        sd = mold_query(margs, p, q)
+        if not (sd < -1e-3 * probe):
+            continue
+        m = mold_contact_normals(margs, pos[k], q, nbuf)
+        best = 0.0
+        jb = -1
+        for j in range(m):
+            # the normal's part in the still-allowed directions
+            a0 = Pi[k, 0, 0] * nbuf[j, 0] + Pi[k, 0, 1] * nbuf[j, 1] + Pi[k, 0, 2] * nbuf[j, 2]
+            a1 = Pi[k, 1, 0] * nbuf[j, 0] + Pi[k, 1, 1] * nbuf[j, 1] + Pi[k, 1, 2] * nbuf[j, 2]
+            a2 = Pi[k, 2, 0] * nbuf[j, 0] + Pi[k, 2, 1] * nbuf[j, 1] + Pi[k, 2, 2] * nbuf[j, 2]
+            if math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) < 1e-6:
+                continue
+            dd = (d0 * nbuf[j, 0] + d1 * nbuf[j, 1] + d2 * nbuf[j, 2]) / dn
+            if dd < best:
+                best = dd
+                jb = j
+        if jb < 0:
+            continue
+        a0 = Pi[k, 0, 0] * nbuf[jb, 0] + Pi[k, 0, 1] * nbuf[jb, 1] + Pi[k, 0, 2] * nbuf[jb, 2]
+        a1 = Pi[k, 1, 0] * nbuf[jb, 0] + Pi[k, 1, 1] * nbuf[jb, 1] + Pi[k, 1, 2] * nbuf[jb, 2]
+        a2 = Pi[k, 2, 0] * nbuf[jb, 0] + Pi[k, 2, 1] * nbuf[jb, 1] + Pi[k, 2, 2] * nbuf[jb, 2]
+        an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        a0 /= an
+        a1 /= an
+        a2 /= an
+        Pi[k, 0, 0] -= a0 * a0
+        Pi[k, 0, 1] -= a0 * a1
+        Pi[k, 0, 2] -= a0 * a2
+        Pi[k, 1, 0] -= a1 * a0
+        Pi[k, 1, 1] -= a1 * a1
+        Pi[k, 1, 2] -= a1 * a2
+        Pi[k, 2, 0] -= a2 * a0
+        Pi[k, 2, 1] -= a2 * a1
+        Pi[k, 2, 2] -= a2 * a2
+        blocked += 1
+    return blocked
+
+
+@njit(cache=True)
+def _apply_pi(Pi, v, out):
+    for k in range(Pi.shape[0]):
+        a0 = v[3 * k]
+        a1 = v[3 * k + 1]
+        a2 = v[3 * k + 2]
+        for r in range(3):
+            out[3 * k + r] = Pi[k, r, 0] * a0 + Pi[k, r, 1] * a1 + Pi[k, r, 2] * a2
+
+
+@njit(cache=True)
+def _mold_distances(pos, has_mold, margs, out):
+    """Signed distance [m] of every node to the mold (inf without a mold)."""
+    q = np.empty(8)
+    for k in range(pos.shape[0]):
+        out[k] = mold_query(margs, pos[k], q) if has_mold else np.inf
+
+
+@njit(cache=True)
+def _face_exit(margs, f, p0, d):
+    """Largest t in [0, 1] such that p0 + t d stays inside triangle f (barycentric coordinates
+    of the point's projection onto the face plane all >= 0)."""
+    V = margs[2]
+    F = margs[3]
+    a = F[f, 0]
+    b = F[f, 1]
+    c = F[f, 2]
+    e1x = V[b, 0] - V[a, 0]; e1y = V[b, 1] - V[a, 1]; e1z = V[b, 2] - V[a, 2]
+    e2x = V[c, 0] - V[a, 0]; e2y = V[c, 1] - V[a, 1]; e2z = V[c, 2] - V[a, 2]
+    d11 = e1x * e1x + e1y * e1y + e1z * e1z
+    d12 = e1x * e2x + e1y * e2y + e1z * e2z
+    d22 = e2x * e2x + e2y * e2y + e2z * e2z
+    den = d11 * d22 - d12 * d12
+    if not (den > 0.0):
+        return 1.0
+    wx = p0[0] - V[a, 0]; wy = p0[1] - V[a, 1]; wz = p0[2] - V[a, 2]
+    w1 = wx * e1x + wy * e1y + wz * e1z
+    w2 = wx * e2x + wy * e2y + wz * e2z
+    u0 = (d22 * w1 - d12 * w2) / den
+    v0 = (d11 * w2 - d12 * w1) / den
+    q1 = d[0] * e1x + d[1] * e1y + d[2] * e1z
+    q2 = d[0] * e2x + d[1] * e2y + d[2] * e2z
+    du = (d22 * q1 - d12 * q2) / den
+    dv = (d11 * q2 - d12 * q1) / den
+    lam = (u0, v0, 1.0 - u0 - v0)
+    dl = (du, dv, -du - dv)
+    t = 1.0
+    for i in range(3):
+        if dl[i] < 0.0:
+            ti = -max(lam[i], 0.0) / dl[i]
+            if ti < t:
+                t = ti
+    return max(t, 0.0)
+
+
+@njit(cache=True)
+def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, F0, out, contact_out):
+    """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
+    move is clipped where it would enter the mold and it becomes a contact node; contact nodes
+    are projected onto the surface. sd0 (N,) [m]: the nodes' signed distances before the step
+    (a free node whose move is shorter than its distance cannot reach the mold and needs no
+    query). Returns the deepest remaining penetration [m] (0 when none)."""
+    q = np.empty(8)
+    p = np.empty(3)
+    dd = np.empty(3)
+    worst = 0.0
+    for k in range(pos0.shape[0]):
+        moved = False
+        d2 = 0.0
+        for a in range(3):
+            v = pos0[k, a]
+            if not fixed[k, a]:
+                d = alpha * step[3 * k + a]
+                if d != 0.0:
+                    moved = True
+                    d2 += d * d
+                v += d
+            p[a] = v
+        c = contact0[k]
+        if has_mold and moved and (c or not (sd0[k] > math.sqrt(d2) * (1.0 + 1e-9) + 1e-15)):
+            hit = False
+            if c:
+                hit = True
+                if clip_faces and margs[0][0] == MOLD_MESH:
+                    # a contact node on a face slides at most to the face's border: the contact
+                    # feature changes there (edge or vertex), and the next active set decides
+                    # whether it stays on it or moves on to the next face
+                    mold_query(margs, pos0[k], q)
+                    if q[6] == 0.0:
+                        for a in range(3):
+                            dd[a] = p[a] - pos0[k, a]
+                        t = _face_exit(margs, int(q[7]), pos0[k], dd)
+                        if t < 1.0:
+                            for a in range(3):
+                                if not fixed[k, a]:
+                                    p[a] = pos0[k, a] + t * dd[a]
+            else:
+                hit = stop_at_surface(margs, pos0[k], p, fixed[k])
+            sd = mold_query(margs, p, q)
+            if c and sd > RELEASE_GAP and q[6] != 0.0:
+                # a contact node whose move took it off the surface past a convex edge or vertex
+                # (the closest point is on that edge or vertex): it is put back there only if its
+                # resultant pulls it there (R . (p - q) < 0); otherwise it has slid off the
+                # feature into free space (a node pulled over a box's edge) and is free. (Past a
+                # face's curvature it is always projected back: a face keeps its nodes.)
+                dot = 0.0
+                for a in range(3):
+                    if not fixed[k, a]:
+                        dot += F0[k, a] * (p[a] - q[a])
+                if dot > 0.0:
+                    hit = False
+                    c = False
+            if hit or sd < 0.0:
+                for a in range(3):
+                    if not fixed[k, a]:
+                        p[a] = q[a]
+                c = True
+                sd = mold_query(margs, p, q)
+            if -sd > worst:
+                worst = -sd
+        out[k, 0] = p[0]
+        out[k, 1] = p[1]
+        out[k, 2] = p[2]
+        contact_out[k] = c
+    return worst

@@ -1,0 +1,256 @@
+"""One grid's Newton iteration (``NewtonLevel``): forces and energy, the projected Levenberg-shifted
+linear system, its solve (direct LU or multigrid-preconditioned CG), the line search on the
+energy with the contact rules applied to every trial, and the step's acceptance.
+
+Shapes: n nodes; positions/forces (n, 3) [m]/[N]; residuals ||V||_inf [N]; energies [J].
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from ...contact import residual_from_forces as _residual_from_forces
+from ...kernels import first_slope, forces_and_energy
+from ...mold import MOLD_MESH
+from ..common import model_mold_args
+from ..options import NewtonOptions
+from .active_set import (PENETRATION_TOL, _apply_pi, _block_infeasible, _mold_distances, _projectors,
+                         _trial_positions)
+from .linalg import AlgebraicMultigrid, Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system
+
+# systems with at most this many unknowns are factorised directly (no multigrid)
+DIRECT_DOFS = 6000
+# relative energy change below which the energy cannot tell two states apart
+ENERGY_RESOLUTION = 1e-13
+# conjugate-gradient iterations after which an iteration stops retrying with larger Levenberg
+# shifts (flag 3). A work budget, not a time budget: the same scene takes the same path on a
+# quiet machine and a loaded one (a 1 s wall-clock budget made results depend on the load)
+ITERATE_BUDGET_CG = 400
+
+
+LM_ALPHA_LOW = 0.1
+LM_MAX = 1e4
+
+
+class NewtonLevel:
+    """Newton iterations for one Model (the fine grid, or a coarse grid of the sequencing)."""
+
+    def __init__(self, model, *, kink: float = NewtonOptions.kink, use_multigrid: bool | None = None):
+        """kink: NewtonOptions.kink; use_multigrid: None = by size (``DIRECT_DOFS``)."""
+        self.model = model
+        self.has_mold, self.margs = model_mold_args(model)
+        self.sargs = model.spring_args()
+        n = model.node_count
+        self.n = n
+        self.indptr, self.indices, self.slot, self.diag = _bsr_pattern(n, model.spring_nodes)
+        nb = self.indices.shape[0]
+        self.K = np.zeros((nb, 3, 3))
+        self.A = np.zeros((nb, 3, 3))
+        t = model.tables
+        self.kink = np.array([kink * first_slope(t.x, t.y, t.start, int(tb)) for tb in
+                              range(len(t.start) - 1)])[model.spring_table] if kink > 0 else np.zeros(
+            model.spring_count)
+        self.kink = np.ascontiguousarray(self.kink, float)
+        self.Pi = np.zeros((n, 3, 3))
+        self.F = np.zeros((n, 3))
+        self._Fr = np.zeros((n, 3))
+        self.V = np.zeros(n)
+        self.trial = np.zeros((n, 3))
+        self.trial_contact = np.zeros(n, bool)
+        self.direct = (use_multigrid is False) or (use_multigrid is None and 3 * n <= DIRECT_DOFS)
+        # line-smoothed geometric multigrid on one full rectangle, algebraic multigrid elsewhere
+        self.mg = None if self.direct else (Multigrid(model.topology) if model.topology.is_grid
+                                            else AlgebraicMultigrid())
+        self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
+        ext = np.ptp(model.rest_positions, axis=0).max()
+        self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
+        # step probed for leaving an edge's or vertex's tangent cone [m] (_block_infeasible)
+        self.probe = 1e-6 * float(min(model.spacing))
+        self._cache = None
+        self.sd0 = np.full(n, np.inf)
+        self.ls_alpha = 0.0
+        self._mg_pi = None
+        self._mg_mu = None
+        self._mg_age = 0
+        self._last_cg = 0
+
+    # -- helpers ---------------------------------------------------------------------------
+    def energy_forces(self, pos, F):
+        return forces_and_energy(pos, *self.sargs, self.model.external_force, F)
+
+    def residual(self, pos, contact, F=None):
+        """||V||_inf (eq. 6) at pos; F: the forces at pos when already known."""
+        if F is None:
+            F = self._Fr
+            forces_and_energy(pos, *self.sargs, self.model.external_force, F)
+        return _residual_from_forces(pos, F, self.model.fixed_axes, contact, self.has_mold, self.margs,
+                                     self.V)
+
+    def _solve_linear(self, rhs, mu_abs, tol):
+        _project_system(self.indptr, self.indices, self.K, self.diag, self.Pi, mu_abs, self.A)
+        n3 = 3 * self.n
+        if self.direct:
+            M = sp.bsr_matrix((self.A, self.indices, self.indptr), shape=(n3, n3)).tocsc()
+            lu = sla.splu(M, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
+                          diag_pivot_thresh=1e-3)
+            x = lu.solve(rhs)
+            return x, 1
+        if self._mg_stale(mu_abs):
+            self._mg_pi = self.Pi.copy()
+            self.mg.setup(self.indptr, self.indices, self.A.copy(), self._mg_pi)
+            self._mg_age = 0
+        self._mg_age += 1
+        indptr, indices, A = self.indptr, self.indices, self.A
+
+        def mv(v, out):
+            _bsr_matvec(indptr, indices, A, v, out)
+
+        x, it, rel = _pcg(mv, self.mg.vcycle, rhs, tol, 200)
+        self._last_cg = it
+        if rel > tol and self._mg_age > 1:
+            # the reused preconditioner no longer fits: rebuild and solve again
+            self._mg_pi = None
+            return self._solve_linear(rhs, mu_abs, tol)
+        return x, it
+
+    def _mg_stale(self, mu_abs):
+        """Rebuild the multigrid hierarchy when the active set changed, the shift changed, or
+        the last solve needed many iterations; otherwise the previous one (a slightly older
+        Hessian) still preconditions well and saves the Galerkin products."""
+        if self._mg_pi is None or self._mg_mu != mu_abs or self._last_cg > 12 or self._mg_age >= 6:
+            self._mg_mu = mu_abs
+            return True
+        if not np.array_equal(self._mg_pi, self.Pi):
+            return True
+        return False
+
+    # -- one iteration -----------------------------------------------------------------------
+    def iterate(self, state, vinf_now, forcing=1e-3):
+        """One Newton iteration on state (in place). Returns (residual, energy, flag) with flag
+        0 ok, 2 diverged (state unchanged), 3 no progress possible (state unchanged)."""
+        m = self.model
+        pos = state.positions
+        F = self.F
+        if self._cache is not None and self._cache[0] is pos and np.array_equal(self._cache[1], pos):
+            E0 = self._cache[2]
+            F[:] = self._cache[3]
+        else:
+            E0 = self.energy_forces(pos, F)
+        self._cache = None
+        _mold_distances(pos, self.has_mold, self.margs, self.sd0)
+        contact = state.in_contact
+        contact_before = contact.copy()
+        _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe)
+        v_base = self.residual(pos, contact, F) if not np.array_equal(contact, contact_before) else vinf_now
+        f = F.reshape(-1)
+        rhs = np.empty(3 * self.n)
+        _apply_pi(self.Pi, f, rhs)
+        gnorm = np.linalg.norm(rhs)
+        _assemble(pos, *self.sargs, self.kink, self.slot, self.K)
+        dsum = 0.0
+        dcount = 0
+        dg = self.K[self.diag]
+        tr = np.einsum("nii->n", dg)
+        free = ~m.fixed_axes.all(axis=1)
+        if free.any():
+            dsum = tr[free].sum()
+            dcount = 3 * free.sum()
+        dmean = dsum / dcount if dcount else 1.0
+        if not (dmean > 0.0):
+            dmean = 1.0
+        cg_spent = 0
+        for attempt in range(8):
+            if attempt and cg_spent > ITERATE_BUDGET_CG:
+                # failed attempts near float64's floor can each cost hundreds of CG iterations:
+                # keep one iteration (and so the driver's batches) short
+                break
+            mu_abs = self.lm * dmean
+            tol = min(1e-2, max(forcing, 1e-12))
+            dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
+            cg_spent += cg_it
+            for _ in range(3):
+                if not (self.has_mold and np.all(np.isfinite(dx))):
+                    break
+                if _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi) == 0:
+                    break
+                _apply_pi(self.Pi, f, rhs)
+                dx, _ = self._solve_linear(rhs, mu_abs, tol)
+            if not np.all(np.isfinite(dx)):
+                self.lm = max(self.lm * 100.0, 1e-8)
+                continue
+            slope = -(rhs @ dx)  # directional derivative of E (negative for a descent direction)
+            if not (slope < 0.0):
+                self.lm = max(self.lm * 100.0, 1e-8)
+                continue
+            accepted = self._line_search(state, dx, E0, slope, v_base)
+            if accepted is not None:
+                # Levenberg-Marquardt shift as a trust region: a step the line search had to cut
+                # hard means the quadratic model is poor at that length (slack springs leave
+                # directions nearly free; contact nodes leave their faces), so shift more
+                if self.ls_alpha < LM_ALPHA_LOW:
+                    self.lm = min(max(self.lm * 10.0, 1e-8), LM_MAX)
+                elif self.ls_alpha >= 1.0:
+                    self.lm = max(self.lm / 10.0, 1e-12)
+                return accepted
+            self.lm = max(self.lm * 100.0, 1e-6)
+        return v_base, E0, 3
+
+    def _line_search(self, state, dx, E0, slope, v_base):
+        pos = state.positions
+        contact = state.in_contact
+        m = self.model
+        alpha = 1.0
+        # do not let any node move by more than the sheet's size in one step
+        big = np.abs(dx).max()
+        if big > 0 and alpha * big > 0.5 * self.blowup:
+            alpha = 0.5 * self.blowup / big
+        Ft = np.empty_like(self.F)
+        mesh = self.has_mold and self.margs[0][0] == MOLD_MESH and contact.any()
+        for _ in range(40):
+            self.ls_alpha = alpha
+            # the straight step (contact nodes projected back onto the surface); on a mesh mold,
+            # when it fails, the same step with contact nodes stopped at their face's border
+            for clip in ((False, True) if mesh else (False,)):
+                pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
+                                       clip, self.F, self.trial, self.trial_contact)
+                if not (pen <= PENETRATION_TOL):
+                    continue
+                E1 = self.energy_forces(self.trial, Ft)
+                if not math.isfinite(E1):
+                    continue
+                resolution = ENERGY_RESOLUTION * max(abs(E0), abs(E1), 1e-300) + 1e-300
+                if E1 <= E0 + 1e-4 * alpha * slope and E1 < E0 - resolution:
+                    return self._accept(state, E1, F=Ft)
+                if abs(E1 - E0) <= 10 * resolution:
+                    # below the energy's resolution: judge by the residual
+                    v1 = self.residual(self.trial, self.trial_contact, Ft)
+                    if v1 < v_base:
+                        return self._accept(state, E1, v1, Ft)
+            alpha *= 0.5
+            if alpha * np.abs(dx).max() < 1e-17:
+                break
+        return None
+
+    def _accept(self, state, E1, v1=None, F=None):
+        state.positions[:] = self.trial
+        state.in_contact[:] = self.trial_contact
+        if v1 is None:
+            v1 = self.residual(state.positions, state.in_contact, F)
+        if F is not None:
+            # forces and energy at the accepted state: the next iteration starts from them
+            self._cache = (state.positions, state.positions.copy(), E1, F)
+        if not math.isfinite(v1):
+            return v1, E1, 2
+        return v1, E1, 0
+
+
+def _forcing(v, e):
+    """Inexact-Newton forcing term: loose far from the solution, tight close to it."""
+    if not math.isfinite(v) or v <= 0:
+        return 1e-2
+    return float(min(1e-2, max(1e-10, 1e-2 * math.sqrt(max(e, 1e-300) / v))))

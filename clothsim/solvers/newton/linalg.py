@@ -1,0 +1,655 @@
+"""Linear algebra of the Newton step: the 3x3-block sparse (BSR) Hessian's pattern and assembly,
+the active-set projection of the system, the line-smoothed geometric multigrid V-cycle and the
+preconditioned conjugate gradients it preconditions.
+
+Shapes: n nodes, S springs, nb stored 3x3 blocks; vectors are flat (3n,) in node-major order
+(x0, y0, z0, x1, ...). Units: stiffness blocks N/m, forces N, displacements m.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+from numba import njit
+
+from ...kernels import LENGTH_EPS, spring_vector, table_eval
+
+# multigrid: stop coarsening at this many nodes
+COARSEST_NODES = 400
+
+
+@njit(cache=True)
+def _bsr_pattern(n, spring_nodes):
+    """Block-sparse pattern (one 3x3 block per node pair coupled by a spring, plus the diagonal).
+
+    Returns (indptr (n+1,), indices (nb,), spring_slot (S,4): the block slots of (a,a), (b,b),
+    (a,b), (b,a) for every spring, diag_slot (n,))."""
+    s_count = spring_nodes.shape[0]
+    deg = np.ones(n, np.int64)
+    for s in range(s_count):
+        deg[spring_nodes[s, 0]] += 1
+        deg[spring_nodes[s, 1]] += 1
+    cols = np.empty(deg.sum(), np.int64)
+    ptr = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        ptr[i + 1] = ptr[i] + deg[i]
+    fill = ptr[:-1].copy()
+    for i in range(n):
+        cols[fill[i]] = i
+        fill[i] += 1
+    for s in range(s_count):
+        a = spring_nodes[s, 0]
+        b = spring_nodes[s, 1]
+        cols[fill[a]] = b
+        fill[a] += 1
+        cols[fill[b]] = a
+        fill[b] += 1
+    # sort and deduplicate each row
+    indptr = np.zeros(n + 1, np.int64)
+    out = np.empty(cols.shape[0], np.int64)
+    m = 0
+    for i in range(n):
+        row = np.sort(cols[ptr[i]:ptr[i + 1]])
+        last = -1
+        for c in row:
+            if c != last:
+                out[m] = c
+                m += 1
+                last = c
+        indptr[i + 1] = m
+    indices = out[:m].copy()
+
+    slot = np.empty((s_count, 4), np.int64)
+    for s in range(s_count):
+        a = spring_nodes[s, 0]
+        b = spring_nodes[s, 1]
+        slot[s, 0] = _find_block(indptr, indices, a, a)
+        slot[s, 1] = _find_block(indptr, indices, b, b)
+        slot[s, 2] = _find_block(indptr, indices, a, b)
+        slot[s, 3] = _find_block(indptr, indices, b, a)
+    diag = np.empty(n, np.int64)
+    for i in range(n):
+        diag[i] = _find_block(indptr, indices, i, i)
+    return indptr, indices, slot, diag
+
+
+@njit(cache=True)
+def _assemble(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, kink, slot, data):
+    """Hessian blocks of the spring energy into data (nb,3,3) (zeroed first).
+
+    Per spring the block of ``kernels.spring_hessian_block`` (the same formula, written with
+    scalars): K = (w/l0) T'(s) u u^T + max(w T / l, 0) (I - u u^T), with T' replaced by
+    kink[s] [N/m] at and below strain 0 on tension-only springs."""
+    data[:] = 0.0
+    for s in range(spring_nodes.shape[0]):
+        dx, dy, dz, length = spring_vector(pos, spring_nodes[s, 0], spring_nodes[s, 1])
+        if length < LENGTH_EPS:
+            continue
+        l0 = rest[s]
+        w = width[s]
+        t = table[s]
+        st = length / l0 - 1.0
+        T, dT, W = table_eval(x, y, cum, start, comp, t, st)
+        if st <= 0.0 and comp[t] == 0 and kink[s] > 0.0:
+            dT = kink[s]
+        u0 = dx / length
+        u1 = dy / length
+        u2 = dz / length
+        ka = w / l0 * dT
+        kt = w * T / length
+        if kt < 0.0:
+            kt = 0.0
+        kd = ka - kt
+        b00 = kd * u0 * u0 + kt
+        b11 = kd * u1 * u1 + kt
+        b22 = kd * u2 * u2 + kt
+        b01 = kd * u0 * u1
+        b02 = kd * u0 * u2
+        b12 = kd * u1 * u2
+        for q, sg in ((slot[s, 0], 1.0), (slot[s, 1], 1.0), (slot[s, 2], -1.0), (slot[s, 3], -1.0)):
+            data[q, 0, 0] += sg * b00
+            data[q, 1, 1] += sg * b11
+            data[q, 2, 2] += sg * b22
+            data[q, 0, 1] += sg * b01
+            data[q, 1, 0] += sg * b01
+            data[q, 0, 2] += sg * b02
+            data[q, 2, 0] += sg * b02
+            data[q, 1, 2] += sg * b12
+            data[q, 2, 1] += sg * b12
+
+
+@njit(cache=True)
+def _project_system(indptr, indices, data, diag, Pi, mu_abs, out):
+    """out = Pi K Pi + mu Pi + (I - Pi) blockwise (Pi (n,3,3) symmetric projectors)."""
+    n = indptr.shape[0] - 1
+    tmp = np.empty((3, 3))
+    for i in range(n):
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            # tmp = K_ij Pi_j
+            for r in range(3):
+                for c in range(3):
+                    v = 0.0
+                    for t in range(3):
+                        v += data[q, r, t] * Pi[j, t, c]
+                    tmp[r, c] = v
+            for r in range(3):
+                for c in range(3):
+                    v = 0.0
+                    for t in range(3):
+                        v += Pi[i, r, t] * tmp[t, c]
+                    out[q, r, c] = v
+        d = diag[i]
+        for r in range(3):
+            for c in range(3):
+                idm = 1.0 if r == c else 0.0
+                out[d, r, c] += mu_abs * Pi[i, r, c] + (idm - Pi[i, r, c])
+
+
+@njit(cache=True)
+def _find_block(indptr, indices, i, j):
+    lo = indptr[i]
+    hi = indptr[i + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if indices[mid] < j:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < indptr[i + 1] and indices[lo] == j:
+        return lo
+    return -1
+
+
+@njit(cache=True)
+def _line_slots(indptr, indices, nx1, ny1):
+    """Block slots used by the line smoother: (diag (n,), prev (n,2), next (n,2)) where prev[k, d]
+    is the slot of the block coupling k to the previous node of its line along direction d
+    (0: i, 1: j), -1 if none."""
+    n = nx1 * ny1
+    diag = -np.ones(n, np.int64)
+    prv = -np.ones((n, 2), np.int64)
+    nxt = -np.ones((n, 2), np.int64)
+    for k in range(n):
+        i = k // ny1
+        j = k - i * ny1
+        for q in range(indptr[k], indptr[k + 1]):
+            c = indices[q]
+            if c == k:
+                diag[k] = q
+            elif c == k - ny1 and i > 0:
+                prv[k, 0] = q
+            elif c == k + ny1 and i < nx1 - 1:
+                nxt[k, 0] = q
+            elif c == k - 1 and j > 0:
+                prv[k, 1] = q
+            elif c == k + 1 and j < ny1 - 1:
+                nxt[k, 1] = q
+    return diag, prv, nxt
+
+
+@njit(cache=True)
+def _inv3s(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    """Inverse of a 3x3 matrix as 9 scalars (row major); a nearly singular matrix is shifted
+    (by a small multiple of its trace) until it is invertible, a zero one gives zero."""
+    tr = abs(a00) + abs(a11) + abs(a22)
+    shift = 0.0
+    for attempt in range(4):
+        b00 = a00 + shift
+        b11 = a11 + shift
+        b22 = a22 + shift
+        c00 = b11 * b22 - a12 * a21
+        c01 = a12 * a20 - a10 * b22
+        c02 = a10 * a21 - b11 * a20
+        det = b00 * c00 + a01 * c01 + a02 * c02
+        sc = max(tr, 1e-300)
+        if abs(det) > 1e-12 * sc * sc * sc and math.isfinite(det):
+            inv = 1.0 / det
+            return (c00 * inv, (a02 * a21 - a01 * b22) * inv, (a01 * a12 - a02 * b11) * inv,
+                    c01 * inv, (b00 * b22 - a02 * a20) * inv, (a02 * a10 - b00 * a12) * inv,
+                    c02 * inv, (a01 * a20 - b00 * a21) * inv, (b00 * b11 - a01 * a10) * inv)
+        shift = (1e-8 if shift == 0.0 else shift * 1e3) * max(tr, 1e-300)
+    return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True)
+def _line_gs(indptr, indices, data, nx1, ny1, dslot, pslot, nslot, b, xv, direction, reverse):
+    """Block line Gauss-Seidel: every grid line along ``direction`` (0: i varies at fixed j, the
+    warp lines; 1: j varies at fixed i) is solved exactly as a 3x3-block tridiagonal system
+    (block Thomas algorithm) with the other couplings taken from the current iterate. Lines
+    are visited in reverse when ``reverse`` (the adjoint sweep, so that the V-cycle stays
+    symmetric for CG).
+
+    Why lines: the stiffness of a stretched membrane is anisotropic per component (axial spring
+    stiffness along a yarn, only the transverse T/l across it), and point smoothers degrade
+    with that ratio; exact line solves make the smoothing robust to it."""
+    nlines = ny1 if direction == 0 else nx1
+    length = nx1 if direction == 0 else ny1
+    stride = ny1 if direction == 0 else 1
+    Cm = np.empty((length, 9))
+    rr = np.empty((length, 3))
+    for ll in range(nlines):
+        line = nlines - 1 - ll if reverse else ll
+        first = line if direction == 0 else line * ny1
+        # right-hand sides with the off-line couplings moved over
+        for t in range(length):
+            k = first + t * stride
+            qp = pslot[k, direction]
+            qn = nslot[k, direction]
+            qd = dslot[k]
+            r0 = b[3 * k]
+            r1 = b[3 * k + 1]
+            r2 = b[3 * k + 2]
+            for q in range(indptr[k], indptr[k + 1]):
+                if q == qd or q == qp or q == qn:
+                    continue
+                j = indices[q]
+                x0 = xv[3 * j]
+                x1 = xv[3 * j + 1]
+                x2 = xv[3 * j + 2]
+                r0 -= data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
+                r1 -= data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
+                r2 -= data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
+            rr[t, 0] = r0
+            rr[t, 1] = r1
+            rr[t, 2] = r2
+        # block Thomas: D'_t = D_t - L_t C_{t-1}, r'_t = D'^{-1}(r_t - L_t r'_{t-1}), C_t = D'^{-1} U_t
+        for t in range(length):
+            k = first + t * stride
+            qd = dslot[k]
+            d00 = data[qd, 0, 0]; d01 = data[qd, 0, 1]; d02 = data[qd, 0, 2]
+            d10 = data[qd, 1, 0]; d11 = data[qd, 1, 1]; d12 = data[qd, 1, 2]
+            d20 = data[qd, 2, 0]; d21 = data[qd, 2, 1]; d22 = data[qd, 2, 2]
+            r0 = rr[t, 0]
+            r1 = rr[t, 1]
+            r2 = rr[t, 2]
+            ql = pslot[k, direction]
+            if t > 0 and ql >= 0:
+                C = Cm[t - 1]
+                l00 = data[ql, 0, 0]; l01 = data[ql, 0, 1]; l02 = data[ql, 0, 2]
+                l10 = data[ql, 1, 0]; l11 = data[ql, 1, 1]; l12 = data[ql, 1, 2]
+                l20 = data[ql, 2, 0]; l21 = data[ql, 2, 1]; l22 = data[ql, 2, 2]
+                d00 -= l00 * C[0] + l01 * C[3] + l02 * C[6]
+                d01 -= l00 * C[1] + l01 * C[4] + l02 * C[7]
+                d02 -= l00 * C[2] + l01 * C[5] + l02 * C[8]
+                d10 -= l10 * C[0] + l11 * C[3] + l12 * C[6]
+                d11 -= l10 * C[1] + l11 * C[4] + l12 * C[7]
+                d12 -= l10 * C[2] + l11 * C[5] + l12 * C[8]
+                d20 -= l20 * C[0] + l21 * C[3] + l22 * C[6]
+                d21 -= l20 * C[1] + l21 * C[4] + l22 * C[7]
+                d22 -= l20 * C[2] + l21 * C[5] + l22 * C[8]
+                p0 = rr[t - 1, 0]
+                p1 = rr[t - 1, 1]
+                p2 = rr[t - 1, 2]
+                r0 -= l00 * p0 + l01 * p1 + l02 * p2
+                r1 -= l10 * p0 + l11 * p1 + l12 * p2
+                r2 -= l20 * p0 + l21 * p1 + l22 * p2
+            i00, i01, i02, i10, i11, i12, i20, i21, i22 = _inv3s(d00, d01, d02, d10, d11, d12, d20, d21, d22)
+            rr[t, 0] = i00 * r0 + i01 * r1 + i02 * r2
+            rr[t, 1] = i10 * r0 + i11 * r1 + i12 * r2
+            rr[t, 2] = i20 * r0 + i21 * r1 + i22 * r2
+            qu = nslot[k, direction]
+            C = Cm[t]
+            if t < length - 1 and qu >= 0:
+                u00 = data[qu, 0, 0]; u01 = data[qu, 0, 1]; u02 = data[qu, 0, 2]
+                u10 = data[qu, 1, 0]; u11 = data[qu, 1, 1]; u12 = data[qu, 1, 2]
+                u20 = data[qu, 2, 0]; u21 = data[qu, 2, 1]; u22 = data[qu, 2, 2]
+                C[0] = i00 * u00 + i01 * u10 + i02 * u20
+                C[1] = i00 * u01 + i01 * u11 + i02 * u21
+                C[2] = i00 * u02 + i01 * u12 + i02 * u22
+                C[3] = i10 * u00 + i11 * u10 + i12 * u20
+                C[4] = i10 * u01 + i11 * u11 + i12 * u21
+                C[5] = i10 * u02 + i11 * u12 + i12 * u22
+                C[6] = i20 * u00 + i21 * u10 + i22 * u20
+                C[7] = i20 * u01 + i21 * u11 + i22 * u21
+                C[8] = i20 * u02 + i21 * u12 + i22 * u22
+            else:
+                for u in range(9):
+                    C[u] = 0.0
+        # back substitution
+        for tt in range(length):
+            t = length - 1 - tt
+            if t < length - 1:
+                C = Cm[t]
+                n0 = rr[t + 1, 0]
+                n1 = rr[t + 1, 1]
+                n2 = rr[t + 1, 2]
+                rr[t, 0] -= C[0] * n0 + C[1] * n1 + C[2] * n2
+                rr[t, 1] -= C[3] * n0 + C[4] * n1 + C[5] * n2
+                rr[t, 2] -= C[6] * n0 + C[7] * n1 + C[8] * n2
+            k = first + t * stride
+            xv[3 * k] = rr[t, 0]
+            xv[3 * k + 1] = rr[t, 1]
+            xv[3 * k + 2] = rr[t, 2]
+
+
+@njit(cache=True)
+def _bsr_residual(indptr, indices, data, xv, b, out):
+    """out = b - A x."""
+    _bsr_matvec(indptr, indices, data, xv, out)
+    for i in range(out.shape[0]):
+        out[i] = b[i] - out[i]
+
+
+@njit(cache=True)
+def _dot(a, b):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * b[i]
+    return s
+
+
+@njit(cache=True)
+def _cg_update(x, r, p, Ap, alpha):
+    """x += alpha p; r -= alpha Ap; returns |r|^2."""
+    s = 0.0
+    for i in range(x.shape[0]):
+        x[i] += alpha * p[i]
+        r[i] -= alpha * Ap[i]
+        s += r[i] * r[i]
+    return s
+
+
+@njit(cache=True)
+def _cg_direction(p, z, beta):
+    for i in range(p.shape[0]):
+        p[i] = z[i] + beta * p[i]
+
+
+@njit(cache=True)
+def _bsr_matvec(indptr, indices, data, xv, out):
+    n = indptr.shape[0] - 1
+    for i in range(n):
+        r0 = 0.0
+        r1 = 0.0
+        r2 = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            x0 = xv[3 * j]
+            x1 = xv[3 * j + 1]
+            x2 = xv[3 * j + 2]
+            r0 += data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
+            r1 += data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
+            r2 += data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
+        out[3 * i] = r0
+        out[3 * i + 1] = r1
+        out[3 * i + 2] = r2
+
+
+@njit(cache=True)
+def _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, stamp, rowbuf):
+    """The distinct coarse columns of row c of P^T A P (the parents of the fine neighbours of
+    c's children) into rowbuf, unsorted; returns how many. marker (nc,) remembers the stamp of
+    the row that last listed each column (stamps must differ between calls)."""
+    m = 0
+    for qc in range(cptr[c], cptr[c + 1]):
+        k = cchild[qc]
+        for q in range(indptr[k], indptr[k + 1]):
+            l = indices[q]
+            for t in range(pidx.shape[1]):
+                d = pidx[l, t]
+                if d >= 0 and marker[d] != stamp:
+                    marker[d] = stamp
+                    rowbuf[m] = d
+                    m += 1
+    return m
+
+
+@njit(cache=True)
+def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi):
+    """Coarse operator A_c = P^T A P for a node-level interpolation P (fine node k has parents
+    pidx[k, :] with weights pw[k, :], -1 unused; coarse node c has children cchild[cptr[c]:...]
+    with weights cw) acting blockwise as weight x I3. With ``use_pi`` the fine matrix is
+    A = Pi K Pi + mu Pi + (I - Pi) and the prolongation is Pi P: then P^T Pi A Pi P equals
+    P^T (A - (I - Pi)) P, so the (I - Pi) part is left out of the diagonal blocks.
+    Returns the coarse BSR arrays (indptr, indices, data (nb,3,3)) with sorted rows."""
+    marker = -np.ones(nc, np.int64)
+    rowbuf = np.empty(nc, np.int64)
+    # symbolic pass: count the coarse row lengths
+    cip = np.zeros(nc + 1, np.int64)
+    for c in range(nc):
+        cip[c + 1] = cip[c] + _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, c, rowbuf)
+    cidx = np.empty(cip[nc], np.int64)
+    cdat = np.zeros((cip[nc], 3, 3))
+    slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
+    for c in range(nc):
+        # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
+        m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
+        row = np.sort(rowbuf[:m])
+        base = cip[c]
+        for t in range(m):
+            cidx[base + t] = row[t]
+            slot[row[t]] = base + t
+        for qc in range(cptr[c], cptr[c + 1]):
+            k = cchild[qc]
+            wk = cw[qc]
+            for q in range(indptr[k], indptr[k + 1]):
+                l = indices[q]
+                for t in range(pidx.shape[1]):
+                    d = pidx[l, t]
+                    if d < 0:
+                        continue
+                    w = wk * pw[l, t]
+                    z = slot[d]
+                    for r in range(3):
+                        for cc in range(3):
+                            v = data[q, r, cc]
+                            if use_pi and l == k:
+                                v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
+                            cdat[z, r, cc] += w * v
+    return cip, cidx, cdat
+
+
+@njit(cache=True)
+def _restrict(r, cptr, cchild, cw, Pi, use_pi, out):
+    """out = (Pi P)^T r blockwise (Pi only when use_pi)."""
+    nc = cptr.shape[0] - 1
+    for c in range(nc):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for q in range(cptr[c], cptr[c + 1]):
+            k = cchild[q]
+            w = cw[q]
+            r0 = r[3 * k]
+            r1 = r[3 * k + 1]
+            r2 = r[3 * k + 2]
+            if use_pi:
+                a0 += w * (Pi[k, 0, 0] * r0 + Pi[k, 0, 1] * r1 + Pi[k, 0, 2] * r2)
+                a1 += w * (Pi[k, 1, 0] * r0 + Pi[k, 1, 1] * r1 + Pi[k, 1, 2] * r2)
+                a2 += w * (Pi[k, 2, 0] * r0 + Pi[k, 2, 1] * r1 + Pi[k, 2, 2] * r2)
+            else:
+                a0 += w * r0
+                a1 += w * r1
+                a2 += w * r2
+        out[3 * c] = a0
+        out[3 * c + 1] = a1
+        out[3 * c + 2] = a2
+
+
+@njit(cache=True)
+def _prolong_add(xc, pidx, pw, Pi, use_pi, x):
+    """x += (Pi P) xc blockwise."""
+    for k in range(pidx.shape[0]):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for t in range(pidx.shape[1]):
+            d = pidx[k, t]
+            if d < 0:
+                continue
+            w = pw[k, t]
+            a0 += w * xc[3 * d]
+            a1 += w * xc[3 * d + 1]
+            a2 += w * xc[3 * d + 2]
+        if use_pi:
+            x[3 * k] += Pi[k, 0, 0] * a0 + Pi[k, 0, 1] * a1 + Pi[k, 0, 2] * a2
+            x[3 * k + 1] += Pi[k, 1, 0] * a0 + Pi[k, 1, 1] * a1 + Pi[k, 1, 2] * a2
+            x[3 * k + 2] += Pi[k, 2, 0] * a0 + Pi[k, 2, 1] * a1 + Pi[k, 2, 2] * a2
+        else:
+            x[3 * k] += a0
+            x[3 * k + 1] += a1
+            x[3 * k + 2] += a2
+
+
+class _Level:
+    __slots__ = ("indptr", "indices", "data", "lu", "n", "shape", "ds", "ps", "ns")
+
+
+class _Transfer:
+    """Node-level bilinear interpolation between a grid and its every-second-node coarse grid."""
+
+    def __init__(self, topology):
+        coarse, P = topology.grid_prolongation()
+        self.coarse = coarse
+        P.sort_indices()
+        n, nc = P.shape
+        self.pidx = -np.ones((n, 4), np.int64)
+        self.pw = np.zeros((n, 4))
+        cnt = np.diff(P.indptr)
+        pos_in_row = np.arange(P.indices.shape[0]) - np.repeat(P.indptr[:-1], cnt)
+        rows = np.repeat(np.arange(n), cnt)
+        self.pidx[rows, pos_in_row] = P.indices
+        self.pw[rows, pos_in_row] = P.data
+        PT = P.T.tocsr()
+        PT.sort_indices()
+        self.cptr = PT.indptr.astype(np.int64)
+        self.cchild = PT.indices.astype(np.int64)
+        self.cw = PT.data.astype(float)
+        self.nc = nc
+
+
+class Multigrid:
+    """Galerkin geometric multigrid on the node grid, used as the CG preconditioner.
+
+    Levels: the fine grid, then every second node (bilinear interpolation), down to at most
+    ``COARSEST_NODES`` nodes, factorised with a sparse LU. The fine level's prolongation is
+    projected by the active-set projectors Pi, so the coarse spaces only move nodes where they
+    may move. Galerkin products, restriction and prolongation are numba loops over the
+    structured grid's parent/child lists."""
+
+    def __init__(self, topology):
+        """topology: a full-rectangle Topology (``is_grid``): the lines the smoother relaxes
+        and the stride-2 levels come from it."""
+        self.shapes = [topology.grid_shape]
+        self.transfers: list[_Transfer] = []
+        nx1, ny1 = topology.grid_shape
+        while nx1 * ny1 > COARSEST_NODES and nx1 > 3 and ny1 > 3:
+            tr = _Transfer(topology)
+            self.transfers.append(tr)
+            topology = tr.coarse
+            nx1, ny1 = topology.grid_shape
+            self.shapes.append((nx1, ny1))
+        self.levels: list[_Level] = []
+        self.Pi = None
+
+    def setup(self, indptr, indices, data, Pi):
+        """Build the hierarchy for the projected fine matrix (BSR arrays)."""
+        self.Pi = Pi
+        levels = []
+        L = _Level()
+        L.indptr, L.indices, L.data = indptr, indices, data
+        L.n = indptr.shape[0] - 1
+        levels.append(L)
+        for lv, tr in enumerate(self.transfers):
+            F = levels[-1]
+            cip, cidx, cdat = _galerkin(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild,
+                                        tr.cw, tr.nc, Pi, lv == 0)
+            C = _Level()
+            C.indptr, C.indices, C.data = cip, cidx, cdat
+            C.n = tr.nc
+            levels.append(C)
+        for lv, L in enumerate(levels[:-1]):
+            nx1, ny1 = self.shapes[lv]
+            L.ds, L.ps, L.ns = _line_slots(L.indptr, L.indices, nx1, ny1)
+        last = levels[-1]
+        n3 = 3 * last.n
+        Alast = sp.bsr_matrix((last.data, last.indices, last.indptr), shape=(n3, n3)).tocsc()
+        d = Alast.diagonal()
+        scale = np.abs(d).max() if d.size else 1.0
+        fix = np.where(np.abs(d) <= 1e-12 * max(scale, 1e-300), max(scale, 1.0), 0.0)
+        Alast = (Alast + sp.diags(fix + 1e-12 * max(scale, 1e-300))).tocsc()
+        last.lu = sla.splu(Alast, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
+                           diag_pivot_thresh=1e-3)
+        self.levels = levels
+
+    def vcycle(self, b, lv=0):
+        """One V-cycle for A x = b from x = 0 (symmetric: alternating line Gauss-Seidel before,
+        its adjoint after)."""
+        L = self.levels[lv]
+        if lv == len(self.levels) - 1:
+            return L.lu.solve(b)
+        nx1, ny1 = self.shapes[lv]
+        tr = self.transfers[lv]
+        x = np.zeros_like(b)
+        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, False)
+        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, False)
+        r = np.empty_like(b)
+        _bsr_residual(L.indptr, L.indices, L.data, x, b, r)
+        rc = np.empty(3 * tr.nc)
+        _restrict(r, tr.cptr, tr.cchild, tr.cw, self.Pi, lv == 0, rc)
+        xc = self.vcycle(rc, lv + 1)
+        _prolong_add(xc, tr.pidx, tr.pw, self.Pi, lv == 0, x)
+        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, True)
+        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, True)
+        return x
+
+
+class AlgebraicMultigrid:
+    """PyAMG's smoothed aggregation on the projected BSR matrix, used as the CG preconditioner
+    where the lattice is not one full rectangle (cut panels, several panels), so the line
+    smoother's grid lines do not exist. Same interface as :class:`Multigrid`.
+
+    References: Vanek, Mandel, Brezina, *Algebraic multigrid by smoothed aggregation for second
+    and fourth order elliptic problems*, Computing 56 (1996); PyAMG (Bell, Olson, Schroder).
+    Limitations: set-up costs more than the geometric multigrid's Galerkin products on a grid."""
+
+    def __init__(self):
+        self._M = None
+
+    def setup(self, indptr, indices, data, Pi):
+        import pyamg
+
+        n3 = 3 * (indptr.shape[0] - 1)
+        A = sp.bsr_matrix((data, indices, indptr), shape=(n3, n3)).tocsr()
+        ml = pyamg.smoothed_aggregation_solver(A, symmetry="symmetric", max_coarse=300,
+                                               strength=("symmetric", {"theta": 0.0}))
+        self._M = ml.aspreconditioner(cycle="V")
+
+    def vcycle(self, b):
+        return self._M @ b
+
+
+def _pcg(matvec, prec, b, tol, maxiter):
+    """Preconditioned conjugate gradients from x = 0; returns (x, iterations, relative residual).
+
+    Vector operations are numba loops: BLAS calls on short vectors are slow when its threads
+    compete for a loaded machine."""
+    x = np.zeros_like(b)
+    r = b.copy()
+    bn = math.sqrt(_dot(b, b))
+    if bn == 0.0:
+        return x, 0, 0.0
+    z = prec(r)
+    p = z.copy()
+    rz = _dot(r, z)
+    it = 0
+    rel = 1.0
+    Ap = np.empty_like(b)
+    for it in range(1, maxiter + 1):
+        matvec(p, Ap)
+        pAp = _dot(p, Ap)
+        if not (pAp > 0.0):
+            break
+        rr = _cg_update(x, r, p, Ap, rz / pAp)
+        rel = math.sqrt(rr) / bn
+        if rel <= tol:
+            break
+        z = prec(r)
+        rz_new = _dot(r, z)
+        _cg_direction(p, z, rz_new / rz)
+        rz = rz_new
+    return x, it, rel

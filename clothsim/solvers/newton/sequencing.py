@@ -1,0 +1,119 @@
+"""Grid sequencing: the scene on coarser grids (every second node, recursively), each solved by
+Newton from the previous one's interpolated solution, gives the fine grid's starting state.
+
+The coarse models come from the lattice builder at stride 2 (clothsim.grid.coarsen_model) and
+the interpolation from the Topology (``grid_prolongation``); positions (n, 3) [m].
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from .active_set import PENETRATION_TOL
+from .iteration import NewtonLevel, _forcing
+
+
+from ...grid import coarsen_model  # noqa: E402  (the lattice builder at stride 2)
+
+
+def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
+    """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
+    the fine constrained coordinates, and put nodes that would be inside the mold (or between
+    two contact nodes) onto its surface as contact nodes."""
+    from ...mold import mold_query_many
+
+    _, P = fine_model.topology.grid_prolongation()
+    pos = P @ coarse_state.positions
+    cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
+    fixed = fine_model.fixed_axes
+    pos[fixed] = fine_state.positions[fixed]
+    if fine_model.mold is not None:
+        margs = fine_model.mold.kernel_args()
+        n = fine_model.node_count
+        sd = np.empty(n); cp = np.empty((n, 3)); nrm = np.empty((n, 3)); feat = np.empty((n, 2), np.int64)
+        mold_query_many(margs, pos, sd, cp, nrm, feat)
+        put = (sd < 0) | cont
+        put &= ~fixed.all(axis=1)
+        k = np.nonzero(put)[0]
+        for a in range(3):
+            sel = k[~fixed[k, a]]
+            pos[sel, a] = cp[sel, a]
+        mold_query_many(margs, pos, sd, cp, nrm, feat)
+        inside = sd < -PENETRATION_TOL
+        if inside.any():
+            return False
+        cont = put
+    else:
+        cont = np.zeros(fine_model.node_count, bool)
+    fine_state.positions[:] = pos
+    fine_state.in_contact[:] = cont
+    return True
+
+
+def _solve_level(level: NewtonLevel, state, e, max_iter, deadline):
+    """Newton iterations on a coarse level until its residual is below e (or no progress)."""
+    v = level.residual(state.positions, state.in_contact)
+    for _ in range(max_iter):
+        if v <= e or time.perf_counter() > deadline:
+            break
+        v, E, flag = level.iterate(state, v, forcing=_forcing(v, e))
+        if flag:
+            break
+    return v
+
+
+def sequencing_chain(model, min_nodes: int = 400):
+    """[(model, sub), ...] from the coarsest grid to the given one; each coarser grid has half
+    the divisions of the next, and ``sub`` (for all but the last) indexes the next grid's nodes
+    that it keeps."""
+    chain = [(model, None)]
+    m = model
+    while True:
+        c, sub = coarsen_model(m)
+        if c is None or c.node_count < min_nodes:
+            break
+        chain.append((c, sub))  # sub: the nodes of m (the next finer grid) that c keeps
+        m = c
+    return chain[::-1]
+
+
+def grid_sequence(model, state, e, kink, deadline):
+    """Solve the scene on the coarser grids (coarsest first), each started from the previous
+    one's solution, and return the interpolated starting state for ``model`` (or None when the
+    grid cannot be coarsened or the interpolation fails). e [N]: the run's convergence limit (no
+    level is solved tighter); kink: NewtonOptions.kink; deadline: a ``time.perf_counter`` value."""
+    from ...grid import State
+
+    chain = sequencing_chain(model)
+    if len(chain) < 2:
+        return None
+    # restrict the current state down the chain (each level keeps every second node)
+    starts = [None] * len(chain)
+    starts[-1] = (state.positions, state.in_contact)
+    for li in range(len(chain) - 1, 0, -1):
+        p, c = starts[li]
+        sub = chain[li - 1][1]
+        starts[li - 1] = (p[sub].copy(), c[sub].copy())
+    prev_model = prev_state = None
+    for li, (mdl, _) in enumerate(chain[:-1]):
+        p, c = starts[li]
+        cst = State(np.ascontiguousarray(p), c.copy(), 0)
+        if prev_state is not None:
+            # the previous level's solution; when it cannot be interpolated (prolong_state then
+            # leaves cst alone) this level starts from the restricted state
+            prolong_state(prev_model, prev_state, mdl, cst)
+        lvl = NewtonLevel(mdl, kink=kink)
+        v0 = lvl.residual(cst.positions, cst.in_contact)
+        # the coarsest grid is solved tightly (it fixes the contact set), the others only as far
+        # as their discretisation error matters for the next grid's start
+        rel = 1e-8 if li == 0 else 1e-4
+        _solve_level(lvl, cst, max(e, rel * v0), 60, deadline)
+        prev_model, prev_state = mdl, cst
+    trial = state.copy()
+    if not prolong_state(prev_model, prev_state, model, trial):
+        return None
+    return trial
