@@ -21,7 +21,7 @@ from ..common import model_mold_args
 from ..options import NewtonOptions
 from .active_set import (PENETRATION_TOL, _apply_pi, _block_infeasible, _mold_distances, _projectors,
                          _trial_positions)
-from .linalg import AlgebraicMultigrid, Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system
+from .linalg import AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
 DIRECT_DOFS = 6000
@@ -40,8 +40,12 @@ LM_MAX = 1e4
 class NewtonLevel:
     """Newton iterations for one Model (the fine grid, or a coarse grid of the sequencing)."""
 
-    def __init__(self, model, *, kink: float = NewtonOptions.kink, use_multigrid: bool | None = None):
-        """kink: NewtonOptions.kink; use_multigrid: None = by size (``DIRECT_DOFS``)."""
+    def __init__(self, model, *, kink: float = NewtonOptions.kink, use_multigrid: bool | None = None,
+                 preconditioner: str = "geometric"):
+        """kink: NewtonOptions.kink; use_multigrid: None = by size (``DIRECT_DOFS``);
+        preconditioner on lattices other than one full rectangle: "geometric" (the line-smoothed
+        multigrid on the panels' padded rectangle, PaddedMultigrid) or "amg" (PyAMG's smoothed
+        aggregation, AlgebraicMultigrid; slower here, kept for comparison in the benchmark)."""
         self.model = model
         self.has_mold, self.margs = model_mold_args(model)
         self.sargs = model.spring_args()
@@ -64,8 +68,14 @@ class NewtonLevel:
         self.trial_contact = np.zeros(n, bool)
         self.direct = (use_multigrid is False) or (use_multigrid is None and 3 * n <= DIRECT_DOFS)
         # line-smoothed geometric multigrid on one full rectangle, algebraic multigrid elsewhere
-        self.mg = None if self.direct else (Multigrid(model.topology) if model.topology.is_grid
-                                            else AlgebraicMultigrid())
+        if self.direct:
+            self.mg = None
+        elif model.topology.is_grid:
+            self.mg = Multigrid(model.topology)
+        elif preconditioner == "amg":
+            self.mg = AlgebraicMultigrid()
+        else:
+            self.mg = PaddedMultigrid(model.topology)
         self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
         ext = np.ptp(model.rest_positions, axis=0).max()
         self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))

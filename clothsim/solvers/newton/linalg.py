@@ -598,6 +598,73 @@ class Multigrid:
         return x
 
 
+class PaddedMultigrid:
+    """The line-smoothed geometric multigrid for any lattice: its panels laid side by side (one
+    empty column between two) on one rectangle, the rectangle's nodes that are not lattice nodes
+    given an identity block, decoupled, and a zero projector (so no coarse space moves them).
+    Cut panels and several panels sewn together keep the smoother's lines (the seams' couplings
+    are off-line blocks, taken from the current iterate like any other) and the Galerkin coarse
+    grids. Same interface as :class:`Multigrid`; ``prepare`` takes the lattice's BSR pattern once.
+
+    Shapes: the lattice's n nodes map to rows ``emb`` (n,) of the rectangle's N nodes; the
+    embedding is increasing, so every row keeps its sorted block columns."""
+
+    def __init__(self, topology):
+        from ...topology import Topology
+
+        shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
+        height = max(s[1] for s in shapes)
+        offs = np.cumsum([0] + [s[0] + 1 for s in shapes])
+        width = int(offs[-1]) - 1
+        self.full = Topology.rectangle(width - 1, height - 1)
+        I = offs[topology.node_panel] + topology.node_ij[:, 0]
+        self.emb = (I * height + topology.node_ij[:, 1]).astype(np.int64)
+        self.N = width * height
+        self.mg = Multigrid(self.full)
+        self._pattern = None
+
+    def prepare(self, indptr, indices):
+        """The rectangle's BSR pattern and, per block, the lattice block it copies (-1: identity)."""
+        n = indptr.shape[0] - 1
+        inv = -np.ones(self.N, np.int64)
+        inv[self.emb] = np.arange(n)
+        counts = np.ones(self.N, np.int64)
+        counts[self.emb] = np.diff(indptr)
+        fptr = np.zeros(self.N + 1, np.int64)
+        np.cumsum(counts, out=fptr[1:])
+        fidx = np.empty(fptr[-1], np.int64)
+        src = -np.ones(fptr[-1], np.int64)
+        have = inv >= 0
+        miss = np.nonzero(~have)[0]
+        fidx[fptr[miss]] = miss
+        rows = np.nonzero(have)[0]
+        k = inv[rows]
+        starts = fptr[rows]
+        for r0, kk in zip(starts, k):  # once per lattice (pattern is constant)
+            a, b = indptr[kk], indptr[kk + 1]
+            fidx[r0:r0 + b - a] = self.emb[indices[a:b]]
+            src[r0:r0 + b - a] = np.arange(a, b)
+        self._pattern = (fptr, fidx, src)
+
+    def setup(self, indptr, indices, data, Pi):
+        if self._pattern is None:
+            self.prepare(indptr, indices)
+        fptr, fidx, src = self._pattern
+        scale = float(np.abs(np.einsum("kii->k", data)).mean() / 3) if data.shape[0] else 1.0
+        fdat = np.zeros((fidx.shape[0], 3, 3))
+        got = src >= 0
+        fdat[got] = data[src[got]]
+        fdat[~got] = np.eye(3) * max(scale, 1e-300)
+        fpi = np.zeros((self.N, 3, 3))
+        fpi[self.emb] = Pi
+        self.mg.setup(fptr, fidx, fdat, fpi)
+
+    def vcycle(self, b):
+        bf = np.zeros((self.N, 3))
+        bf[self.emb] = b.reshape(-1, 3)
+        return self.mg.vcycle(bf.ravel()).reshape(-1, 3)[self.emb].ravel()
+
+
 class AlgebraicMultigrid:
     """PyAMG's smoothed aggregation on the projected BSR matrix, used as the CG preconditioner
     where the lattice is not one full rectangle (cut panels, several panels), so the line
