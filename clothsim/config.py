@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from .compression.spec import Classes, Probe, Profile, check_compression
 from .material import MaterialError, Table, check_table, read_table_csv
 
 SOLVER_METHODS = ("auto", "paper", "newton")
@@ -334,9 +335,18 @@ class Scene(_Strict):
     bending: SpringTerm | None = None
     seams: list[Seam] = Field(default_factory=list)
     solver: SolverSettings = Field(default_factory=SolverSettings)
+    # compression engineering (clothsim.compression.spec): sensors, slices along a limb, classes
+    probes: list[Probe] = Field(default_factory=list)
+    profiles: list[Profile] = Field(default_factory=list)
+    classes: Classes | None = None
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
+
+    @model_validator(mode="after")
+    def _compression_names(self):
+        check_compression(self.probes, self.profiles, self.classes)
+        return self
 
     @model_validator(mode="after")
     def _seams_fit(self):
@@ -390,7 +400,11 @@ class Scene(_Strict):
         return Table(strain, value * (m.scale or 1.0))
 
     def to_dict(self) -> dict:
-        return self.model_dump(mode="json", exclude_none=True)
+        d = self.model_dump(mode="json", exclude_none=True)
+        for key in ("probes", "profiles"):  # optional sections: absent unless used
+            if not d.get(key):
+                d.pop(key, None)
+        return d
 
     def resolved(self) -> "Scene":
         """A copy whose file references (CSV tables, initial file, mold path) are absolute, so the

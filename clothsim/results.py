@@ -13,6 +13,8 @@ interrupted run never leaves a half-written file):
 - ``history.csv``: iteration, residual [N], energy [J], elapsed [s].
 - ``sheet.ply``: the deformed grid as triangles with per-vertex colours (strain or pressure).
 - ``scene.yaml``: the fully resolved scene.
+- ``probes.csv``, ``profiles.csv``, ``profiles.png``: when the scene has ``probes`` / ``profiles``
+  (clothsim.compression.probes); summary.json then holds ``probes``, ``profiles`` and ``classes``.
 """
 
 from __future__ import annotations
@@ -157,6 +159,7 @@ class Result:
     solve: object  # SolveResult
     startup_s: float = 0.0
     _fields: tuple | None = field(default=None, repr=False)
+    _compression: dict | None = field(default=None, repr=False)
 
     def _f(self):
         if self._fields is None:
@@ -283,7 +286,20 @@ class Result:
             "clothsim_version": __version__,
         }
         d.update(self.diagnostics())
+        d.update(self.compression())
         return d
+
+    def compression(self) -> dict:
+        """The scene's probes, profiles and classes (clothsim.compression.probes.evaluate):
+        {"probes": [...], "profiles": [...], "classes": {...}}, only the keys the scene asks for."""
+        if not (getattr(self.scene, "probes", None) or getattr(self.scene, "profiles", None)):
+            return {}
+        if getattr(self, "_compression", None) is None:
+            from .compression.probes import evaluate
+
+            self._compression = evaluate(self.scene, self.model, self.state.positions, self.state.in_contact,
+                                         self._f()[3])
+        return self._compression
 
     def colored_mesh(self, field: str = "strain"):
         """A trimesh.Trimesh of the deformed sheet with per-vertex colours (viridis) of field
@@ -335,6 +351,15 @@ class Result:
         atomic_write_bytes(out / "history.csv", self.history_csv().encode())
         atomic_write_bytes(out / "sheet.ply", self.colored_mesh(ply_field).export(file_type="ply"))
         atomic_write_bytes(out / "scene.yaml", self.scene.resolved().to_yaml().encode())
+        comp = self.compression()
+        if comp:
+            from .compression.probes import probes_csv, profile_png, profiles_csv
+
+            if comp.get("probes"):
+                atomic_write_bytes(out / "probes.csv", probes_csv(comp["probes"]).encode())
+            if comp.get("profiles"):
+                atomic_write_bytes(out / "profiles.csv", profiles_csv(comp["profiles"]).encode())
+                atomic_write_bytes(out / "profiles.png", profile_png(comp["profiles"], self.scene.name))
         # summary last: its presence marks a complete run folder (sweeps rely on it)
         atomic_write_bytes(out / "summary.json", json.dumps(self.summary(), indent=2).encode())
         return out
