@@ -277,6 +277,8 @@ def profile_png(profiles: list[dict], title: str = "") -> bytes:
         ax.fill_betweenx(h, [s["min_mmhg"] if s["min_mmhg"] is not None else s["mean_mmhg"] for s in on],
                          [s["max_mmhg"] if s["max_mmhg"] is not None else s["mean_mmhg"] for s in on],
                          color=line.get_color(), alpha=0.2, label=f"{pf['name']} (min-max)")
+    ax.set_xlim(left=0.0)
+    ax.ticklabel_format(axis="x", useOffset=False)
     ax.set_xlabel("contact pressure [mmHg]")
     ax.set_ylabel("height along the axis [m]")
     ax.set_title(title or "pressure profile")
