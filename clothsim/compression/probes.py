@@ -201,6 +201,9 @@ def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
     if steady:
         out["note"] = (f"falls steadily from {m[0]:.1f} to {m[-1]:.1f} mmHg "
                        f"({out['drop_percent']:.0f} % lower at {on[-1]['height_m']:.3g} m)")
+    elif m[-1] - m[0] > tolerance_mmhg:
+        out["note"] = (f"rises from {m[0]:.1f} mmHg at {on[0]['height_m']:.3g} m to {m[-1]:.1f} mmHg at "
+                       f"{on[-1]['height_m']:.3g} m: not graduated")
     elif rises.max() <= tolerance_mmhg:
         out["note"] = f"does not fall: {m[0]:.1f} mmHg at {on[0]['height_m']:.3g} m, {m[-1]:.1f} mmHg at {on[-1]['height_m']:.3g} m"
     else:

@@ -71,6 +71,7 @@ def map_png(pos, faces, values, label: str, cmap: str) -> str:
     from matplotlib.colors import Normalize
     from matplotlib.cm import ScalarMappable
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     v = np.where(np.isfinite(values), values, np.nan)
@@ -87,6 +88,7 @@ def map_png(pos, faces, values, label: str, cmap: str) -> str:
     c = pos.mean(axis=0)
     half = 0.5 * float(np.ptp(pos, axis=0).max()) or 1.0
     fig = Figure(figsize=(12.0, 4.2), dpi=90)
+    fig.subplots_adjust(left=0.0, right=0.86, bottom=0.05, top=0.92, wspace=0.1)
     for k, (name, elev, azim) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 3, k + 1, projection="3d")
         ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolors="none", linewidths=0))
@@ -99,6 +101,8 @@ def map_png(pos, faces, values, label: str, cmap: str) -> str:
         ax.set_ylabel("y [m]")
         ax.set_zlabel("z [m]")
         ax.tick_params(labelsize=7)
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_major_locator(MaxNLocator(4))
     sm = ScalarMappable(norm=norm, cmap=cm)
     cb = fig.colorbar(sm, ax=fig.axes, shrink=0.8, pad=0.02)
     cb.set_label(label)
