@@ -1,4 +1,4 @@
-"""Headless commands: run, sweep, bench, view (the default).
+"""Headless commands: run, sweep, bench, fit, report, view (the default).
 
 Exit status: 0 converged (or all runs converged), 1 stopped without converging (or some runs
 did not converge), 2 bad input.
@@ -140,7 +140,76 @@ def _positive_int(text: str) -> int:
     return v
 
 
-COMMANDS = ("run", "view", "sweep", "bench")
+COMMANDS = ("run", "view", "sweep", "bench", "fit", "report")
+
+
+def cmd_fit(args) -> int:
+    """Inverse sizing (clothsim.compression.fit): exit 0 fitted, 1 not within tolerance, 2 bad
+    input or an unreachable target."""
+    from .compression.fit import FitError, fit, parse_target, parse_vary, write_outputs
+    from .config import SceneError
+    from .material import MaterialError
+    from .mold import MoldError
+
+    def log(t):
+        vals = ", ".join(f"{x:.8g}" for x in t.values)
+        reads = ", ".join(f"{p:.3f} mmHg ({r:+.3f})" for p, r in zip(t.readings_mmhg, t.residuals_mmhg))
+        print(f"  try {vals}: {reads}  {t.time_s:.2f} s  {t.status}", file=sys.stderr)
+
+    try:
+        varies = [parse_vary(v) for v in args.vary]
+        targets = [parse_target(t) for t in args.target]
+        res = fit(args.scene, varies, targets, overrides=args.set, tol_mmhg=args.tol, max_solves=args.max_solves,
+                  log=None if args.quiet else log)
+    except (FitError, SceneError, MoldError, MaterialError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(("fitted: " if res.converged else "not fitted: ") + res.message)
+    for v, x in zip(varies, res.values):
+        print(f"  {v.path} = {x:.10g}")
+    for t, p in zip(targets, res.readings_mmhg):
+        print(f"  {t.probe}: {p:.3f} mmHg (target {t.mmhg:.3f})")
+    print(res.tries_csv(varies, targets), end="")
+    if args.out:
+        out = write_outputs(res, args.out, varies, targets)
+        print(f"  wrote {out}/fitted.yaml, fit.csv, fit.json and the fitted run's result files")
+    return 0 if res.converged else 1
+
+
+def cmd_report(args) -> int:
+    from .compression.report import ReportError, write_report
+    from .config import SceneError
+    from .mold import MoldError
+
+    try:
+        path = write_report(args.result_dir, args.out)
+    except (ReportError, SceneError, MoldError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
+def add_compression_commands(sub) -> None:
+    """The compression-engineering subcommands: fit and report."""
+    f = sub.add_parser("fit", help="inverse sizing: find a field's value that gives target probe pressures")
+    f.add_argument("scene", help="scene YAML file with probes")
+    f.add_argument("--vary", action="append", required=True, metavar="FIELD[=LO:HI]",
+                   help="a --set path to vary, with optional bounds (default: start value +-30%%), "
+                        "e.g. --vary fabric.size.0=0.2:0.3")
+    f.add_argument("--target", action="append", required=True, metavar="PROBE=VALUE",
+                   help="a probe's target pressure, e.g. --target ankle=20mmHg (units mmHg, Pa, kPa)")
+    f.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override a scene field")
+    f.add_argument("--tol", type=float, default=0.1, help="tolerance on each target [mmHg] (default 0.1)")
+    f.add_argument("--max-solves", type=int, default=12, help="most solves to spend (default 12)")
+    f.add_argument("--out", help="folder for fitted.yaml, fit.csv, fit.json and the fitted run's results")
+    f.add_argument("--quiet", action="store_true", help="do not print each try")
+    f.set_defaults(func=cmd_fit)
+
+    r = sub.add_parser("report", help="write a self-contained HTML report of a result folder")
+    r.add_argument("result_dir", help="a folder written by run --out or fit --out")
+    r.add_argument("--out", help="HTML file to write (default RESULT_DIR/report.html)")
+    r.set_defaults(func=cmd_report)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -197,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder for benchmarks.md and speed_vs_error.png (default: %(default)s; the "
                         "repository's copies are in docs/)")
     b.set_defaults(func=cmd_bench)
+    add_compression_commands(sub)
     return p
 
 

@@ -18,6 +18,7 @@ import yaml
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, StrictBool, Tag,
                       ValidationError, field_validator, model_validator)
 
+from .compression.spec import Classes, Probe, Profile, check_compression
 from .material import (TENSION_MAX, MaterialError, Table, check_table, read_table_csv,
                        warn_implausible_strain)
 
@@ -776,6 +777,10 @@ class Scene(_Strict):
     seams: list[Seam] = Field(default_factory=list)
     panels: list[Panel] = Field(default_factory=list)
     solver: SolverSettings = Field(default_factory=SolverSettings)
+    # compression engineering (clothsim.compression.spec): sensors, slices along a limb, classes
+    probes: list[Probe] = Field(default_factory=list)
+    profiles: list[Profile] = Field(default_factory=list)
+    classes: Classes | None = None
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
@@ -802,6 +807,11 @@ class Scene(_Strict):
             if isinstance(sel, NodeRange) and sel.panel is not None and sel.panel not in names:
                 known = ", ".join(names) if names else "none: the scene has no panels"
                 raise ValueError(f"{where}.panel: unknown panel '{sel.panel}' (known: {known})")
+        return self
+
+    @model_validator(mode="after")
+    def _compression_names(self):
+        check_compression(self.probes, self.profiles, self.classes)
         return self
 
     @model_validator(mode="after")
@@ -867,7 +877,11 @@ class Scene(_Strict):
         return Table(strain, value)
 
     def to_dict(self) -> dict:
-        return self.model_dump(mode="json", exclude_none=True)
+        d = self.model_dump(mode="json", exclude_none=True)
+        for key in ("probes", "profiles"):  # optional sections: absent unless used
+            if not d.get(key):
+                d.pop(key, None)
+        return d
 
     def resolved(self) -> "Scene":
         """A copy whose file references (CSV tables, initial file, mold path) are absolute, so the

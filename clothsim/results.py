@@ -15,6 +15,8 @@ so a folder is complete exactly when it holds summary.json):
 - ``history.csv``: iteration, residual [N], energy [J], elapsed [s].
 - ``sheet.ply``: the deformed grid as triangles with per-vertex colours (strain or pressure).
 - ``scene.yaml``: the fully resolved scene.
+- ``probes.csv``, ``profiles.csv``, ``profiles.png``: when the scene has ``probes`` / ``profiles``
+  (clothsim.compression.probes); summary.json then holds ``probes``, ``profiles`` and ``classes``.
 """
 
 from __future__ import annotations
@@ -164,6 +166,7 @@ class Result:
     solve: object  # SolveResult
     startup_s: float = 0.0
     _fields: tuple | None = field(default=None, repr=False)
+    _compression: dict | None = field(default=None, repr=False)
 
     def _f(self):
         if self._fields is None:
@@ -299,7 +302,20 @@ class Result:
             "clothsim_version": __version__,
         }
         d.update(self.diagnostics())
+        d.update(self.compression())
         return d
+
+    def compression(self) -> dict:
+        """The scene's probes, profiles and classes (clothsim.compression.probes.evaluate):
+        {"probes": [...], "profiles": [...], "classes": {...}}, only the keys the scene asks for."""
+        if not (getattr(self.scene, "probes", None) or getattr(self.scene, "profiles", None)):
+            return {}
+        if getattr(self, "_compression", None) is None:
+            from .compression.probes import evaluate
+
+            self._compression = evaluate(self.scene, self.model, self.state.positions, self.state.in_contact,
+                                         self._f()[3])
+        return self._compression
 
     def colored_mesh(self, field: str = "strain"):
         """A trimesh.Trimesh of the deformed sheet with per-vertex colours (viridis) of field
@@ -353,8 +369,23 @@ class Result:
             "history.csv": self.history_csv().encode(),
             "sheet.ply": self.colored_mesh(ply_field).export(file_type="ply"),
             "scene.yaml": self.scene.resolved().to_yaml().encode(),
+            **self._compression_files(),
             "summary.json": strict_json(self.summary()).encode(),
         }
+
+    def _compression_files(self) -> dict[str, bytes]:
+        """probes.csv, profiles.csv and profiles.png when the scene asks for probes or profiles."""
+        comp = self.compression()
+        out: dict[str, bytes] = {}
+        if comp:
+            from .compression.probes import probes_csv, profile_png, profiles_csv
+
+            if comp.get("probes"):
+                out["probes.csv"] = probes_csv(comp["probes"]).encode()
+            if comp.get("profiles"):
+                out["profiles.csv"] = profiles_csv(comp["profiles"]).encode()
+                out["profiles.png"] = profile_png(comp["profiles"], self.scene.name)
+        return out
 
     def save(self, out_dir: str | Path, ply_field: str = "strain") -> Path:
         """Write every output file into out_dir (created); returns out_dir.

@@ -96,6 +96,16 @@ EXTRA_KEYS = {
     "min_z_m": "lowest node's z [m]",
     "run_time_s": "wall time of the whole run in the worker [s] (start-up + relaxation + files)",
 }
+#: outputs read from a scene's probes (summary.json "probes"): ``probe:NAME_<key>``
+PROBE_OUTPUTS = {"mmhg": "pressure_mmhg", "pa": "pressure_pa", "contact_fraction": "contact_fraction"}
+
+
+def _probe_output(name: str) -> bool:
+    """True for ``probe:NAME_mmhg``, ``probe:NAME_pa`` or ``probe:NAME_contact_fraction``."""
+    return name.startswith("probe:") and any(name.endswith("_" + k) and len(name) > len("probe:_" + k)
+                                             for k in PROBE_OUTPUTS)
+
+
 #: columns that depend on timing; equal sweeps differ only in these
 TIMING_KEYS = ("wall_time_s", "startup_s", "run_time_s")
 DEFAULT_OUTPUTS = ["iterations", "residual", "energy", "wall_time_s"]
@@ -184,8 +194,9 @@ class SweepBlock(_Strict):
 
 class SweepFile(_Strict):
     """A sweep: base scene (path relative to the sweep file), fixed overrides (``set``), the
-    parameters to vary and the outputs to tabulate and plot (keys of summary.json, or max_z_m,
-    min_z_m, run_time_s)."""
+    parameters to vary and the outputs to tabulate and plot (keys of summary.json, max_z_m,
+    min_z_m, run_time_s, or a probe's reading: probe:NAME_mmhg, probe:NAME_pa,
+    probe:NAME_contact_fraction)."""
 
     name: str | None = None
     base: str
@@ -198,8 +209,9 @@ class SweepFile(_Strict):
     def _outputs(cls, v):
         known = set(SUMMARY_KEYS) | set(EXTRA_KEYS)
         for i, name in enumerate(v):
-            if name not in known:
-                raise ValueError(f"unknown output '{name}' (known: {', '.join(sorted(known))})")
+            if name not in known and not _probe_output(name):
+                raise ValueError(f"unknown output '{name}' (known: {', '.join(sorted(known))}, "
+                                 f"or probe:NAME_mmhg / _pa / _contact_fraction)")
         if len(set(v)) != len(v):
             raise ValueError("an output is listed twice")
         return v
@@ -521,6 +533,9 @@ def read_row(out: Path, run: Run) -> dict:
         row.update(json.loads((d / FINISHED_FILE).read_text()))
         rec = json.loads((d / "sweep_run.json").read_text())
         row.update(rec.get("extra", {}))
+        for p in row.get("probes") or []:  # probe outputs: probe:NAME_mmhg, _pa, _contact_fraction
+            for key, field in PROBE_OUTPUTS.items():
+                row[f"probe:{p['name']}_{key}"] = p.get(field)
     except (OSError, ValueError):
         try:
             row.update(json.loads((d / "crashed.json").read_text()))
@@ -666,7 +681,7 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
             if as_lines and others:
                 ax.legend(fontsize=8, title=None, loc="best", framealpha=0.8)
             fig.tight_layout()
-            safe = f"{o}__vs__{param}".replace("/", "_")
+            safe = f"{o}__vs__{param}".replace("/", "_").replace(":", "_")
             p = pdir / f"{safe}.png"
             buf = io.BytesIO()
             fig.savefig(buf, format="png")

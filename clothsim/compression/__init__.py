@@ -1,0 +1,15 @@
+"""Compression engineering: what a compression garment is specified, tested and prescribed by.
+
+- :mod:`.spec`: the scene fields ``probes``, ``profiles`` and ``classes`` (pydantic; no other
+  clothsim import, so ``config`` can import it).
+- :mod:`.standards`: compression classes (RAL-GZ 387, UK Drug Tariff) as data, and classifying.
+- :mod:`.probes`: pressure sensors (discs on the mold) and profiles (slices along a limb's axis)
+  read from an equilibrium; CSV and plot outputs.
+- :mod:`.fit`: inverse sizing (``python app.py fit``): the value of a scene field that gives a
+  target probe pressure.
+- :mod:`.report`: one self-contained HTML report of a result folder (``python app.py report``).
+
+This package's ``__init__`` imports nothing heavy: ``clothsim.config`` imports :mod:`.spec`.
+"""
+
+MMHG = 133.322387415  # Pa per mmHg (the conventional millimetre of mercury)

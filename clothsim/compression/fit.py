@@ -1,0 +1,386 @@
+"""Inverse sizing: the value of scene fields that gives target probe pressures.
+
+``python app.py fit SCENE --vary FIELD[=LO:HI] --target "PROBE=20mmHg"`` varies any field a
+``--set`` path reaches (a panel width ``fabric.size.0``, a stretch, a material ``scale``) until
+the probe reads the target.
+
+- **One field, one target**: secant steps on residual(x) = reading(x) - target, kept inside the
+  bracket once the residual changes sign (Illinois regula falsi, the secant's safeguarded form),
+  and inside [LO, HI] (default: the start value +-30 %). A step that would leave [LO, HI] tries
+  the bound; if the residual keeps its sign there the target is out of reach and the fit is
+  refused with the reachable range (the readings at both bounds).
+- **Several fields / targets**: least squares (scipy.optimize.least_squares, trust-region
+  reflective with the bounds, forward differences), each residual a solve.
+
+Every solve after the first starts from the previous equilibrium (its free coordinates), so the
+contact set and the seam are already in place; a solve typically takes a few Newton steps.
+
+Limitations: the reading must depend continuously on the field (a field that changes the node
+count, such as ``fabric.divisions``, cannot warm-start and is refused); the single-field search
+assumes the reading is monotonic between LO and HI (the reachable range it reports is the range
+between the readings at the bounds).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import math
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from . import MMHG
+
+
+class FitError(ValueError):
+    """A fit that cannot run or cannot reach its target (message says why)."""
+
+
+@dataclass
+class Vary:
+    """A field to vary: its ``--set`` path and bounds (None: the start value +-30 %)."""
+
+    path: str
+    lo: float | None = None
+    hi: float | None = None
+
+
+@dataclass
+class Target:
+    """A probe's target reading [mmHg]."""
+
+    probe: str
+    mmhg: float
+
+
+@dataclass
+class Try:
+    values: list[float]
+    readings_mmhg: list[float]
+    residuals_mmhg: list[float]
+    time_s: float
+    status: str
+
+
+@dataclass
+class FitResult:
+    converged: bool
+    message: str
+    values: list[float]
+    readings_mmhg: list[float]
+    tries: list[Try] = field(default_factory=list)
+    scene_dict: dict | None = None
+    result: object | None = None  # the clothsim Result at the fitted values
+
+    def tries_csv(self, varies: list[Vary], targets: list[Target]) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["try", *[v.path for v in varies], *[f"{t.probe}_mmHg" for t in targets],
+                    *[f"{t.probe}_residual_mmHg" for t in targets], "time_s", "status"])
+        for k, t in enumerate(self.tries, 1):
+            w.writerow([k, *[f"{x:.10g}" for x in t.values], *[f"{p:.6f}" for p in t.readings_mmhg],
+                        *[f"{r:+.6f}" for r in t.residuals_mmhg], f"{t.time_s:.3f}", t.status])
+        return buf.getvalue()
+
+
+_UNITS = {"mmhg": 1.0, "pa": 1.0 / MMHG, "kpa": 1000.0 / MMHG}
+
+
+def parse_target(text: str) -> Target:
+    """'ankle=20mmHg', 'ankle=2666Pa', 'ankle=2.7kPa' or 'ankle=20' (mmHg) -> Target."""
+    m = re.fullmatch(r"\s*([^=\s]+)\s*=\s*([-+0-9.eE]+)\s*([A-Za-z]*)\s*", text)
+    if not m:
+        raise FitError(f"--target {text}: expected PROBE=VALUE[mmHg|Pa|kPa], e.g. ankle=20mmHg")
+    unit = (m.group(3) or "mmHg").lower()
+    if unit not in _UNITS:
+        raise FitError(f"--target {text}: unknown unit '{m.group(3)}' (mmHg, Pa or kPa)")
+    try:
+        v = float(m.group(2))
+    except ValueError:
+        raise FitError(f"--target {text}: '{m.group(2)}' is not a number") from None
+    if not math.isfinite(v) or v < 0:
+        raise FitError(f"--target {text}: the pressure must be finite and not negative")
+    return Target(m.group(1), v * _UNITS[unit])
+
+
+def parse_vary(text: str) -> Vary:
+    """'fabric.size.0' or 'fabric.size.0=0.2:0.3' -> Vary."""
+    if "=" not in text:
+        return Vary(text.strip())
+    path, rng = text.split("=", 1)
+    try:
+        lo, hi = (float(x) for x in rng.split(":"))
+    except ValueError:
+        raise FitError(f"--vary {text}: expected FIELD or FIELD=LO:HI, e.g. fabric.size.0=0.2:0.3") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise FitError(f"--vary {text}: need finite LO < HI")
+    return Vary(path.strip(), lo, hi)
+
+
+def _get_path(data, path: str):
+    node = data
+    for part in path.split("."):
+        if isinstance(node, list):
+            try:
+                node = node[int(part)]
+            except (ValueError, IndexError):
+                raise FitError(f"--vary {path}: '{part}' is not an index of a {len(node)}-item list") from None
+        elif isinstance(node, dict) and part in node:
+            node = node[part]
+        else:
+            raise FitError(f"--vary {path}: the scene has no field '{part}' there (set it first with --set)")
+    if isinstance(node, bool) or not isinstance(node, (int, float)):
+        raise FitError(f"--vary {path}: the field holds {node!r}, not a number")
+    return float(node)
+
+
+def warm_start(model, state, positions: np.ndarray, rounds: int = 8) -> None:
+    """Start ``state`` from an earlier equilibrium's ``positions`` (N, 3) [m]: its free
+    coordinates are taken over, the held ones stay prescribed. A node held on some axes whose
+    prescribed coordinate moved (e.g. a column held in x that the new scene places elsewhere) can
+    land inside the mold; such nodes are moved back to the surface (closest point, held
+    coordinates reset, repeated ``rounds`` times), so the start does not penetrate."""
+    fixed = model.fixed_axes
+    free = ~fixed
+    state.positions[free] = positions[free]
+    if model.mold is None:
+        return
+    from ..mold import mold_query_many
+
+    margs = model.mold.kernel_args()
+    for _ in range(rounds):
+        n = model.node_count
+        sd, cp, nrm = np.empty(n), np.empty((n, 3)), np.empty((n, 3))
+        mold_query_many(margs, state.positions, sd, cp, nrm, np.empty((n, 2), np.int64))
+        bad = sd < 0.0
+        if not bad.any():
+            return
+        state.positions[bad] = cp[bad]
+        state.positions[fixed] = model.prescribed_positions[fixed]
+
+
+class _Solver:
+    """Solves the scene at given field values, warm-starting from the previous equilibrium."""
+
+    def __init__(self, data: dict, source: Path | None, varies: list[Vary], targets: list[Target], log=None):
+        self.data, self.source, self.varies, self.targets = data, source, varies, targets
+        self.prev = None
+        self.warm = False
+        self.tries: list[Try] = []
+        self.results: list = []
+        self.log = log
+
+    def scene_dict(self, x) -> dict:
+        from ..config import apply_overrides
+
+        return apply_overrides(self.data, {v.path: float(xi) for v, xi in zip(self.varies, x)})
+
+    def __call__(self, x) -> np.ndarray:
+        from ..config import scene_from_dict
+        from ..simulation import Simulation, warm_up
+
+        t0 = time.perf_counter()
+        scene = scene_from_dict(self.scene_dict(x), self.source)
+        sim = Simulation(scene)
+        if self.prev is not None:
+            if self.prev.positions.shape != sim.state.positions.shape:
+                raise FitError("the varied field changes the number of nodes: a fit cannot vary it")
+            warm_start(sim.model, sim.state, self.prev.positions)
+        if not self.warm:
+            warm_up(sim.model, sim.state, sim.settings)
+            self.warm = True
+        sim.run()
+        res = sim.result()
+        readings = {r["name"]: r["pressure_mmhg"] for r in res.compression().get("probes", [])}
+        p = [readings[t.probe] for t in self.targets]
+        r = [pi - t.mmhg for pi, t in zip(p, self.targets)]
+        self.prev = res.state
+        t = Try([float(xi) for xi in x], p, r, time.perf_counter() - t0, res.solve.status)
+        self.tries.append(t)
+        self.results.append(res)
+        if self.log is not None:
+            self.log(t)
+        return np.asarray(r)
+
+
+def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, overrides: list[str] | None = None,
+        tol_mmhg: float = 0.1, max_solves: int = 12, log=None) -> FitResult:
+    """Find field values whose probe readings meet the targets within ``tol_mmhg`` (see the module
+    docstring). Raises FitError on bad input or an unreachable target (with the reachable range)."""
+    from ..config import apply_overrides, read_yaml, scene_from_dict
+
+    if not varies or not targets:
+        raise FitError("fit needs at least one --vary and one --target")
+    scene_path = Path(scene_path)
+    data, _ = read_yaml(scene_path)
+    data = apply_overrides(data, overrides or [])
+    scene = scene_from_dict(copy.deepcopy(data), scene_path)
+    names = [p.name for p in scene.probes]
+    for t in targets:
+        if t.probe not in names:
+            raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
+                           f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
+    x0 = [_get_path(data, v.path) for v in varies]
+    lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
+    hi = [v.hi if v.hi is not None else x + 0.3 * abs(x) for v, x in zip(varies, x0)]
+    for v, x, a, b in zip(varies, x0, lo, hi):
+        if not a < b:
+            raise FitError(f"--vary {v.path}: give bounds (FIELD=LO:HI): the start value is {x}")
+    x0 = [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)]
+    f = _Solver(data, scene_path, varies, targets, log)
+    if len(varies) == 1 and len(targets) == 1:
+        out = _secant(f, x0[0], lo[0], hi[0], tol_mmhg, max_solves, varies[0], targets[0])
+    else:
+        out = _least_squares(f, x0, lo, hi, tol_mmhg, max_solves)
+    out.tries = f.tries
+    if out.converged or out.values:
+        # the result at the best try (the last one for a converged secant)
+        k = int(np.argmin([np.abs(t.residuals_mmhg).max() for t in f.tries]))
+        out.values = f.tries[k].values
+        out.readings_mmhg = f.tries[k].readings_mmhg
+        out.result = f.results[k]
+        out.scene_dict = f.scene_dict(out.values)
+    return out
+
+
+def _secant(f: _Solver, x0: float, lo: float, hi: float, tol: float, max_solves: int, vary: Vary,
+            target: Target) -> FitResult:
+    pts: list[tuple[float, float]] = []  # (x, residual)
+
+    def ev(x):
+        r = float(f([x])[0])
+        pts.append((x, r))
+        return r
+
+    def done(r):
+        return abs(r) <= tol
+
+    def unreachable():
+        # readings at both bounds give the reachable range
+        for b in (lo, hi):
+            if not any(abs(x - b) <= 1e-12 * max(1.0, abs(b)) for x, _ in pts):
+                ev(b)
+        rb = {x: r for x, r in pts}
+        p_lo = rb[min(rb, key=lambda x: abs(x - lo))] + target.mmhg
+        p_hi = rb[min(rb, key=lambda x: abs(x - hi))] + target.mmhg
+        a, b = sorted((p_lo, p_hi))
+        raise FitError(f"target {target.probe} = {target.mmhg:.2f} mmHg is out of reach: {vary.path} from {lo:.6g} "
+                       f"to {hi:.6g} gives {a:.2f} to {b:.2f} mmHg (reachable range; widen it with "
+                       f"--vary {vary.path}=LO:HI)")
+
+    r0 = ev(x0)
+    if done(r0):
+        return FitResult(True, f"reached on the first solve", [x0], [r0 + target.mmhg])
+    # second point: a small step inside the bounds
+    h = 0.01 * (hi - lo)
+    x1 = x0 + h if x0 + h <= hi else x0 - h
+    r1 = ev(x1)
+    bracket = None  # (xa, ra, xb, rb) with ra, rb of opposite signs
+    side = 0  # Illinois: which end was kept twice
+    while len(pts) < max_solves:
+        (xa, ra), (xb, rb) = pts[-2], pts[-1]
+        if done(rb):
+            return FitResult(True, f"|residual| {abs(rb):.3g} <= {tol} mmHg after {len(pts)} solves", [xb],
+                             [rb + target.mmhg])
+        # the tightest bracket among all points
+        neg = [(x, r) for x, r in pts if r < 0]
+        pos = [(x, r) for x, r in pts if r > 0]
+        if neg and pos:
+            xn, rn = max(neg, key=lambda p: p[1])
+            xp, rp = min(pos, key=lambda p: p[1])
+            bracket = (xn, rn, xp, rp)
+        if bracket is None:
+            if rb == ra:
+                # flat (e.g. a slack sleeve reads 0): walk toward the bound that should help
+                x = hi if abs(hi - xb) > abs(lo - xb) else lo
+            else:
+                x = xb - rb * (xb - xa) / (rb - ra)
+            if x <= lo or x >= hi:
+                xbnd = lo if x <= lo else hi
+                if any(abs(px - xbnd) <= 1e-12 * max(1.0, abs(xbnd)) for px, _ in pts):
+                    unreachable()
+                rbnd = ev(xbnd)
+                if rbnd * rb > 0 and not done(rbnd):
+                    unreachable()
+                continue
+            ev(x)
+            continue
+        xn, rn, xp, rp = bracket
+        # secant from the last two points if it stays strictly inside the bracket, else Illinois
+        x = xb - rb * (xb - xa) / (rb - ra) if rb != ra else math.nan
+        a, b = sorted((xn, xp))
+        if not (math.isfinite(x) and a < x < b):
+            wn, wp = rn, rp
+            if side == 1:
+                wn *= 0.5
+            elif side == 2:
+                wp *= 0.5
+            x = xn - wn * (xp - xn) / (wp - wn)
+            side = 1 if rb > 0 else 2
+        ev(x)
+    xb, rb = min(pts, key=lambda p: abs(p[1]))
+    if done(rb):
+        return FitResult(True, f"|residual| {abs(rb):.3g} <= {tol} mmHg after {len(pts)} solves", [xb],
+                         [rb + target.mmhg])
+    return FitResult(False, f"not within {tol} mmHg after {len(pts)} solves (best residual {rb:+.3g} mmHg at "
+                            f"{vary.path} = {xb:.8g}); raise --max-solves", [xb], [rb + target.mmhg])
+
+
+def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
+    from scipy.optimize import least_squares
+
+    scale = np.asarray(hi) - np.asarray(lo)
+    cache: dict = {}
+
+    def fun(x):
+        key = tuple(np.round(x, 15))
+        if key not in cache:
+            if len(f.tries) >= max_solves:
+                raise _Budget()
+            cache[key] = f(x)
+        return cache[key]
+
+    class _Budget(Exception):
+        pass
+
+    msg = ""
+    try:
+        sol = least_squares(fun, np.asarray(x0, float), bounds=(lo, hi), x_scale=scale, diff_step=1e-4,
+                            method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-12, max_nfev=max_solves)
+        msg = sol.message
+    except _Budget:
+        msg = f"stopped after {max_solves} solves"
+    best = min(f.tries, key=lambda t: np.abs(t.residuals_mmhg).max())
+    ok = bool(np.abs(best.residuals_mmhg).max() <= tol)
+    text = (f"all targets within {tol} mmHg after {len(f.tries)} solves" if ok else
+            f"best residual {np.abs(best.residuals_mmhg).max():.3g} mmHg after {len(f.tries)} solves ({msg}); "
+            f"the targets may not be reachable together")
+    return FitResult(ok, text, best.values, best.readings_mmhg)
+
+
+def write_outputs(res: FitResult, out: str | Path, varies: list[Vary], targets: list[Target]) -> Path:
+    """out/fitted.yaml (the scene at the fitted values), out/fit.csv (the tries), out/fit.json and
+    the fitted run's result files (result.npz, summary.json, ...)."""
+    from ..results import atomic_write_bytes
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if res.result is not None:
+        res.result.save(out)
+    if res.result is not None:  # file references made absolute, so it runs from anywhere
+        atomic_write_bytes(out / "fitted.yaml", res.result.scene.resolved().to_yaml().encode())
+    atomic_write_bytes(out / "fit.csv", res.tries_csv(varies, targets).encode())
+    info = {"converged": res.converged, "message": res.message,
+            "fields": {v.path: x for v, x in zip(varies, res.values)},
+            "targets_mmhg": {t.probe: t.mmhg for t in targets},
+            "readings_mmhg": {t.probe: p for t, p in zip(targets, res.readings_mmhg)},
+            "solves": len(res.tries)}
+    atomic_write_bytes(out / "fit.json", json.dumps(info, indent=2).encode())
+    return out

@@ -1,0 +1,293 @@
+"""Pressure probes and profiles read from an equilibrium.
+
+Both read the per-node contact pressure p_i [Pa] (:func:`clothsim.results.contact_reaction`:
+normal reaction over deformed tributary area) and the contact flags c_i, interpolated linearly
+over the deformed sheet's display triangles (``model.topology.faces``).
+
+**Probe** (a sensor disc): the disc is the set of mold points within ``radius`` of the probe's
+centre, the mold point closest to the probe's ``point``; distances are straight (3D, chord)
+distances between mold points. On a limb of radius R a chord is shorter than the arc by about
+s^3 / (24 R^2), so on a 5 cm limb a 1 cm disc holds about 0.1 % more surface than pi radius^2.
+A point of the sheet belongs to the disc when its closest mold point does. The probe reads
+
+    pressure = (integral of p over the sheet inside the disc) / (pi radius^2)  [Pa]
+
+which is the total normal force the sensor feels over its area (a sheet that covers half the disc
+reads half). ``contact_fraction`` is the sheet area in contact inside the disc over pi radius^2
+(1: the disc is covered and pressed everywhere). The integral is evaluated on the triangles near
+the disc, each split into k^2 sub-triangles (k so that a sub-triangle is about radius / 60 wide),
+so the disc's outline is resolved well below the node spacing.
+
+**Profile** (slices along an axis): at each height h the plane axis . x = h cuts the deformed
+sheet into segments; along them p and c are interpolated linearly. Per slice: contact length
+(integral of c along the cut) [m], mean pressure (integral of p / contact length), and the least
+and greatest pressure at the cut's points in contact (c >= 0.5).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+
+import numpy as np
+
+from . import MMHG
+
+
+def _mold_closest(mold, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(closest points (M, 3) [m], signed distances (M,) [m]) of points P (M, 3) on the mold."""
+    from ..mold import mold_query_many
+
+    P = np.ascontiguousarray(P, dtype=float).reshape(-1, 3)
+    m = len(P)
+    sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
+    if m:
+        mold_query_many(mold.kernel_args(), P, sd, cp, nrm, np.empty((m, 2), np.int64))
+    return cp, sd
+
+
+def _finite_pressure(pressure: np.ndarray) -> tuple[np.ndarray, int]:
+    """Pressure with gathered nodes (inf: a line load) set to 0, and how many there were."""
+    bad = ~np.isfinite(pressure)
+    return np.where(bad, 0.0, pressure), int(bad.sum())
+
+
+def _subdivision(k: int) -> tuple[np.ndarray, float]:
+    """Barycentric centroids (k^2, 3) of the k^2 equal sub-triangles of a triangle; each has
+    1/k^2 of its area."""
+    out = []
+    for a in range(k):
+        for b in range(k - a):
+            out.append(((a + 1 / 3) / k, (b + 1 / 3) / k))        # upward sub-triangle
+            if a + b < k - 1:
+                out.append(((a + 2 / 3) / k, (b + 2 / 3) / k))    # downward one
+    uv = np.array(out)
+    return np.column_stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]]), 1.0 / k ** 2
+
+
+def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray, probe) -> dict:
+    """One probe's reading (see the module docstring). positions (N, 3) [m], in_contact (N,)
+    bool, pressure (N,) [Pa]. Returns name, point, centre [m] (on the mold), offset_m (point to
+    mold), radius_m, force_n, pressure_pa, pressure_mmhg, contact_fraction, on_contact (bool)
+    and a note."""
+    r = float(probe.radius)
+    out = {"name": probe.name, "point": [float(x) for x in probe.point], "radius_m": r}
+    if model.mold is None:
+        out.update(center=None, offset_m=math.nan, force_n=0.0, pressure_pa=0.0, pressure_mmhg=0.0,
+                   contact_fraction=0.0, on_contact=False, note="no mold: nothing to press on")
+        return out
+    cp, sd = _mold_closest(model.mold, np.asarray(probe.point, float)[None])
+    centre = cp[0]
+    out["center"] = [float(x) for x in centre]
+    out["offset_m"] = float(abs(sd[0]))
+    p, gathered = _finite_pressure(np.asarray(pressure, float))
+    faces = model.topology.faces
+    X = np.asarray(positions, float)
+    tri = X[faces]                                                  # (F, 3, 3)
+    edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    # triangles that can reach the disc: a vertex's mold point within radius + the triangle size
+    vcp, _ = _mold_closest(model.mold, X)
+    vd = np.linalg.norm(vcp - centre, axis=1)
+    near = np.nonzero(vd[faces].min(axis=1) <= r + 2.0 * edge)[0]
+    force = 0.0
+    contact_area = 0.0
+    if near.size:
+        k = int(min(64, max(4, math.ceil(60.0 * float(edge[near].max()) / r))))
+        bary, share = _subdivision(k)
+        t = tri[near]                                               # (M, 3, 3)
+        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        S = np.einsum("sv,mvc->msc", bary, t).reshape(-1, 3)        # sample points
+        a = np.repeat(area * share, len(bary))
+        ps = (bary @ p[faces[near]].T).T.reshape(-1)
+        cs = (bary @ in_contact[faces[near]].astype(float).T).T.reshape(-1)
+        scp, _ = _mold_closest(model.mold, S)
+        inside = np.linalg.norm(scp - centre, axis=1) <= r
+        force = float((ps * a)[inside].sum())
+        contact_area = float((cs * a)[inside].sum())
+    disc = math.pi * r * r
+    pa = force / disc
+    frac = min(1.0, contact_area / disc)
+    on = bool(force > 0.0)
+    note = "" if on else "off contact: no sheet presses on this disc"
+    if on and frac < 0.999:
+        note = f"partly in contact: {frac:.0%} of the disc is pressed"
+    if gathered and on:
+        note = (note + "; " if note else "") + f"{gathered} gathered node(s) of the sheet (line loads) left out"
+    if out["offset_m"] > r:
+        note = (note + "; " if note else "") + f"the point is {out['offset_m'] * 1e3:.3g} mm off the mold"
+    out.update(force_n=force, pressure_pa=pa, pressure_mmhg=pa / MMHG, contact_fraction=frac, on_contact=on,
+               note=note)
+    return out
+
+
+def _cut(X: np.ndarray, faces: np.ndarray, d: np.ndarray, vals: list[np.ndarray]):
+    """Segments where the plane d = 0 cuts the triangles (d (N,) signed heights; d >= 0 counts as
+    above, so a vertex on the plane is cut once; a plane through the sheet's lowest edge, which
+    then cuts nothing, counts d > 0 as above). Returns (ends (S, 2, 3), [v at ends (S, 2)])."""
+    above = d[faces] >= 0.0                                         # (F, 3)
+    cut = above.any(axis=1) & ~above.all(axis=1)
+    if not cut.any():
+        above = d[faces] > 0.0
+        cut = above.any(axis=1) & ~above.all(axis=1)
+    f = faces[cut]
+    a = above[cut]
+    pts, vv = [], [[] for _ in vals]
+    for e0, e1 in ((0, 1), (1, 2), (2, 0)):
+        cross = a[:, e0] != a[:, e1]
+        u, w = f[:, e0], f[:, e1]
+        du, dw = d[u], d[w]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.where(cross, du / np.where(cross, du - dw, 1.0), 0.0)
+        pts.append((X[u] + t[:, None] * (X[w] - X[u]), cross))
+        for n, v in enumerate(vals):
+            vv[n].append(v[u] + t * (v[w] - v[u]))
+    # every cut triangle has exactly two crossing edges: take them in edge order
+    P = np.stack([q for q, _ in pts], 1)                            # (S, 3 edges, 3)
+    C = np.stack([c for _, c in pts], 1)                            # (S, 3)
+    order = np.argsort(~C, axis=1, kind="stable")[:, :2]
+    rows = np.arange(len(f))[:, None]
+    ends = P[rows, order]
+    vals_out = [np.stack(v, 1)[rows, order] for v in vv]
+    return ends, vals_out
+
+
+def read_profile(model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray, profile) -> dict:
+    """One profile (see the module docstring): {name, axis, slices: [{height_m, contact_length_m,
+    mean_pa, mean_mmhg, min_mmhg, max_mmhg}], gradient: {...}}. Slices without contact have
+    contact length 0 and pressures None."""
+    axis = np.asarray(profile.unit_axis(), float)
+    X = np.asarray(positions, float)
+    p, _ = _finite_pressure(np.asarray(pressure, float))
+    c = np.asarray(in_contact, float)
+    faces = model.topology.faces
+    hx = X @ axis
+    slices = []
+    for h in profile.heights():
+        ends, (pe, ce) = _cut(X, faces, hx - h, [p, c])
+        seg = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        clen = float((seg * ce.mean(axis=1)).sum())
+        row = {"height_m": float(h), "contact_length_m": clen, "mean_pa": None, "mean_mmhg": None,
+               "min_mmhg": None, "max_mmhg": None}
+        if clen > 0.0:
+            mean = float((seg * pe.mean(axis=1)).sum()) / clen
+            on = ce >= 0.5
+            row.update(mean_pa=mean, mean_mmhg=mean / MMHG,
+                       min_mmhg=float(pe[on].min()) / MMHG if on.any() else None,
+                       max_mmhg=float(pe[on].max()) / MMHG if on.any() else None)
+        slices.append(row)
+    return {"name": profile.name, "axis": [float(a) for a in axis], "slices": slices,
+            "gradient": gradient_check(slices, profile.steady_tolerance_mmhg)}
+
+
+def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
+    """Ankle (first slice in contact) to calf (last): does the mean pressure fall steadily (no
+    rise above ``tolerance_mmhg`` from one slice to the next), and by how much?"""
+    on = [s for s in slices if s["mean_mmhg"] is not None]
+    if len(on) < 2:
+        return {"falls_steadily": None, "note": "fewer than two slices in contact: no gradient to check"}
+    m = np.array([s["mean_mmhg"] for s in on])
+    rises = np.diff(m)
+    worst = int(np.argmax(rises))
+    steady = bool(rises.max() <= tolerance_mmhg and m[0] - m[-1] > tolerance_mmhg)
+    out = {
+        "from_height_m": on[0]["height_m"], "to_height_m": on[-1]["height_m"],
+        "from_mmhg": float(m[0]), "to_mmhg": float(m[-1]),
+        "drop_mmhg": float(m[0] - m[-1]),
+        "drop_percent": float(100.0 * (m[0] - m[-1]) / m[0]) if m[0] > 0 else None,
+        "largest_rise_mmhg": float(max(0.0, rises.max())),
+        "falls_steadily": steady,
+    }
+    if steady:
+        out["note"] = (f"falls steadily from {m[0]:.1f} to {m[-1]:.1f} mmHg "
+                       f"({out['drop_percent']:.0f} % lower at {on[-1]['height_m']:.3g} m)")
+    elif m[-1] - m[0] > tolerance_mmhg:
+        out["note"] = (f"rises from {m[0]:.1f} mmHg at {on[0]['height_m']:.3g} m to {m[-1]:.1f} mmHg at "
+                       f"{on[-1]['height_m']:.3g} m: not graduated")
+    elif rises.max() <= tolerance_mmhg:
+        out["note"] = f"does not fall: {m[0]:.1f} mmHg at {on[0]['height_m']:.3g} m, {m[-1]:.1f} mmHg at {on[-1]['height_m']:.3g} m"
+    else:
+        out["note"] = (f"does not fall steadily: rises by {rises[worst]:.2f} mmHg between "
+                       f"{on[worst]['height_m']:.3g} m and {on[worst + 1]['height_m']:.3g} m")
+    return out
+
+
+def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray) -> dict:
+    """The scene's probes, profiles and classes: {"probes": [...], "profiles": [...],
+    "classes": {...}} (only the keys the scene asks for)."""
+    out: dict = {}
+    probes = getattr(scene, "probes", None) or []
+    profiles = getattr(scene, "profiles", None) or []
+    classes = getattr(scene, "classes", None)
+    if probes:
+        out["probes"] = [read_probe(model, positions, in_contact, pressure, pr) for pr in probes]
+    if profiles:
+        out["profiles"] = [read_profile(model, positions, in_contact, pressure, pf) for pf in profiles]
+    if classes is not None and probes:
+        from .standards import classify_all
+
+        reading = next(r for r in out["probes"] if r["name"] == classes.probe)
+        out["classes"] = {"probe": classes.probe, "pressure_mmhg": reading["pressure_mmhg"],
+                          "results": classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)}
+        for r in out["probes"]:
+            if r["name"] == classes.probe:
+                r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}
+    return out
+
+
+def probes_csv(readings: list[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["name", "x_m", "y_m", "z_m", "radius_m", "force_N", "pressure_Pa", "pressure_mmHg",
+                "contact_fraction", "on_contact", "classes", "note"])
+    for r in readings:
+        c = r.get("center") or r["point"]
+        cls = "; ".join(f"{k}: {v}" for k, v in r.get("classes", {}).items())
+        w.writerow([r["name"], *(f"{x:.6g}" for x in c), f"{r['radius_m']:.6g}", f"{r['force_n']:.6g}",
+                    f"{r['pressure_pa']:.6g}", f"{r['pressure_mmhg']:.4f}", f"{r['contact_fraction']:.4f}",
+                    int(r["on_contact"]), cls, r["note"]])
+    return buf.getvalue()
+
+
+def profiles_csv(profiles: list[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["profile", "height_m", "contact_length_m", "mean_Pa", "mean_mmHg", "min_mmHg", "max_mmHg"])
+    f = lambda v, fmt: "" if v is None else format(v, fmt)  # noqa: E731
+    for pf in profiles:
+        for s in pf["slices"]:
+            w.writerow([pf["name"], f"{s['height_m']:.6g}", f"{s['contact_length_m']:.6g}", f(s["mean_pa"], ".6g"),
+                        f(s["mean_mmhg"], ".4f"), f(s["min_mmhg"], ".4f"), f(s["max_mmhg"], ".4f")])
+    return buf.getvalue()
+
+
+def profile_png(profiles: list[dict], title: str = "") -> bytes:
+    """A PNG (matplotlib, Agg): mean pressure [mmHg] (x) against height [m] (y) per profile, the
+    band from the least to the greatest pressure shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.0, 4.5), dpi=100)
+    ax = fig.add_subplot(1, 1, 1)
+    for pf in profiles:
+        on = [s for s in pf["slices"] if s["mean_mmhg"] is not None]
+        if not on:
+            continue
+        h = [s["height_m"] for s in on]
+        line, = ax.plot([s["mean_mmhg"] for s in on], h, "o-", ms=3, label=f"{pf['name']} (mean)")
+        ax.fill_betweenx(h, [s["min_mmhg"] if s["min_mmhg"] is not None else s["mean_mmhg"] for s in on],
+                         [s["max_mmhg"] if s["max_mmhg"] is not None else s["mean_mmhg"] for s in on],
+                         color=line.get_color(), alpha=0.2, label=f"{pf['name']} (min-max)")
+    ax.set_xlim(left=0.0)
+    ax.ticklabel_format(axis="x", useOffset=False)
+    ax.set_xlabel("contact pressure [mmHg]")
+    ax.set_ylabel("height along the axis [m]")
+    ax.set_title(title or "pressure profile")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return buf.getvalue()

@@ -1,0 +1,218 @@
+"""``python app.py report RESULT_DIR``: one self-contained HTML file of a result folder.
+
+The file opens offline with no server: every image is a base64-embedded PNG (matplotlib, Agg),
+the styles are inline, and nothing is fetched from a URL. It holds the run's status line, the
+contact pressure [mmHg] and strain maps of the deformed sheet from three views (front, side, top)
+with colour bars and ticks, the probes table with classes, the profile plot and gradient check,
+the convergence plot (residual against iteration), the scene as run and the clothsim version.
+
+The maps are recomputed from ``result.npz`` (positions, contact) and ``scene.yaml`` (the
+compiled model's springs and ``model.topology.faces``), the same fields ``clothsim run`` writes;
+every number in the tables is read from ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from . import MMHG
+
+VIEWS = (("front", 0.0, -90.0), ("side", 0.0, 0.0), ("top", 90.0, -90.0))  # (name, elev, azim) [deg]
+
+
+class ReportError(ValueError):
+    pass
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _img(b64: str, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{b64}">'
+
+
+def _fields(out: Path):
+    """(scene, positions (N, 3), faces (F, 3), node pressure [mmHg] (N,), node strain (N,))."""
+    from ..config import load_scene
+    from ..compile import compile_model
+    from ..grid import State
+    from ..results import node_fields
+
+    scene = load_scene(out / "scene.yaml")
+    model = compile_model(scene)
+    topo = model.topology
+    with np.load(out / "result.npz") as d:
+        pg, cg = d["positions"], d["in_contact"]
+    ij = tuple(topo.node_ij.T)
+    pos = np.ascontiguousarray(pg.reshape(-1, 3) if topo.is_grid else pg[ij], dtype=float)
+    con = np.ascontiguousarray(cg.reshape(-1) if topo.is_grid else cg[ij], dtype=bool)
+    strain, _, _, pressure = node_fields(model, State(pos, con, 0))
+    wc, fc = topo.warp_count, topo.weft_count
+    node_strain = np.maximum(topo.spread(strain[:wc], "warp"), topo.spread(strain[wc:wc + fc], "weft"))
+    return scene, pos, topo.faces, pressure / MMHG, node_strain
+
+
+def map_png(pos, faces, values, label: str, cmap: str) -> str:
+    """Three views of the deformed sheet coloured by ``values`` (N,) (face colour = mean of its
+    corners), one colour bar with ticks; base64 PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib import colormaps
+    from matplotlib.colors import Normalize
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    v = np.where(np.isfinite(values), values, np.nan)
+    fv = np.nanmean(v[faces], axis=1)
+    finite = fv[np.isfinite(fv)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    lo = min(lo, 0.0)  # a scale from zero: a uniform field reads as uniform, not as noise
+    if hi <= lo:
+        hi = lo + (abs(lo) * 1e-3 or 1.0)
+    norm = Normalize(lo, hi)
+    cm = colormaps[cmap]
+    colors = cm(norm(np.nan_to_num(fv, nan=hi)))
+    tri = pos[faces]
+    c = pos.mean(axis=0)
+    half = 0.5 * float(np.ptp(pos, axis=0).max()) or 1.0
+    fig = Figure(figsize=(12.0, 4.2), dpi=90)
+    fig.subplots_adjust(left=0.0, right=0.86, bottom=0.05, top=0.92, wspace=0.1)
+    for k, (name, elev, azim) in enumerate(VIEWS):
+        ax = fig.add_subplot(1, 3, k + 1, projection="3d")
+        ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolors="none", linewidths=0))
+        for setter, ci in ((ax.set_xlim, c[0]), (ax.set_ylim, c[1]), (ax.set_zlim, c[2])):
+            setter(ci - half, ci + half)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=elev, azim=azim)
+        ax.set_title(f"{name} view")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_zlabel("z [m]")
+        ax.tick_params(labelsize=7)
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_major_locator(MaxNLocator(4))
+    sm = ScalarMappable(norm=norm, cmap=cm)
+    cb = fig.colorbar(sm, ax=fig.axes, shrink=0.8, pad=0.02)
+    cb.set_label(label)
+    return _png(fig)
+
+
+def convergence_png(history_csv: Path) -> str | None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    try:
+        data = np.genfromtxt(history_csv, delimiter=",", names=True)
+    except (OSError, ValueError):
+        return None
+    it = np.atleast_1d(data["iteration"])
+    res = np.atleast_1d(data["residual_N"])
+    if not it.size:
+        return None
+    fig = Figure(figsize=(6.0, 3.6), dpi=90)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.semilogy(it, np.maximum(res, 1e-300), "-o", ms=2)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("residual ||V||inf [N]")
+    ax.set_title("convergence")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _fmt(v, nd=2) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.{nd}f}"
+    return html.escape(str(v))
+
+
+def probes_table(probes: list[dict]) -> str:
+    rows = ["<table id='probes'><tr><th>probe</th><th>centre [m]</th><th>radius [mm]</th><th>pressure [mmHg]</th>"
+            "<th>pressure [Pa]</th><th>contact fraction</th><th>classes</th><th>note</th></tr>"]
+    for p in probes:
+        c = p.get("center") or p["point"]
+        cls = "<br>".join(f"{html.escape(k)}: {html.escape(v)}" for k, v in p.get("classes", {}).items()) or "-"
+        rows.append(
+            f"<tr><td>{html.escape(p['name'])}</td><td>({c[0]:.4f}, {c[1]:.4f}, {c[2]:.4f})</td>"
+            f"<td>{p['radius_m'] * 1e3:.1f}</td><td class='mmhg'>{p['pressure_mmhg']:.2f}</td>"
+            f"<td class='pa'>{p['pressure_pa']:.1f}</td><td class='frac'>{p['contact_fraction']:.3f}</td>"
+            f"<td>{cls}</td><td>{html.escape(p['note'])}</td></tr>")
+    rows.append("</table>")
+    return "\n".join(rows)
+
+
+def build_report(result_dir: str | Path) -> str:
+    """The report's HTML text for a result folder (see the module docstring)."""
+    out = Path(result_dir)
+    for name in ("summary.json", "result.npz", "scene.yaml"):
+        if not (out / name).is_file():
+            raise ReportError(f"{out}: no {name} (a folder written by 'clothsim run --out' or 'fit --out')")
+    s = json.loads((out / "summary.json").read_text())
+    scene, pos, faces, p_mmhg, strain = _fields(out)
+    parts = [
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>clothsim report: {html.escape(str(s.get('name', '')))}</title>",
+        "<style>body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;"
+        "margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:left;font-size:14px}"
+        "img{max-width:100%}pre{background:#f4f4f4;padding:8px;overflow:auto;font-size:12px}</style></head><body>",
+        f"<h1>clothsim report: {html.escape(str(s.get('name', '')))}</h1>",
+        f"<p id='status'>{html.escape(str(s.get('status')))}: {s.get('iterations')} iterations, residual "
+        f"<span id='residual'>{s.get('residual', 0):.3e}</span> N, solver {html.escape(str(s.get('solver')))}, "
+        f"{s.get('contact_count')} contact nodes of {s.get('node_count')}; peak contact pressure "
+        f"<span id='peak'>{s.get('max_contact_pressure_mmhg', 0):.2f}</span> mmHg. clothsim "
+        f"<span id='version'>{html.escape(str(s.get('clothsim_version')))}</span>.</p>",
+        "<h2>Contact pressure [mmHg]</h2>",
+        _img(map_png(pos, faces, p_mmhg, "contact pressure [mmHg]", "viridis"), "pressure map"),
+        "<h2>Strain (larger of warp and weft)</h2>",
+        _img(map_png(pos, faces, strain, "engineering strain [-]", "magma"), "strain map"),
+    ]
+    if s.get("probes"):
+        parts += ["<h2>Probes</h2>", "<p>A probe reads the normal contact force on the sheet within its disc "
+                  "divided by the disc's area (pi radius^2), as a pressure sensor does.</p>", probes_table(s["probes"])]
+    if s.get("classes"):
+        c = s["classes"]
+        parts.append(f"<h3>Classes of probe {html.escape(c['probe'])} ({c['pressure_mmhg']:.2f} mmHg)</h3><table id='classes'>"
+                     "<tr><th>standard</th><th>class</th><th>source</th></tr>"
+                     + "".join(f"<tr><td>{html.escape(r['standard'])}</td><td>{html.escape(r['class'])}</td>"
+                               f"<td>{html.escape(r['source'])}</td></tr>" for r in c["results"]) + "</table>")
+    if s.get("profiles"):
+        from .probes import profile_png
+
+        parts += ["<h2>Profiles</h2>",
+                  _img(base64.b64encode(profile_png(s["profiles"], str(s.get("name", "")))).decode("ascii"), "profile plot")]
+        for pf in s["profiles"]:
+            g = pf["gradient"]
+            parts.append(f"<p class='gradient'><b>{html.escape(pf['name'])}</b>: {html.escape(g.get('note', ''))}</p>")
+    conv = convergence_png(out / "history.csv")
+    if conv:
+        parts += ["<h2>Convergence</h2>", _img(conv, "convergence plot")]
+    parts += ["<h2>Scene</h2>", f"<pre id='scene'>{html.escape((out / 'scene.yaml').read_text())}</pre>",
+              f"<p>Written by clothsim {html.escape(str(s.get('clothsim_version')))}.</p></body></html>"]
+    return "\n".join(parts)
+
+
+def write_report(result_dir: str | Path, path: str | Path | None = None) -> Path:
+    """Write the report (default RESULT_DIR/report.html); returns its path."""
+    from ..results import atomic_write_bytes
+
+    target = Path(path) if path else Path(result_dir) / "report.html"
+    atomic_write_bytes(target, build_report(result_dir).encode("utf-8"))
+    return target

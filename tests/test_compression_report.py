@@ -1,0 +1,89 @@
+"""``python app.py report``: the HTML report in a real headless Chromium (Debian's ``chromium``,
+Playwright's sync API; see browser_util). It opens from a file with every network request
+refused, every image decodes and is not blank, and its numbers equal summary.json."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("playwright")
+
+from browser_util import launch, require_chromium  # noqa: E402
+
+import clothsim  # noqa: E402
+from clothsim.config import load_scene  # noqa: E402
+
+from conftest import ROOT  # noqa: E402
+
+IMAGES_JS = """() => [...document.images].map(img => {
+  const c = document.createElement('canvas'); c.width = img.naturalWidth; c.height = img.naturalHeight;
+  if (!c.width) return {alt: img.alt, w: 0, h: 0, n: 0, colored: 0};
+  const ctx = c.getContext('2d'); ctx.drawImage(img, 0, 0);
+  const d = ctx.getImageData(0, 0, c.width, c.height).data;
+  let n = 0, colored = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    if (d[i] + d[i+1] + d[i+2] < 720) n++;
+    const mx = Math.max(d[i], d[i+1], d[i+2]), mn = Math.min(d[i], d[i+1], d[i+2]);
+    if (mx - mn > 60) colored++;
+  }
+  return {alt: img.alt, w: c.width, h: c.height, n, colored};
+})"""
+
+
+def test_report_opens_offline_with_images_and_the_summary_numbers(tmp_path):
+    require_chromium()
+    from playwright.sync_api import sync_playwright
+
+    from clothsim.cli import main
+
+    scene = load_scene(ROOT / "configs" / "sewn_sleeve.yaml", [
+        "probes=[{name: side, point: [0.06, 0, 0]}, {name: above, point: [0.06, 0, 0.12]}]",
+        "profiles=[{name: leg, from: -0.03, to: 0.04, step: 0.01}]", "classes={probe: side}"])
+    res = clothsim.solve(scene)
+    out = tmp_path / "run"
+    res.save(out)
+    assert main(["report", str(out)]) == 0
+    page_file = out / "report.html"
+    text = page_file.read_text()
+    assert "http://" not in text and "https://" not in text and "<script" not in text
+    s = json.loads((out / "summary.json").read_text())
+    requests = []
+    with sync_playwright() as pw:
+        browser = launch(pw)
+        try:
+            page = browser.new_page()
+
+            def block(route):
+                if not route.request.url.startswith(("file:", "data:")):
+                    requests.append(route.request.url)
+                    route.abort()
+                else:
+                    route.continue_()
+
+            page.route("**/*", block)
+            page.goto(page_file.as_uri())
+            page.wait_for_load_state("load")
+            imgs = page.evaluate(IMAGES_JS)
+            cells = page.eval_on_selector_all("#probes td.mmhg", "els => els.map(e => e.textContent)")
+            fracs = page.eval_on_selector_all("#probes td.frac", "els => els.map(e => e.textContent)")
+            classes = page.eval_on_selector_all("#classes td", "els => els.map(e => e.textContent)")
+            peak = page.text_content("#peak")
+            version = page.text_content("#version")
+            gradient = page.text_content("p.gradient")
+        finally:
+            browser.close()
+    assert not requests, requests
+    alts = [i["alt"] for i in imgs]
+    assert alts == ["pressure map", "strain map", "profile plot", "convergence plot"]
+    for i in imgs:
+        assert i["w"] > 300 and i["h"] > 200, i
+        assert i["n"] > 0.02 * i["w"] * i["h"], i  # drawn, not blank
+    assert imgs[0]["colored"] > 1000 and imgs[1]["colored"] > 1000  # the colour maps
+    assert cells == [f"{p['pressure_mmhg']:.2f}" for p in s["probes"]]
+    assert fracs == [f"{p['contact_fraction']:.3f}" for p in s["probes"]]
+    assert classes[:2] == ["RAL-GZ 387", s["classes"]["results"][0]["class"]]
+    assert peak == f"{s['max_contact_pressure_mmhg']:.2f}"
+    assert version == s["clothsim_version"] == clothsim.__version__
+    assert s["profiles"][0]["gradient"]["note"] in gradient
