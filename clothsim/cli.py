@@ -271,10 +271,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Our own warnings (implausible tables) as one ``warning: ...`` line, no source location."""
+    """Our own warnings (implausible tables, a mold in millimetres, mold files' dropped triangles)
+    as one ``warning: ...`` line, no source location."""
     from .material import MaterialWarning
 
-    if issubclass(category, MaterialWarning):
+    if issubclass(category, MaterialWarning) or "clothsim" in str(filename):
         print(f"warning: {message}", file=sys.stderr)
     else:
         _default_showwarning(message, category, filename, lineno, file, line)
