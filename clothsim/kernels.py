@@ -30,6 +30,11 @@ def table_eval(x, y, cum, start, comp, t, s):
     Returns (T [N/m], dT/ds [N/m], W = int_0^s T ds [N/m]). Piecewise linear between points, the
     last segment extended beyond the table; for s <= 0 zero (tension only) unless comp[t], then
     the first segment is extended to negative strain.
+
+    x, y, cum (P,) are the packed tables' strains, tensions [N/m] and integrals of T up to each
+    point [N/m]; start (T+1,) their offsets; comp (T,) 1 where a table takes compression.
+    ``forces_and_energy`` and ``node_force`` repeat this lookup inline (for speed: see there);
+    a change here must be made there too (tests/test_kernel_lookup.py checks they agree).
     """
     a = start[t]
     b = start[t + 1]
