@@ -19,6 +19,17 @@ belong to that run alone):
   in which the level was crossed (a little later, so if anything its errors look smaller).
 The paper solver is capped by a time limit (its sweep count grows with the square of the grid's
 side); levels it did not reach are reported as "not reached".
+
+Work units. Wall-clock seconds on a shared machine swing 2x from run to run, so every time is also
+reported in work units (WU): the time divided by the time of one *reference pass* over the same
+scene's springs, measured in the same process (``reference_pass``: a plain numba loop in this
+file that uses no clothsim kernel; per spring: the length, the lookup of the strain in the
+spring's piecewise-linear table, the force on both nodes and the energy). Both are measured in
+process CPU time (``time.process_time``), so time lost to other jobs on the machine counts in
+neither: a level's CPU time is read off the (wall time, CPU time) pairs recorded at each callback
+of the run, interpolated at the level's wall time. For the paper solver the cost of one sweep
+(CPU time / sweeps) is also given in WU; a sweep visits every node once, so this is the cost per
+node in units of a reference pass's cost per node.
 """
 
 from __future__ import annotations
@@ -38,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 ROOT = Path(__file__).resolve().parent.parent
 LEVELS = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
@@ -102,6 +114,107 @@ def _optional_terms():
 
 
 # ------------------------------------------------------------------------------------------------
+# the work unit
+# ------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def reference_pass(pos, spring_nodes, rest, width, table, x, y, start, out):
+    """One plain force pass over the springs: the unit of work the benchmark reports times in.
+
+    pos (N,3) [m]; spring_nodes (S,2); rest, width (S,) [m]; table (S,) index into the packed
+    tables x (strain), y (tension [N/m]) with offsets start (T+1,). Per spring: the length l, the
+    strain l/l0 - 1, a linear search for its segment in the spring's table (the first segment
+    extended below the table, the last beyond: no slack branch, so the work does not depend on
+    the state), the tension T, the energy w l0 int_0^strain T (trapezoids of the segments below
+    plus the partial one), and the force T w (x_b - x_a)/l added to node a and subtracted from
+    node b. Writes out (N,3) [N]; returns the energy [J]. Deliberately independent of
+    clothsim.kernels, so that speeding those up does not move the unit."""
+    for k in range(out.shape[0]):
+        out[k, 0] = 0.0
+        out[k, 1] = 0.0
+        out[k, 2] = 0.0
+    energy = 0.0
+    for s in range(spring_nodes.shape[0]):
+        a = spring_nodes[s, 0]
+        b = spring_nodes[s, 1]
+        dx = pos[b, 0] - pos[a, 0]
+        dy = pos[b, 1] - pos[a, 1]
+        dz = pos[b, 2] - pos[a, 2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        strain = length / rest[s] - 1.0
+        t = table[s]
+        m = start[t]
+        w_below = 0.0
+        while m < start[t + 1] - 2 and strain >= x[m + 1]:
+            w_below += 0.5 * (y[m] + y[m + 1]) * (x[m + 1] - x[m])
+            m += 1
+        k1 = (y[m + 1] - y[m]) / (x[m + 1] - x[m])
+        ds = strain - x[m]
+        tension = y[m] + k1 * ds
+        energy += width[s] * rest[s] * (w_below + y[m] * ds + 0.5 * k1 * ds * ds)
+        f = tension * width[s] / max(length, 1e-300)
+        out[a, 0] += f * dx
+        out[a, 1] += f * dy
+        out[a, 2] += f * dz
+        out[b, 0] -= f * dx
+        out[b, 1] -= f * dy
+        out[b, 2] -= f * dz
+    return energy
+
+
+def reference_pass_time(model, positions, min_batch_s: float = 0.003, batches: int = 15) -> float:
+    """CPU time [s] of one ``reference_pass`` over model's springs at positions (N,3) [m]: the
+    smallest over ``batches`` batches of passes (each at least ``min_batch_s``) of batch time /
+    passes. The first call compiles (or loads from numba's cache) and is not counted."""
+    t = model.tables
+    args = (np.ascontiguousarray(positions, dtype=np.float64), model.spring_nodes, model.spring_rest_length,
+            model.spring_width, model.spring_table, t.x, t.y, t.start, np.empty((model.node_count, 3)))
+    reference_pass(*args)
+    reps = 1
+    while True:
+        c0 = time.process_time()
+        for _ in range(reps):
+            reference_pass(*args)
+        dt = time.process_time() - c0
+        if dt >= min_batch_s or reps >= 1 << 20:
+            break
+        reps *= 2
+    best = dt / reps
+    for _ in range(batches - 1):
+        c0 = time.process_time()
+        for _ in range(reps):
+            reference_pass(*args)
+        best = min(best, (time.process_time() - c0) / reps)
+    return best
+
+
+class CpuClock:
+    """(wall, CPU) time pairs [s] since construction, recorded at each solver callback; ``cpu_at``
+    converts a wall time of the run (as in the solver's history) to CPU time."""
+
+    def __init__(self):
+        self.w0 = time.perf_counter()
+        self.c0 = time.process_time()
+        self.offset = None  # wall time of the driver's start, after this clock's start
+        self.wall = [0.0]
+        self.cpu = [0.0]
+
+    def sample(self, elapsed: float | None = None) -> None:
+        """Record now; elapsed = the driver's own elapsed time, if known (gives the offset)."""
+        w = time.perf_counter() - self.w0
+        self.wall.append(w)
+        self.cpu.append(time.process_time() - self.c0)
+        if elapsed is not None and self.offset is None:
+            self.offset = max(0.0, w - elapsed)
+
+    def cpu_at(self, t_run: float) -> float:
+        """CPU time [s] spent between the driver's start and run time t_run [s] (driver clock)."""
+        off = self.offset or 0.0
+        return float(np.interp(off + t_run, self.wall, self.cpu) - np.interp(off, self.wall, self.cpu))
+
+
+# ------------------------------------------------------------------------------------------------
 # one run (in a child process)
 # ------------------------------------------------------------------------------------------------
 
@@ -142,20 +255,26 @@ def run_case(case: Case, solver: str, ref_positions: np.ndarray | None) -> dict:
     t0 = time.perf_counter()
     solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
     compile_s = time.perf_counter() - t0
+    ref_s = reference_pass_time(model, state.positions)
     snaps: dict[float, np.ndarray] = {}
+    clock = CpuClock()
 
     def cb(prog):
+        clock.sample(prog.elapsed_s)
         for lv in LEVELS:
             if lv not in snaps and prog.residual <= lv:
                 snaps[lv] = prog.state.positions.copy()
         return False
 
     res = solve(model, state, settings, callback=cb)
+    clock.sample()
+    cpu_total = clock.cpu[-1]
     h = res.history
-    times = {}
+    times, times_wu = {}, {}
     for lv in LEVELS:
         hit = np.nonzero(h["residual"] <= lv)[0] if len(h["residual"]) else []
         times[lv] = float(h["time"][hit[0]]) if len(hit) else None
+        times_wu[lv] = clock.cpu_at(times[lv]) / ref_s if times[lv] is not None else None
     err = {}
     if ref_positions is not None:
         for lv, p in snaps.items():
@@ -171,6 +290,10 @@ def run_case(case: Case, solver: str, ref_positions: np.ndarray | None) -> dict:
         "status": res.status, "iterations": int(res.iterations), "residual": float(res.residual),
         "wall_time_s": float(res.wall_time_s), "compile_s": compile_s, "time_limit_s": limit,
         "times": {str(k): v for k, v in times.items()},
+        "times_wu": {str(k): v for k, v in times_wu.items()},
+        "ref_pass_s": ref_s, "springs": int(model.spring_count), "cpu_s": cpu_total,
+        "wall_s_outer": clock.wall[-1], "total_wu": cpu_total / ref_s,
+        "sweep_wu": (cpu_total / ref_s / res.iterations) if solver == "paper" and res.iterations else None,
         "errors": {str(k): v for k, v in err.items()}, "error_final": err_final,
         "peak_rss_mb": peak, "curve_time": curve_t, "curve_residual": curve_r,
         "energy": float(res.energy),
@@ -225,6 +348,23 @@ def _fmt_t(v):
     return f"{v:.3g}"
 
 
+def _fmt_tw(r, lv):
+    """A level's time as "seconds (work units)"."""
+    v = r["times"][str(lv)]
+    if v is None:
+        return "not reached"
+    wu = (r.get("times_wu") or {}).get(str(lv))
+    return f"{v:.3g}" if wu is None else f"{v:.3g} ({wu:.0f})"
+
+
+def _fmt_ms(v):
+    return "-" if v is None else f"{v * 1e3:.3g}"
+
+
+def _fmt_wu(v, digits=0):
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
 def _fmt_e(v):
     return "-" if v is None else f"{v:.1e}"
 
@@ -245,10 +385,18 @@ def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: 
              "`err@1e-6` / `err end` = max node-position error [m] against the reference "
              f"(newton to {REFERENCE_E:g} N, or its float64 floor); `RSS` = peak resident memory of the "
              "run's process [MB]. The paper solver is capped by the time limit shown; "
-             "\"not reached\" means it did not get there within it.", ""]
+             "\"not reached\" means it did not get there within it.", "",
+             "Work units: each level's cell is `seconds (work units)`. A work unit (WU) is one reference "
+             "force pass over the scene's springs (`bench.reference_pass`: a plain loop, no clothsim "
+             "kernel: length, table lookup, forces and energy), timed in the same process; both the run "
+             "and the pass are measured in process CPU time, so a WU count does not move with the "
+             "machine's load the way seconds do. `ref ms` is that pass [ms]; `total WU` the whole call "
+             "(including the solver's set-up, which the seconds leave out); `sweep WU` the paper solver's "
+             "cost of one sweep (it visits every node once, so this is its per-node cost in units of a "
+             "reference pass's per-node cost).", ""]
     head = ("| scene | nodes | solver | status | iters | compile s | " + " | ".join(f"{lv:.0e}" for lv in LEVELS)
-            + " | final residual N | err@1e-6 m | err end m | RSS MB |")
-    sep = "|" + "---|" * (10 + len(LEVELS))
+            + " | final residual N | err@1e-6 m | err end m | RSS MB | ref ms | total WU | sweep WU |")
+    sep = "|" + "---|" * (13 + len(LEVELS))
     for group, title in (("main", "Benchmark scenes"), ("hard", "Hard cases"),
                          ("terms", "Cost of the optional terms of eq. (1) (same scene with and without)")):
         g = [r for r in rows if r["group"] == group]
@@ -259,9 +407,10 @@ def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: 
             cap = f" (cap {r['time_limit_s']:g} s)" if r["time_limit_s"] else ""
             lines.append(
                 f"| {r['case']} | {r['nodes']} | {r['solver']}{cap} | {r['status']} | {r['iterations']} | "
-                f"{r['compile_s']:.2f} | " + " | ".join(_fmt_t(r["times"][str(lv)]) for lv in LEVELS)
+                f"{r['compile_s']:.2f} | " + " | ".join(_fmt_tw(r, lv) for lv in LEVELS)
                 + f" | {r['residual']:.1e} | {_fmt_e(r['errors'].get(str(1e-6)))} | {_fmt_e(r['error_final'])} | "
-                f"{r['peak_rss_mb']:.0f} |")
+                f"{r['peak_rss_mb']:.0f} | {_fmt_ms(r.get('ref_pass_s'))} | {_fmt_wu(r.get('total_wu'))} | "
+                f"{_fmt_wu(r.get('sweep_wu'), 2)} |")
         lines.append("")
     # speed-ups
     sp_lines = []
@@ -351,10 +500,9 @@ def run(quick: bool = False, out: str | Path = "docs", log=None) -> list[dict]:
                 continue
             rows.append(r)
             if log:
-                t7 = r["times"][str(1e-7)]
                 log(f"{case.name:32s} {solver:7s} {r['status']:15s} it {r['iterations']:7d} "
-                    f"res {r['residual']:.1e}  t(1e-7) {_fmt_t(t7):>11s}  compile {r['compile_s']:.1f}s  "
-                    f"RSS {r['peak_rss_mb']:.0f} MB")
+                    f"res {r['residual']:.1e}  t(1e-7) {_fmt_tw(r, 1e-7):>16s}  compile {r['compile_s']:.1f}s  "
+                    f"RSS {r['peak_rss_mb']:.0f} MB  ref {_fmt_ms(r['ref_pass_s'])} ms")
     write_report(rows, refs, Path(out), quick, time.perf_counter() - t0)
     return rows
 

@@ -30,6 +30,11 @@ def table_eval(x, y, cum, start, comp, t, s):
     Returns (T [N/m], dT/ds [N/m], W = int_0^s T ds [N/m]). Piecewise linear between points, the
     last segment extended beyond the table; for s <= 0 zero (tension only) unless comp[t], then
     the first segment is extended to negative strain.
+
+    x, y, cum (P,) are the packed tables' strains, tensions [N/m] and integrals of T up to each
+    point [N/m]; start (T+1,) their offsets; comp (T,) 1 where a table takes compression.
+    ``forces_and_energy`` and ``node_force`` repeat this lookup inline (for speed: see there);
+    a change here must be made there too (tests/test_kernel_lookup.py checks they agree).
     """
     a = start[t]
     b = start[t + 1]
@@ -84,14 +89,23 @@ def spring_eval(pa, pb, l0, w, x, y, cum, start, comp, t):
     return f * dx, f * dy, f * dz, energy, T, dT, length
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, out):
     """All spring forces plus the constant external force ext (N,3) [N] (gravity), into out (N,3).
 
-    Returns the total potential energy [J] (springs minus ext . pos)."""
-    n = pos.shape[0]
+    pos (N,3) [m]; spring_nodes (S,2) node indices; rest (S,) [m] and width (S,) [m] per spring;
+    table (S,) the spring's table in the pack (x, y, cum, start, comp) that ``table_eval`` reads.
+    Returns the total potential energy [J] (springs minus ext . pos).
+
+    The table lookup is ``table_eval`` written out in the loop (same operations in the same
+    order, so the same bits): a call to a function that takes arrays and branches costs numba
+    reference-count operations on each array per spring, which it cannot prune across the
+    branches, and made this loop 5-6x slower than the lookup itself. A slack tension-only spring
+    (strain <= 0) adds no force and no energy and is skipped. ``error_model="numpy"`` drops the
+    division-by-zero checks (no division here can be by zero: rest lengths and table steps are
+    positive, lengths are tested against LENGTH_EPS)."""
     energy = 0.0
-    for k in range(n):
+    for k in range(pos.shape[0]):
         out[k, 0] = ext[k, 0]
         out[k, 1] = ext[k, 1]
         out[k, 2] = ext[k, 2]
@@ -101,7 +115,23 @@ def forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, c
         b = spring_nodes[s, 1]
         dx, dy, dz, length = spring_vector(pos, a, b)
         l0 = rest[s]
-        T, dT, W = table_eval(x, y, cum, start, comp, table[s], length / l0 - 1.0)
+        strain = length / l0 - 1.0
+        t = table[s]
+        m = start[t]
+        if strain <= 0.0:
+            if comp[t] == 0:
+                continue  # slack: T = W = 0
+            k0 = (y[m + 1] - y[m]) / (x[m + 1] - x[m])
+            T = y[m] + k0 * strain
+            W = y[m] * strain + 0.5 * k0 * strain * strain
+        else:
+            end = start[t + 1] - 2
+            while m < end and strain >= x[m + 1]:
+                m += 1
+            k1 = (y[m + 1] - y[m]) / (x[m + 1] - x[m])
+            ds = strain - x[m]
+            T = y[m] + k1 * ds
+            W = cum[m] + y[m] * ds + 0.5 * k1 * ds * ds
         energy += width[s] * l0 * W
         if length < LENGTH_EPS:
             continue
@@ -125,12 +155,15 @@ def spring_strains_tensions(pos, spring_nodes, rest, width, table, x, y, cum, st
         force_out[s] = table_eval(x, y, cum, start, comp, table[s], strain)[0] * width[s]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def node_force(k, pos, ptr, nbr, sid, rest, width, table, x, y, cum, start, comp, ext, out):
-    """Resultant R (paper eq. 3) at node k from its own springs plus ext[k], into out (3,).
+    """Resultant R (paper eq. 3) at node k from its own springs plus ext[k], into out (3,) [N].
 
-    Returns the sum of the elongations d = l - l0 [m] of those springs, split as
-    (sum of positive elongations, sum of |elongations|) for the paper's step (eq. 4)."""
+    ptr (N+1,), nbr and sid: node k's neighbours nbr[ptr[k]:ptr[k+1]] through springs sid;
+    the other arrays as in ``forces_and_energy``. Returns the sum of the elongations d = l - l0
+    [m] of those springs, split as (sum of positive elongations, sum of |elongations|) for the
+    paper's step (eq. 4). The table lookup is written out as in ``forces_and_energy`` (same
+    bits as ``table_eval``, no per-spring reference counting)."""
     r0 = ext[k, 0]
     r1 = ext[k, 1]
     r2 = ext[k, 2]
@@ -140,7 +173,18 @@ def node_force(k, pos, ptr, nbr, sid, rest, width, table, x, y, cum, start, comp
         s = sid[q]
         dx, dy, dz, length = spring_vector(pos, k, nbr[q])
         l0 = rest[s]
-        T, dT, W = table_eval(x, y, cum, start, comp, table[s], length / l0 - 1.0)
+        strain = length / l0 - 1.0
+        t = table[s]
+        m = start[t]
+        T = 0.0
+        if strain <= 0.0:
+            if comp[t] != 0:
+                T = y[m] + (y[m + 1] - y[m]) / (x[m + 1] - x[m]) * strain
+        else:
+            end = start[t + 1] - 2
+            while m < end and strain >= x[m + 1]:
+                m += 1
+            T = y[m] + (y[m + 1] - y[m]) / (x[m + 1] - x[m]) * (strain - x[m])
         if length >= LENGTH_EPS:
             f = T * width[s] / length
             r0 += f * dx

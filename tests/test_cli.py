@@ -1,6 +1,7 @@
 """The headless command line: output files, --set overrides, exit statuses, error messages."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -114,5 +115,17 @@ def test_bench_quick_writes_table_and_plot(tmp_path):
     rows = [line for line in md.splitlines() if line.startswith("| sphere cap")]
     assert any("| newton" in line and "| converged |" in line for line in rows)
     assert any("| paper" in line for line in rows)
+    # work units: every reached level also in WU, the reference pass, the paper sweep's cost
+    head = next(line for line in md.splitlines() if line.startswith("| scene | nodes | solver"))
+    assert "| ref ms | total WU | sweep WU |" in head
+    cols = [c.strip() for c in head.strip("|").split("|")]
+    newton = next(line for line in rows if "| newton" in line and "| converged |" in line)
+    cells = [c.strip() for c in newton.strip("|").split("|")]
+    t7 = cells[cols.index("1e-07")]
+    assert re.fullmatch(r"[0-9.e+-]+ \([0-9]+\)", t7), t7
+    assert float(cells[cols.index("ref ms")]) > 0 and float(cells[cols.index("total WU")]) > 0
+    paper = next(line for line in rows if "| paper" in line)
+    assert float([c.strip() for c in paper.strip("|").split("|")][cols.index("sweep WU")]) > 0
+    assert "Work units" in md
     png = (tmp_path / "speed_vs_error.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
