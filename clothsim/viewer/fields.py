@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import spring_strains_tensions
-from .results import MMHG, contact_reaction, spread_warp as _spread_warp, spread_weft as _spread_weft
+from ..kernels import spring_strains_tensions
+from ..results import MMHG, contact_reaction, spread_warp as _spread_warp, spread_weft as _spread_weft
 
 
 def contact_pressure(model, positions: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
