@@ -222,7 +222,7 @@ def test_mold_upload_limits_and_formats(tmp_path):
         msg = _messages.FileTransferStartUpload(
             source_component_uuid=a.gui["mold_upload"]._impl.uuid, transfer_uuid="t1", filename="big.stl",
             mime_type="model/stl", size_bytes=10 * 2**20, part_count=10)
-        a._on_upload_start("no-such-client", msg)
+        a.upload_guard.on_start("no-such-client", msg)
         settle(a)
         assert "t1" not in a.server.gui._current_file_upload_states
         assert "over the upload limit" in a.errors["mold"]

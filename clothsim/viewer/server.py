@@ -21,10 +21,12 @@ the running relaxation; model edits (constraints, materials, fabric, mold, initi
 collected in the :class:`~clothsim.viewer.draft.SceneDraft` and applied with **Apply** (keeping
 the current shape as a warm start) or **Reset** (from the initial deformation).
 
-Safety: binds 127.0.0.1 unless ``--host`` says otherwise; uploads larger than the limit are
-refused when the browser announces them (before they are buffered) and checked again on arrival;
-uploads are parsed in memory; an accepted mold upload is stored in a private temporary folder
-(mode 0700) under a name chosen here, never the browser's.
+Safety (:mod:`clothsim.viewer.guard`): binds 127.0.0.1 unless ``--host`` says otherwise; the
+websocket accepts only the viewer's own page as Origin (and, off loopback, only with the token of
+:attr:`ViewerApp.url`); every GUI value is checked before viser stores or broadcasts it; uploads
+are limited by the bytes actually received; uploads are parsed in memory; an accepted mold upload
+is stored in a private temporary folder (mode 0700) under a name chosen here, never the browser's.
+A refused value is shown as an error and its widget shows the last valid value again.
 """
 
 from __future__ import annotations
@@ -42,13 +44,13 @@ from typing import Callable
 
 import numpy as np
 import viser
-from viser import _messages as viser_messages
 
 from ..config import Scene, SceneError
 from ..material import MaterialError
 from ..mold import MoldError
 from ..simulation import Simulation
 from .draft import SceneDraft
+from .guard import GuiValueGuard, HandshakeCheck, UploadGuard, guarded_server, is_loopback, new_token
 from .panels.constraints import ConstraintsPanel
 from .panels.fabric import FabricPanel
 from .panels.files import FilesPanel
@@ -71,11 +73,19 @@ class ViewerApp:
 
     The public methods (start, pause, step, reset, apply, post, wait_idle, close) are what the
     buttons do; tests drive the app through them, through the GUI handles in ``self.gui`` and
-    through the panels in ``self.panels``."""
+    through the panels in ``self.panels``.
+
+    ``token``: the secret the websocket requires (None: a new one when ``host`` is not a loopback
+    address, none on loopback; "" : none). ``port`` 0 picks a free port; a busy one is skipped."""
 
     def __init__(self, scene: Scene, *, host: str = "127.0.0.1", port: int = 8080,
                  upload_limit_mb: float = 200.0, max_rate_hz: float = 25.0, duty: float = 0.02,
-                 verbose: bool = False):
+                 verbose: bool = False, token: str | None = None):
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+            raise ValueError(f"port must be a whole number from 0 to 65535 (got {port})")
+        if not (math.isfinite(upload_limit_mb) and upload_limit_mb >= 0):
+            raise ValueError(f"upload limit must be a finite number of MB >= 0 (got {upload_limit_mb})")
+        self.token = (None if is_loopback(host) else new_token()) if token is None else (token or None)
         self.upload_limit = int(upload_limit_mb * 1024 * 1024)
         self.min_period = 1.0 / max_rate_hz
         self.duty = duty
@@ -106,20 +116,21 @@ class ViewerApp:
         self.pushed_positions: np.ndarray | None = None
         self.loop_work_s = 0.0
         self.errors: dict[str, str] = {}
+        self._valid: dict[int, object] = {}  # id(handle) -> its last valid value
+        self._edit_group: dict[int, str | None] = {}  # id(handle) -> edit group
+        self._edit_handles: list = []
 
         self.sim = Simulation(scene, on_progress=self.on_progress)
         self.scene_draft = SceneDraft(scene, upload_dir=self.upload_dir)
 
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.handshake = HandshakeCheck(loopback=is_loopback(host), token=self.token)
+        self.server = guarded_server(host, port, self.handshake)
         self.host = host
         self.port = self.server.get_port()
         self.server.gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
         self.server.scene.set_up_direction("+z")
         self.server.on_client_connect(lambda client: frame_camera(client, self.sim.model))
-        # viser has no public hook for upload progress: its websocket server's register_handler is
-        # the narrowest point (refuse oversize uploads before they are buffered)
-        self.server._websock_server.register_handler(
-            viser_messages.FileTransferStartUpload, self._on_upload_start)
+        self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused)
 
         self.renderer = SceneRenderer(self.server.scene)
         self.gui: dict[str, object] = {}
@@ -128,14 +139,18 @@ class ViewerApp:
                        "fabric": FabricPanel(self), "files": FilesPanel(self)}
         self._build_gui()
         self.sync_widgets()
+        self._mark_valid()
+        self.value_guard = GuiValueGuard(self.server, self._input_handles(), self._value_refused)
         self._thread = threading.Thread(target=self._loop, name="clothsim-viewer", daemon=True)
         self._thread.start()
 
     # ------------------------------------------------------------------ public controls
     @property
     def url(self) -> str:
+        """The address to open (with the token, when one is required)."""
         host = "127.0.0.1" if self.host in ("0.0.0.0", "", "::") else self.host
-        return f"http://{host}:{self.port}"
+        host = f"[{host}]" if ":" in host else host
+        return f"http://{host}:{self.port}" + (f"/?token={self.token}" if self.token else "")
 
     @property
     def draft(self) -> dict:
@@ -214,16 +229,59 @@ class ViewerApp:
         return self._quiet.depth > 0
 
     def on(self, handle, fn: Callable, group: str | None):
-        """Register fn(value) as a user edit of handle, run by the update loop."""
+        """Register fn(value) as a user edit of handle, run by the update loop. If fn refuses
+        the value (raises), the widget shows its last valid value again."""
 
         def cb(_event) -> None:
             if self.is_quiet():
                 return
             value = handle.value
-            self.post(lambda: fn(value), group)
+            self.post(lambda: self._edit(handle, fn, value), group)
 
         handle.on_update(cb)
+        self._edit_group[id(handle)] = group
+        self._edit_handles.append(handle)
         return handle
+
+    def _edit(self, handle, fn: Callable, value) -> None:
+        try:
+            fn(value)
+        except Exception:
+            self._restore(handle)
+            raise
+        self._mark_valid(self._edit_group[id(handle)])
+
+    def _mark_valid(self, group: str | None = "*") -> None:
+        """The edit widgets of ``group`` (all: "*") show valid values now."""
+        for h in self._edit_handles:
+            if group == "*" or self._edit_group[id(h)] == group:
+                self._valid[id(h)] = h.value
+
+    def _restore(self, handle, resend: bool = False) -> None:
+        """Show the widget's last valid value again (in every tab); ``resend``: also when the
+        server still holds it (the refused value never reached the server, only the tab)."""
+        if id(handle) not in self._valid:
+            return
+        valid = self._valid[id(handle)]
+        with self.quiet():
+            if resend and handle.value == valid:
+                handle.value = _other(handle, valid)
+            handle.value = valid
+
+    def _input_handles(self) -> dict:
+        inputs = (viser.GuiNumberHandle, viser.GuiSliderHandle, viser.GuiVector2Handle, viser.GuiVector3Handle,
+                  viser.GuiTextHandle, viser.GuiDropdownHandle, viser.GuiCheckboxHandle)
+        return {h._impl.uuid: h for h in self.gui.values() if isinstance(h, inputs)}
+
+    def _value_refused(self, handle, why: str) -> None:
+        """From viser's event loop: a tab sent a value the guard refused."""
+        label = str(handle.label)[:60]
+
+        def task():
+            self._restore(handle, resend=True)
+            raise ValueError(f"{label}: {why}")
+
+        self.post(task, self._edit_group.get(id(handle)) or "run")
 
     def err(self, group: str) -> None:
         """The (hidden until needed) error line of an edit group, placed where it is called."""
@@ -394,14 +452,9 @@ class ViewerApp:
         self.panels["run"].sync()
 
     # ------------------------------------------------------------------ uploads
-    def _on_upload_start(self, client_id, message) -> None:
-        """Runs on viser's event loop when a browser announces an upload: refuse it at once if it
-        is too large (the transfer state is dropped, so its parts are ignored)."""
-        if message.size_bytes <= self.upload_limit:
-            return
-        self.server.gui._current_file_upload_states.pop(message.transfer_uuid, None)
-        msg = (f"{message.filename[:60]}: {message.size_bytes / 2**20:.1f} MB is over the upload limit of "
-               f"{self.upload_limit / 2**20:.0f} MB (--upload-limit-mb)")
+    def _upload_refused(self, client_id, message, filename: str, reason: str) -> None:
+        """From viser's event loop: the upload guard refused a transfer (its parts are freed)."""
+        msg = f"{filename[:60]}: {reason}"
         group = "mold" if message.source_component_uuid == self.gui["mold_upload"]._impl.uuid else "material"
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
         client = self.server.get_clients().get(client_id)
@@ -472,3 +525,16 @@ class ViewerApp:
         with self._lock:
             live = (np.asarray(self._live_it, np.float64), np.asarray(self._live_res, np.float64))
         self.plot.update(self._hist, live, float(sim.settings.e), self.initial_residual, running)
+
+
+def _other(handle, value):
+    """A value of the widget's type different from ``value`` (to make viser send ``value`` again)."""
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, (int, float)):
+        return value + 1
+    if isinstance(value, tuple):
+        return tuple(x + 1 for x in value)
+    if isinstance(handle, viser.GuiDropdownHandle):
+        return next((o for o in handle.options if o != value), value)
+    return value + " "

@@ -3,8 +3,6 @@ file, a primitive or an upload) with a scale and an offset."""
 
 from __future__ import annotations
 
-import html
-
 import viser
 
 from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, SCENE_MOLD
@@ -77,7 +75,9 @@ class FabricPanel(Panel):
 
     def refresh_mold_info(self) -> None:
         spec = self.app.scene_draft.data.get("mold")
-        self.gui["mold_info"].content = (f"Current: `{html.escape(str(spec))}`" if spec is not None
+        # inside a markdown code span nothing is interpreted (an HTML escape would show as
+        # "&#x27;"): only a backtick could end the span early
+        self.gui["mold_info"].content = (f"Current: `{str(spec).replace('`', chr(39))}`" if spec is not None
                                          else "Current: no mold")
 
     def set_mold(self) -> None:

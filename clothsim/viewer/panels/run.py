@@ -55,10 +55,20 @@ class RunPanel(Panel):
         if not np.isfinite(r):
             r = self.app.initial_residual()
         it = sim.state.iteration
+        e = sim.settings.e
         contact = int(np.count_nonzero(last.in_contact)) if last is not None else 0
-        ips = sim.ips if running else 0.0
-        text = (f"**{STATE_TEXT.get(status, status)}** · iteration {it} · residual {fmt(r, 3)} N "
-                f"(e = {fmt(sim.settings.e, 2)} N) · {contact} contact nodes · {ips:,.0f} it/s · {sim.method}")
+        state = STATE_TEXT.get(status, status)
+        if status == "converged" and np.isfinite(r) and r > e:  # e was tightened after the run
+            state = "not converged at the new e (Start continues)"
+        # iterations per second: the running rate, or the last run's mean (the solver's final
+        # progress report carries no rate); nothing before any run
+        ips = sim.ips
+        last_run = sim.last_result
+        if not running and last_run is not None and last_run.wall_time_s > 0:
+            ips = last_run.iterations / last_run.wall_time_s
+        rate = f" · {ips:,.0f} it/s" if ips > 0 else ""
+        text = (f"**{state}** · iteration {it} · residual {fmt(r, 3)} N "
+                f"(e = {fmt(e, 2)} N) · {contact} contact nodes{rate} · {sim.method}")
         if sim.message and status not in ("running", "idle", "paused"):
             text += f"  \n<small>{html.escape(sim.message)}</small>"
         if not running and last is not None:

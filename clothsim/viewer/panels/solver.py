@@ -15,12 +15,13 @@ class SolverPanel(Panel):
         s = app.sim.settings
         g["method"] = app.on(gui.add_dropdown("Method", SOLVER_METHODS, initial_value=s.method),
                              lambda v: self.set(method=v), "solver")
-        g["C"] = app.on(gui.add_number("C (step divisor)", float(s.C), step=0.1),
+        g["C"] = app.on(gui.add_number("C (step divisor)", float(s.C), step=0.1, min=0.0, max=C_MAX),
                         lambda v: self.set(C=as_float(v, "C", -C_MAX, C_MAX)), "solver")
         g["e"] = app.on(gui.add_text("e (limit on ||V||inf) [N]", f"{s.e:g}"),
                         lambda v: self.set(e=as_float(v, "e")), "solver")
         g["max_iterations"] = app.on(
-            gui.add_number("Max iterations", int(s.max_iterations), step=1),
+            gui.add_number("Max iterations", int(s.max_iterations), step=1, min=0,
+                           max=MAX_ITERATIONS_MAX),
             lambda v: self.set(max_iterations=as_int(v, "max iterations", 0, MAX_ITERATIONS_MAX)), "solver")
         gui.add_markdown("C, e and max iterations reach a running relaxation at once; the method "
                          "applies from the next Start.")
