@@ -56,8 +56,23 @@ def fmt(x: float | None, digits: int = 3) -> str:
     return f"{x:.{digits - 1}e}"
 
 
+#: Smallest spread of an auto colour range, per field: strains are dimensionless and rounding
+#: noise of a flat sheet is ~1e-8, so 1e-6 is the floor; other fields use 1e-6 of their magnitude.
+STRAIN_FLOOR = 1e-6
+RELATIVE_FLOOR = 1e-6
+
+
+def range_floor(key: str, lo: float, hi: float) -> float:
+    """The smallest meaningful spread of field ``key`` around values in [lo, hi]."""
+    if key in ("strain_warp", "strain_weft"):
+        return STRAIN_FLOOR
+    return RELATIVE_FLOOR * max(abs(lo), abs(hi))
+
+
 def field_range(values: np.ndarray, key: str, view: ViewSettings) -> tuple[float, float]:
-    """The colour range (lo, hi) of a field's values under the view's settings."""
+    """The colour range (lo, hi) of a field's values under the view's settings. An auto range
+    narrower than the field's floor (:func:`range_floor`) is widened to the floor around its
+    middle, so that rounding noise shows as one colour, not as hotspots."""
     if not view.auto_range:
         lo, hi = float(view.range_min), float(view.range_max)
         if math.isfinite(lo) and math.isfinite(hi) and hi > lo:
@@ -70,19 +85,40 @@ def field_range(values: np.ndarray, key: str, view: ViewSettings) -> tuple[float
     lo, hi = float(finite.min()), float(finite.max())
     if key == "pressure":
         lo = 0.0
-    if hi <= lo:
-        hi = lo + (1.0 if lo == 0 else abs(lo) * 1e-3)
+    floor = range_floor(key, lo, hi)
+    if hi - lo <= floor:
+        mid = 0.5 * (lo + hi)
+        half = 0.5 * floor if floor > 0 else (0.5 if mid == 0 else abs(mid) * 5e-4)
+        lo, hi = mid - half, mid + half
+        if key == "pressure" and lo < 0:
+            lo, hi = 0.0, hi - lo
     return lo, hi
 
 
-def legend_text(label: str, key: str, lo: float, hi: float) -> str:
-    """The markdown under the colour bar."""
+def is_uniform(values: np.ndarray, key: str) -> bool:
+    """True if the finite values spread less than the field's floor."""
+    finite = values[np.isfinite(values)]
+    if not len(finite) or key == "contact":
+        return False
+    lo, hi = float(finite.min()), float(finite.max())
+    return hi - lo <= range_floor(key, lo, hi)
+
+
+def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False) -> str:
+    """The markdown under the colour bar: the range's ends and middle, or 'uniform'."""
     if key == "contact":
         return "**in contact**: dark = free, yellow = touching the mold"
     unit = FIELDS[label][0]
+    head = f"**{label}**{f' [{unit}]' if unit else ''}"
     tiny = 1e-9 * max(abs(lo), abs(hi))
-    lo_s, hi_s = fmt(0.0 if abs(lo) < tiny else lo), fmt(0.0 if abs(hi) < tiny else hi)
-    return f"**{label}**{f' [{unit}]' if unit else ''}: {lo_s} (dark) … {hi_s} (yellow)"
+
+    def show(x: float) -> str:
+        return fmt(0.0 if abs(x) < tiny else x)
+
+    if uniform:
+        mid = 0.5 * (lo + hi)
+        return f"{head}: uniform ({show(mid if abs(mid) > range_floor(key, lo, hi) else 0.0)})"
+    return f"{head}: {show(lo)} (dark) · {show(0.5 * (lo + hi))} · {show(hi)} (yellow)"
 
 
 def inset_surface(V: np.ndarray, F: np.ndarray, spacing) -> np.ndarray:
@@ -180,6 +216,7 @@ class SceneRenderer:
         self.field_key = FIELDS[view.field][1]
         vals = node_field(f.model, f.positions, f.in_contact, self.field_key)
         lo, hi = field_range(vals, self.field_key, view)
+        uniform = view.auto_range and is_uniform(vals, self.field_key)
         self.range = (lo, hi)
         glb = self.glb.build(f.positions, colormap(vals, lo, hi), grid_normals(f.positions, nx1, ny1),
                              opacity=float(view.sheet_opacity))
@@ -189,7 +226,7 @@ class SceneRenderer:
             self.h_fixed.visible = bool(view.show_fixed)
         if self.h_seams is not None:
             self.h_seams.points = self.seam_points(f.positions)
-        return legend_text(view.field, self.field_key, lo, hi)
+        return legend_text(view.field, self.field_key, lo, hi, uniform)
 
 
 def frame_camera(client, model) -> None:
