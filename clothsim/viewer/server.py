@@ -137,7 +137,7 @@ class ViewerApp:
         self.panels = {"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
                        "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
                        "fabric": FabricPanel(self), "files": FilesPanel(self)}
-        self._build_gui()
+        self.plot = self._build_gui()
         self.sync_widgets()
         self._mark_valid()
         self.value_guard = GuiValueGuard(self.server, self._input_handles(), self._value_refused)
@@ -310,18 +310,20 @@ class ViewerApp:
         return self._r0
 
     # ------------------------------------------------------------------ GUI
-    def _build_gui(self) -> None:
+    def _build_gui(self) -> ResidualPlot:
+        """Every panel's widgets, in page order; returns the residual plot."""
         gui = self.server.gui
         p = self.panels
         p["run"].build(gui)
-        self.plot = ResidualPlot(gui, self.sim.settings.e, self.min_period)
-        self.gui["plot"] = self.plot.handle
+        plot = ResidualPlot(gui, self.sim.settings.e, self.min_period)
+        self.gui["plot"] = plot.handle
         p["view"].build_legend(gui)
         tabs = gui.add_tab_group()
         for key, title in (("view", "View"), ("solver", "Solver"), ("constraints", "Constraints"),
                            ("material", "Material"), ("fabric", "Fabric & mold"), ("files", "Files")):
             with tabs.add_tab(title):
                 p[key].build(gui)
+        return plot
 
     def sync_widgets(self) -> None:
         """Show the draft's values in every editor (not counted as edits)."""
