@@ -148,6 +148,8 @@ def test_upload_stored_under_own_name(draft, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mold_upload_1.stl"]
     spec = draft.mold_spec(label, 2.0, (0.0, 0.0, 0.0))
     assert spec == {"path": str(tmp_path / "mold_upload_1.stl"), "scale": 2.0}
+    draft.set_mold(spec)
+    assert "the mold was uploaded" in draft.scene_yaml()
 
 
 def test_scene_yaml_roundtrip(draft):

@@ -358,8 +358,8 @@ class SceneDraft:
         """The draft as YAML, file paths made absolute so it loads from wherever it is saved."""
         scene = self.validate().resolved()
         head = f"# saved by the clothsim viewer on {time.strftime('%Y-%m-%d %H:%M')}\n"
-        if (scene.mold is not None and self.upload_dir is not None
-                and str(self.upload_dir) in str(scene.mold.get("path", ""))):
+        mold = self.data.get("mold") or {}  # the draft's own spec (a dict, as in the YAML)
+        if self.upload_dir is not None and str(self.upload_dir) in str(mold.get("path", "")):
             head += "# the mold was uploaded: its temporary copy disappears when the viewer stops\n"
         if self.pending:
             head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"
