@@ -32,3 +32,22 @@ def test_real_spread_keeps_its_range():
     assert "uniform (3)" in legend_text("tension (max of warp, weft)", "tension", lo, hi, True)
     lo, hi = field_range(np.zeros(5), "pressure", ViewSettings())
     assert lo == 0.0 and hi > 0
+
+
+def test_plot_leaves_room_above_the_top_tick():
+    """Issue 15, item 24: the log axis' range ends above its top tick, so that the tick's label is
+    not cut off by the plot's edge (it was: the range ended exactly at the top decade)."""
+    from types import SimpleNamespace
+
+    from clothsim.viewer.plot import ResidualPlot
+
+    class Gui:
+        def add_uplot(self, **kw):
+            return SimpleNamespace(**kw, axes=None)
+
+    plot = ResidualPlot(Gui(), e=1e-6, min_period=0.04)
+    it = np.arange(1.0, 101.0)
+    plot.update((it, 0.3 * 10 ** (-it / 20)), (np.zeros(0), np.zeros(0)), 1e-6, lambda: 0.3, running=False)
+    splits = plot.handle.axes[1]["splits"]
+    lo, hi = plot.handle.scales["y"]["range"]
+    assert lo == splits[0] and hi >= 2 * splits[-1] and splits[-1] >= 0.3

@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 PLOT_POINTS = 1500
+TOP_PAD = 10.0 ** (1 / 3)  # room above the top tick label (issue 15, item 24)
 
 
 def thin(x: np.ndarray, y: np.ndarray, n: int = PLOT_POINTS) -> tuple[np.ndarray, np.ndarray]:
@@ -88,5 +89,7 @@ class ResidualPlot:
             plot.axes = ({"label": "iteration"},
                          {"splits": splits, "values": tuple(f"1e{round(math.log10(s))}" for s in splits),
                           "size": 48})
-            plot.scales = {"x": {"time": False}, "y": {"distr": 3, "log": 10, "range": (splits[0], splits[-1])}}
+            # a third of a decade above the top tick, so that its label is not cut by the plot's edge
+            plot.scales = {"x": {"time": False},
+                           "y": {"distr": 3, "log": 10, "range": (splits[0], splits[-1] * TOP_PAD)}}
         plot.data = (x, y, np.full_like(y, e))
