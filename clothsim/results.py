@@ -50,13 +50,6 @@ def strict_json(obj) -> str:
     return json.dumps(clean(obj), indent=2, allow_nan=False)
 
 
-def grid_faces(nx1: int, ny1: int) -> np.ndarray:
-    """Two triangles per cell of a full (nx1, ny1)-node rectangle (Topology.faces of it)."""
-    from .topology import Topology
-
-    return Topology.rectangle(nx1 - 1, ny1 - 1).faces
-
-
 #: a contact node whose deformed tributary area is below this fraction of its rest area has
 #: gathered: its pressure is reported as inf (see contact_reaction)
 GATHERED_AREA_RATIO = 1e-2
@@ -91,20 +84,6 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     # is a line load: the pressure there is unbounded (inf), not a huge finite number
     pressure[(force > 0.0) & (area < GATHERED_AREA_RATIO * model.node_area)] = np.inf
     return force, pressure
-
-
-def spread_warp(v: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
-    """Mean of the warp-spring values (nx, ny+1) at each node (nx+1, ny+1) of a full rectangle."""
-    from .topology import Topology
-
-    return Topology.rectangle(nx1 - 1, ny1 - 1).spread(np.ravel(v), "warp").reshape(nx1, ny1)
-
-
-def spread_weft(v: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
-    """Mean of the weft-spring values (nx+1, ny) at each node (nx+1, ny+1) of a full rectangle."""
-    from .topology import Topology
-
-    return Topology.rectangle(nx1 - 1, ny1 - 1).spread(np.ravel(v), "weft").reshape(nx1, ny1)
 
 
 def node_fields(model, state):

@@ -331,6 +331,14 @@ class Simulation:
             time.sleep(0.01)
         return self.status
 
+    def current_residual(self) -> float:
+        """||V||_inf [N] of the current state, evaluated now (under the lock, so a consistent
+        state): what the viewer shows before a run has reported one."""
+        from .solvers.common import residual
+
+        with self._lock:
+            return float(residual(self.model, self.state)[0])
+
     def snapshot(self) -> Snapshot:
         with self._lock:
             return Snapshot(self.state.positions.copy(), self.state.in_contact.copy(), self.state.iteration,

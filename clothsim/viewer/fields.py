@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import spring_strains_tensions
-from .results import MMHG, contact_reaction, spread_warp as _spread_warp, spread_weft as _spread_weft
+from ..kernels import spring_strains_tensions
+from ..results import MMHG, contact_reaction
 
 
 def contact_pressure(model, positions: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
@@ -30,7 +30,7 @@ def node_field(model, positions: np.ndarray, in_contact: np.ndarray, key: str) -
     """Per-node values (N,) of a field key (see FIELDS): strains are engineering strain, tension
     is tension per width [N/m] (the larger of the mean warp and weft values), pressure in mmHg,
     contact 0/1."""
-    nx1, ny1 = model.grid_shape
+    topo = model.topology
     if key == "contact":
         return in_contact.astype(np.float64)
     if key == "pressure":
@@ -44,15 +44,9 @@ def node_field(model, positions: np.ndarray, in_contact: np.ndarray, key: str) -
     spring_strains_tensions(positions, nodes[:S], rest[:S], width[:S], table[:S], *tabs, strain, force)
     if key == "tension":
         t = np.divide(force, width[:S], out=np.zeros(S), where=width[:S] > 0)
-        w = _spread_warp(t[:wc].reshape(nx1 - 1, ny1), nx1, ny1) if nx1 > 1 else np.zeros((nx1, ny1))
-        f = _spread_weft(t[wc:wc + fc].reshape(nx1, ny1 - 1), nx1, ny1) if ny1 > 1 else np.zeros((nx1, ny1))
-        return np.maximum(w, f).ravel()
+        return np.maximum(topo.spread(t[:wc], "warp"), topo.spread(t[wc:wc + fc], "weft"))
     if key == "strain_warp":
-        if nx1 < 2:
-            return np.zeros(nx1 * ny1)
-        return _spread_warp(strain[:wc].reshape(nx1 - 1, ny1), nx1, ny1).ravel()
+        return topo.spread(strain[:wc], "warp")
     if key == "strain_weft":
-        if ny1 < 2:
-            return np.zeros(nx1 * ny1)
-        return _spread_weft(strain[wc:wc + fc].reshape(nx1, ny1 - 1), nx1, ny1).ravel()
+        return topo.spread(strain[wc:wc + fc], "weft")
     raise ValueError(f"unknown field {key!r}")

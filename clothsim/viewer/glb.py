@@ -62,6 +62,26 @@ def colorbar_image(width: int = 256, height: int = 14) -> np.ndarray:
     return np.repeat(row[None, :, :], height, axis=0)
 
 
+def vertex_normals(positions: np.ndarray, topology) -> np.ndarray:
+    """Unit vertex normals (N, 3) float32 of a lattice (clothsim.topology.Topology): the central
+    differences of :func:`grid_normals` on one full rectangle, else the area-weighted normals of
+    the display faces round each node (+z where there are none)."""
+    if topology.is_grid:
+        return grid_normals(positions, *topology.grid_shape)
+    p = np.asarray(positions, dtype=np.float32)
+    f = topology.faces
+    fn = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    n = np.zeros_like(p)
+    for c in range(3):
+        np.add.at(n, f[:, c], fn)
+    length = np.linalg.norm(n, axis=1)
+    bad = ~(length > 0)
+    length[bad] = 1.0
+    n /= length[:, None]
+    n[bad] = (0.0, 0.0, 1.0)
+    return n.astype(np.float32)
+
+
 def grid_normals(positions: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
     """Unit vertex normals (N, 3) float32 of a structured grid: cross product of the central
     differences along i and j (one-sided at the borders). Cheap and smooth; degenerate spots

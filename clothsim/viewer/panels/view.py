@@ -1,0 +1,46 @@
+"""The View tab and the colour legend: which field colours the sheet, its range, opacities and
+which helpers are shown. These are display settings, not edits: they only mark the view dirty."""
+
+from __future__ import annotations
+
+from ..fields import FIELDS
+from ..glb import colorbar_image
+from ..render import ViewSettings
+from . import Panel
+
+
+class ViewPanel(Panel):
+    def __init__(self, app):
+        super().__init__(app)
+        self.legend = ""
+
+    def build_legend(self, gui) -> None:
+        self.gui["legend_img"] = gui.add_image(colorbar_image(256, 12), format="png")
+        self.gui["legend"] = gui.add_markdown("")
+
+    def build(self, gui) -> None:
+        g, app = self.gui, self.app
+        g["field"] = gui.add_dropdown("Colour by", tuple(FIELDS), initial_value="warp strain")
+        g["auto_range"] = gui.add_checkbox("Auto range", True)
+        g["range_min"] = gui.add_number("Range min", 0.0, min=-1e12, max=1e12)
+        g["range_max"] = gui.add_number("Range max", 1.0, min=-1e12, max=1e12)
+        g["sheet_opacity"] = gui.add_slider("Sheet opacity", min=0.2, max=1.0, step=0.05, initial_value=1.0)
+        for k in ("field", "auto_range", "range_min", "range_max", "sheet_opacity"):
+            g[k].on_update(lambda _e: app.view_changed())
+        g["show_fixed"] = gui.add_checkbox("Show constrained nodes", True)
+        g["show_mold"] = gui.add_checkbox("Show mold", True)
+        g["mold_opacity"] = gui.add_slider("Mold opacity", min=0.1, max=1.0, step=0.05, initial_value=0.6)
+        for k in ("show_fixed", "show_mold", "mold_opacity"):
+            g[k].on_update(lambda _e: app.view_changed(mold=True))
+
+    def settings(self) -> ViewSettings:
+        g = self.gui
+        return ViewSettings(field=g["field"].value, auto_range=bool(g["auto_range"].value),
+                            range_min=float(g["range_min"].value), range_max=float(g["range_max"].value),
+                            sheet_opacity=float(g["sheet_opacity"].value), show_fixed=bool(g["show_fixed"].value),
+                            show_mold=bool(g["show_mold"].value), mold_opacity=float(g["mold_opacity"].value))
+
+    def set_legend(self, text: str) -> None:
+        if text != self.legend:
+            self.legend = text
+            self.gui["legend"].content = text

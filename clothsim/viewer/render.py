@@ -1,0 +1,247 @@
+"""Rendering: the scene nodes of the 3D view (the coloured sheet, the constrained nodes, the seam
+threads, the mold) and the camera framing. Only the update loop calls into this module: nodes are
+created once per model and then updated in place (``glb_data`` for the sheet, ``points`` for the
+constrained nodes and seams)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..grid import FAMILY_SEAM
+from .fields import FIELDS, node_field
+from .glb import GlbMeshWriter, colormap, vertex_normals
+
+MOLD_GREY = (150, 150, 160)
+MOLD_PENDING = (235, 140, 50)  # a mold shown before it is applied
+
+
+@dataclass
+class Frame:
+    """One consistent copy of the sheet for display: positions [m] (N, 3), in_contact (N,) bool,
+    the iteration it was taken at and the model it belongs to."""
+
+    positions: np.ndarray
+    in_contact: np.ndarray
+    iteration: int
+    model: object
+
+
+@dataclass(frozen=True)
+class ViewSettings:
+    """What the View panel asks for: the field label (a key of FIELDS), the colour range (auto,
+    or [lo, hi] in the field's unit), the sheet's opacity and which helpers are shown."""
+
+    field: str = "warp strain"
+    auto_range: bool = True
+    range_min: float = 0.0
+    range_max: float = 1.0
+    sheet_opacity: float = 1.0
+    show_fixed: bool = True
+    show_mold: bool = True
+    mold_opacity: float = 0.6
+
+
+def fmt(x: float | None, digits: int = 3) -> str:
+    """A short human number: 'n/a' for None or non-finite, plain in [1e-3, 1e4), else exponent."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    if x == 0:
+        return "0"
+    if 1e-3 <= abs(x) < 1e4:
+        return f"{x:.{digits}g}"
+    return f"{x:.{digits - 1}e}"
+
+
+#: Smallest spread of an auto colour range, per field: strains are dimensionless and rounding
+#: noise of a flat sheet is ~1e-8, so 1e-6 is the floor; other fields use 1e-6 of their magnitude.
+STRAIN_FLOOR = 1e-6
+RELATIVE_FLOOR = 1e-6
+
+
+def range_floor(key: str, lo: float, hi: float) -> float:
+    """The smallest meaningful spread of field ``key`` around values in [lo, hi]."""
+    if key in ("strain_warp", "strain_weft"):
+        return STRAIN_FLOOR
+    return RELATIVE_FLOOR * max(abs(lo), abs(hi))
+
+
+def field_range(values: np.ndarray, key: str, view: ViewSettings) -> tuple[float, float]:
+    """The colour range (lo, hi) of a field's values under the view's settings. An auto range
+    narrower than the field's floor (:func:`range_floor`) is widened to the floor around its
+    middle, so that rounding noise shows as one colour, not as hotspots."""
+    if not view.auto_range:
+        lo, hi = float(view.range_min), float(view.range_max)
+        if math.isfinite(lo) and math.isfinite(hi) and hi > lo:
+            return lo, hi
+    finite = values[np.isfinite(values)]
+    if key == "contact":
+        return 0.0, 1.0
+    if not len(finite):
+        return 0.0, 1.0
+    lo, hi = float(finite.min()), float(finite.max())
+    if key == "pressure":
+        lo = 0.0
+    floor = range_floor(key, lo, hi)
+    if hi - lo <= floor:
+        mid = 0.5 * (lo + hi)
+        half = 0.5 * floor if floor > 0 else (0.5 if mid == 0 else abs(mid) * 5e-4)
+        lo, hi = mid - half, mid + half
+        if key == "pressure" and lo < 0:
+            lo, hi = 0.0, hi - lo
+    return lo, hi
+
+
+def is_uniform(values: np.ndarray, key: str) -> bool:
+    """True if the finite values spread less than the field's floor."""
+    finite = values[np.isfinite(values)]
+    if not len(finite) or key == "contact":
+        return False
+    lo, hi = float(finite.min()), float(finite.max())
+    return hi - lo <= range_floor(key, lo, hi)
+
+
+def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False) -> str:
+    """The markdown under the colour bar: the range's ends and middle, or 'uniform'."""
+    if key == "contact":
+        return "**in contact**: dark = free, yellow = touching the mold"
+    unit = FIELDS[label][0]
+    head = f"**{label}**{f' [{unit}]' if unit else ''}"
+    tiny = 1e-9 * max(abs(lo), abs(hi))
+
+    def show(x: float) -> str:
+        return fmt(0.0 if abs(x) < tiny else x)
+
+    if uniform:
+        mid = 0.5 * (lo + hi)
+        return f"{head}: uniform ({show(mid if abs(mid) > range_floor(key, lo, hi) else 0.0)})"
+    return f"{head}: {show(lo)} (dark) · {show(0.5 * (lo + hi))} · {show(hi)} (yellow)"
+
+
+def inset_surface(V: np.ndarray, F: np.ndarray, spacing) -> np.ndarray:
+    """Display only: move a mold's surface inwards by a quarter of the grid spacing [m], so that
+    the sheet's flat triangles spanning nodes in contact (chords of a curved mold) do not show the
+    mold poking through them."""
+    try:
+        import trimesh
+
+        d = 0.25 * min(spacing)
+        if not (d > 0) or len(F) == 0:
+            return V
+        n = trimesh.Trimesh(V, F, process=False).vertex_normals
+        return V - d * np.asarray(n)
+    except Exception:
+        return V
+
+
+class SceneRenderer:
+    """The 3D scene of one viser server."""
+
+    def __init__(self, scene_api):
+        self.scene = scene_api
+        self.model = None  # the model the nodes were built for
+        self.glb: GlbMeshWriter | None = None
+        self.h_cloth = None
+        self.h_fixed = None
+        self.h_seams = None
+        self.h_mold = None
+        self.fixed_idx = np.zeros(0, np.int64)
+        self.seam_ab = np.zeros((0, 2), np.int64)
+        self.shown_mold = None
+        self.field_key = "strain_warp"
+        self.range = (0.0, 1.0)
+
+    def rebuild(self, model, view: ViewSettings) -> None:
+        """Scene nodes for a (new) model."""
+        self.glb = GlbMeshWriter(model.topology.faces)
+        pos = model.rest_positions
+        vals = np.zeros(model.node_count)
+        glb = self.glb.build(pos, colormap(vals, 0, 1), vertex_normals(pos, model.topology))
+        self.h_cloth = self.scene.add_glb("/sheet", glb)
+        fixed = model.fixed_axes.any(axis=1)
+        self.fixed_idx = np.nonzero(fixed)[0]
+        dx, dy = model.spacing if model.spacing and min(model.spacing) > 0 else (0.01, 0.01)
+        size = float(max(0.3 * min(dx, dy), 0.002 * np.ptp(pos, axis=0).max()))
+        if self.h_fixed is not None:
+            self.h_fixed.remove()
+            self.h_fixed = None
+        if len(self.fixed_idx):
+            self.h_fixed = self.scene.add_point_cloud(
+                "/constrained", pos[self.fixed_idx].astype(np.float32), colors=(230, 40, 40),
+                point_size=size, point_shape="circle", precision="float32", visible=view.show_fixed)
+        # seams: one thread per sewn node pair (it shrinks to nothing as the seam closes)
+        if self.h_seams is not None:
+            self.h_seams.remove()
+            self.h_seams = None
+        self.seam_ab = model.spring_nodes[model.spring_family == FAMILY_SEAM]
+        if len(self.seam_ab):
+            self.h_seams = self.scene.add_line_segments(
+                "/seams", self.seam_points(pos), colors=(255, 140, 0), thickness=2.0,
+                thickness_units="screen")
+        self.model = model
+
+    def seam_points(self, pos: np.ndarray) -> np.ndarray:
+        """(P, 2, 3) float32 end points of the seam threads."""
+        return np.stack([pos[self.seam_ab[:, 0]], pos[self.seam_ab[:, 1]]], axis=1).astype(np.float32)
+
+    def show_mold(self, mold, pending: bool, model, view: ViewSettings) -> None:
+        """Show ``mold`` (None: none), orange while it is a draft not yet applied."""
+        if mold is None:
+            if self.h_mold is not None:
+                self.h_mold.remove()
+                self.h_mold = None
+            self.shown_mold = None
+            return
+        if self.shown_mold is not mold or self.h_mold is None:
+            ext = float(np.ptp(model.rest_positions, axis=0).max()) * 2.0
+            V, F = mold.surface_mesh(resolution=64, extent=max(ext, 1e-3))
+            V = inset_surface(np.asarray(V, np.float64), np.asarray(F, np.int64), model.spacing)
+            self.h_mold = self.scene.add_mesh_simple(
+                "/mold", np.asarray(V, np.float32), np.asarray(F, np.uint32), color=MOLD_GREY,
+                side="double", opacity=1.0)
+            self.shown_mold = mold
+        op = float(view.mold_opacity)
+        self.h_mold.opacity = None if op >= 0.999 else op
+        self.h_mold.color = MOLD_PENDING if pending else MOLD_GREY
+        self.h_mold.visible = bool(view.show_mold)
+
+    def push_frame(self, f: Frame, view: ViewSettings) -> str:
+        """Show a frame; returns the legend text for its colour range."""
+        self.field_key = FIELDS[view.field][1]
+        vals = node_field(f.model, f.positions, f.in_contact, self.field_key)
+        lo, hi = field_range(vals, self.field_key, view)
+        uniform = view.auto_range and is_uniform(vals, self.field_key)
+        self.range = (lo, hi)
+        glb = self.glb.build(f.positions, colormap(vals, lo, hi), vertex_normals(f.positions, f.model.topology),
+                             opacity=float(view.sheet_opacity))
+        self.h_cloth.glb_data = glb
+        if self.h_fixed is not None:
+            self.h_fixed.points = f.positions[self.fixed_idx].astype(np.float32)
+            self.h_fixed.visible = bool(view.show_fixed)
+        if self.h_seams is not None:
+            self.h_seams.points = self.seam_points(f.positions)
+        return legend_text(view.field, self.field_key, lo, hi, uniform)
+
+
+def frame_camera(client, model) -> None:
+    """Point a newly connected tab's camera at the sheet and its mold."""
+    p = model.rest_positions
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    if model.mold is not None:
+        try:
+            mb = np.asarray(model.mold.bounds, float)
+            if (mb.shape == (2, 3) and np.isfinite(mb).all()
+                    and np.ptp(mb, axis=0).max() < 10 * max(np.ptp(p, axis=0).max(), 1e-9)):
+                lo, hi = np.minimum(lo, mb[0]), np.maximum(hi, mb[1])
+        except Exception:
+            pass
+    c = 0.5 * (lo + hi)
+    r = max(float(np.linalg.norm(hi - lo)) * 0.5, 1e-3)
+    d = np.array([0.45, -1.0, 0.8])
+    client.camera.up_direction = (0.0, 0.0, 1.0)
+    client.camera.position = tuple(c + 1.6 * r * d / np.linalg.norm(d))
+    client.camera.look_at = tuple(c)
+    client.camera.near = r * 0.01
+    client.camera.far = r * 100.0
