@@ -457,3 +457,23 @@ def test_seams_are_drawn_and_close():
         assert np.linalg.norm(pts[:, 0] - pts[:, 1], axis=1).max() < 1e-5
     finally:
         a.close()
+
+
+def test_pattern_panel_scene_opens_lists_its_panels_and_converges():
+    """A scene of pattern panels (configs/garments/sleeve_two_panel.yaml) opens in the viewer:
+    the Fabric tab lists the panels (nodes and outline area) instead of a size, the sheet's faces
+    come from the lattice, and a run converges."""
+    import clothsim
+
+    root = Path(__file__).resolve().parents[1]
+    a = ViewerApp(clothsim.load_scene(root / "configs/garments/sleeve_two_panel.yaml"), port=free_port())
+    try:
+        a.wait_idle(20)
+        table = a.panels["fabric"].gui["panels"].content
+        assert "| front | 442 | 100.00 | 25 x 16 |" in table and "| back | 442 |" in table
+        assert not a.panels["fabric"].gui["size"].visible
+        assert len(a.renderer.glb.faces) == len(a.sim.model.topology.faces)
+        a.sim.start()
+        assert a.sim.wait(120) == "converged"
+    finally:
+        a.close()

@@ -282,7 +282,14 @@ class SceneDraft:
         primitives placed under the sheet's centre, and the accepted uploads."""
         fab = self.data["fabric"]
         ox, oy, oz = (list(fab.get("origin", (0.0, 0.0, 0.0))) + [0.0, 0.0, 0.0])[:3]
-        lx, ly = fab["size"]
+        if "size" in fab:
+            lx, ly = fab["size"]
+        else:  # pattern panels: the extent of their outlines in their own planes
+            pts = [q for p in self.data.get("panels", []) for q in (p.get("outline") or [])]
+            lo = [min(q[k] for q in pts) for k in (0, 1)] if pts else [0.0, 0.0]
+            hi = [max(q[k] for q in pts) for k in (0, 1)] if pts else [0.1, 0.1]
+            ox, oy = lo
+            lx, ly = max(hi[0] - lo[0], 1e-3), max(hi[1] - lo[1], 1e-3)
         cx, cy = ox + lx / 2, oy + ly / 2
         L = min(lx, ly)
         opts: dict[str, dict | None] = {}

@@ -24,6 +24,7 @@ class FabricPanel(Panel):
                          lambda v: self.set_divisions(), "fabric")
         g["ny"] = app.on(gui.add_number("Weft divisions", 10, step=1, min=1, max=DIVISIONS_MAX),
                          lambda v: self.set_divisions(), "fabric")
+        g["panels"] = gui.add_markdown("", visible=False)
         g["lift"] = app.on(gui.add_number("Initial lift [m]", 0.0, step=0.001, min=-big, max=big),
                            self.set_lift, "fabric")
         app.err("fabric")
@@ -43,12 +44,32 @@ class FabricPanel(Panel):
 
     def sync(self) -> None:
         g = self.gui
-        fab = self.app.scene_draft.data["fabric"]
-        g["size"].value = tuple(float(x) for x in fab["size"])
-        g["nx"].value = int(fab["divisions"][0])
-        g["ny"].value = int(fab["divisions"][1])
+        data = self.app.scene_draft.data
+        fab = data["fabric"]
+        rect = "size" in fab and "divisions" in fab
+        for k in ("size", "nx", "ny"):
+            g[k].visible = rect
+        g["panels"].visible = not rect
+        if rect:
+            g["size"].value = tuple(float(x) for x in fab["size"])
+            g["nx"].value = int(fab["divisions"][0])
+            g["ny"].value = int(fab["divisions"][1])
+        else:
+            g["panels"].content = self.panels_table()
         g["lift"].value = float(self.app.scene_draft.data.get("initial", {}).get("lift", 0.0))
         self.refresh_mold_options()
+
+    def panels_table(self) -> str:
+        """A markdown table of the scene's pattern panels (name, nodes, outline area, lattice)."""
+        model = self.app.sim.model
+        topo = model.topology
+        rows = ["| panel | nodes | area [cm²] | lattice |", "|---|---|---|---|"]
+        for p, name in enumerate(topo.names):
+            sel = topo.node_panel == p
+            nx1, ny1 = topo.panel_shape(p)
+            rows.append(f"| {name} | {int(sel.sum())} | {model.node_area[sel].sum() * 1e4:.2f} | "
+                        f"{nx1 - 1} x {ny1 - 1} |")
+        return "**Pattern panels** (edit them in the scene file)\n\n" + "\n".join(rows)
 
     # fabric ------------------------------------------------------------------
     def set_size(self, v) -> None:
