@@ -117,9 +117,52 @@ def load_scene_mold(scene: Scene):
     return load_mold(scene.mold, scene.base_dir)
 
 
+#: memory a run needs per lattice node [bytes], measured: 501^2 nodes (251k) peaked at 999 MB
+#: RSS in the Newton benchmark, about 200 MB of it the interpreter, numba and the libraries
+BYTES_PER_NODE = 4000
+BASE_BYTES = 250e6
+
+
+def estimated_nodes(scene: Scene) -> int:
+    """Lattice nodes of a scene, before anything is built (an upper bound for cut panels: their
+    bounding lattices)."""
+    if not scene.panels:
+        nx, ny = scene.fabric.divisions
+        return (nx + 1) * (ny + 1)
+    total = 0
+    for p in scene.panels:
+        if p.divisions is not None:
+            total += (p.divisions[0] + 1) * (p.divisions[1] + 1)
+        elif p.outline is not None:
+            pts = np.asarray(p.outline, float)
+            ext = np.ptp(pts, axis=0)
+            dx, dy = (p.spacing, p.spacing) if np.isscalar(p.spacing) else p.spacing
+            total += int((ext.max() / dx + 2) * (ext.max() / dy + 2))
+    return total
+
+
+def check_memory(scene: Scene, available: float | None = None) -> None:
+    """Refuse a scene whose lattice would not fit in the memory available (SceneError naming the
+    estimate), before any of it is built: a 1999 x 1999 sheet needs about 16 GB."""
+    n = estimated_nodes(scene)
+    need = BASE_BYTES + BYTES_PER_NODE * n
+    if available is None:
+        try:
+            import psutil
+
+            available = float(psutil.virtual_memory().available)
+        except Exception:  # noqa: BLE001  (no estimate possible: do not refuse)
+            return
+    if need > available:
+        field = "panels" if scene.panels else "fabric.divisions"
+        raise SceneError(f"{field}: {n:,} nodes need about {need / 1e9:.1f} GB of memory; "
+                         f"{available / 1e9:.1f} GB are available (use fewer divisions)")
+
+
 def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     """The constant Model of a scene; ``mold`` (a loaded Mold or None) replaces the scene's own
     mold when given (tests and the viewer's mold preview use it)."""
+    check_memory(scene)
     panels = scene_panels(scene)
     if mold is _NO_MOLD:
         mold = load_scene_mold(scene)

@@ -219,3 +219,20 @@ def test_newton_preconditioners_on_a_cut_lattice(preconditioner):
         assert v < 1e-9
         ends.append(state.positions.copy())
     assert np.abs(ends[0] - ends[1]).max() < 1e-9
+
+
+def test_a_scene_too_big_for_the_memory_is_refused_before_building(monkeypatch):
+    """Issue 15 item 5: --set fabric.divisions=[1999,1999] reached 10 GB before failing; the
+    compile step now estimates the memory first and refuses with the estimate (exit 2 in the
+    CLI), here against a pretended 2 GB available."""
+    from clothsim.compile import check_memory
+
+    scene = clothsim.load_scene(ROOT / "configs/thermoform.yaml", ["fabric.divisions=[1999,1999]"])
+    with pytest.raises(SceneError, match=r"fabric.divisions: 4,000,000 nodes need about 16.2 GB of memory; 2.0 GB"):
+        check_memory(scene, available=2e9)
+    check_memory(clothsim.load_scene(ROOT / "configs/thermoform.yaml"), available=2e9)
+    import psutil
+
+    monkeypatch.setattr(psutil, "virtual_memory", lambda: type("M", (), {"available": 1e9})())
+    with pytest.raises(SceneError, match="GB of memory"):
+        compile_model(scene)
