@@ -74,10 +74,15 @@ def vertex_normals(positions: np.ndarray, topology) -> np.ndarray:
     n = np.zeros_like(p)
     for c in range(3):
         np.add.at(n, f[:, c], fn)
+    return _unit_or_z(n)
+
+
+def _unit_or_z(n: np.ndarray) -> np.ndarray:
+    """Rows of n (N, 3) scaled to unit length as float32; zero or non-finite rows become +z."""
     length = np.linalg.norm(n, axis=1)
     bad = ~(length > 0)
     length[bad] = 1.0
-    n /= length[:, None]
+    n = n / length[:, None]
     n[bad] = (0.0, 0.0, 1.0)
     return n.astype(np.float32)
 
@@ -99,13 +104,7 @@ def grid_normals(positions: np.ndarray, nx1: int, ny1: int) -> np.ndarray:
     dj[:, 1:-1] = p[:, 2:] - p[:, :-2]
     dj[:, 0] = p[:, 1] - p[:, 0]
     dj[:, -1] = p[:, -1] - p[:, -2]
-    n = np.cross(di, dj).reshape(-1, 3)
-    length = np.linalg.norm(n, axis=1)
-    bad = ~(length > 0)
-    length[bad] = 1.0
-    n /= length[:, None]
-    n[bad] = (0.0, 0.0, 1.0)
-    return n.astype(np.float32)
+    return _unit_or_z(np.cross(di, dj).reshape(-1, 3))
 
 
 def _pad4(b: bytes, fill: bytes) -> bytes:
