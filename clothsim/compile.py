@@ -18,7 +18,6 @@ from .grid import Model, PanelBuild, Placement, State, build_model, rotation_mat
 from .initial import initial_state
 from .panels import PanelError, panel_geometry, rectangle_geometry
 from .selection import SelectionError
-from .topology import Topology
 
 _NO_MOLD = object()
 
@@ -99,15 +98,6 @@ def _pattern_piece(scene: Scene, n: int):
     raise SceneError(f"{where}.piece: no piece '{ref.piece}' in {ref.file} (pieces: {', '.join(names)})")
 
 
-def scene_topology(scene: Scene) -> Topology:
-    """The scene's lattice (the ``fabric`` rectangle or the panels' cut lattices)."""
-    if not scene.panels:
-        nx, ny = scene.fabric.divisions
-        return Topology.rectangle(nx, ny, name="fabric")
-    geoms = [p.geometry for p in scene_panels(scene)]
-    return Topology.from_masks([g.mask for g in geoms], [g.name for g in geoms], [g.outline_lattice for g in geoms])
-
-
 def load_scene_mold(scene: Scene):
     """The scene's mold (clothsim.mold.Mold, loaded once per spec and cached) or None."""
     if scene.mold is None:
@@ -178,25 +168,7 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
             mold=mold,
         )
     except SelectionError as exc:
-        raise SceneError(_which_selector(scene, exc)) from None
-
-
-def _which_selector(scene: Scene, exc: SelectionError) -> str:
-    """Name the constraint or seam a selection error comes from (the builder reads them in order)."""
-    from .selection import seam_pairs, select_nodes
-
-    topo = scene_topology(scene)
-    for n, c in enumerate(scene.constraints):
-        try:
-            select_nodes(c.nodes, topo)
-        except SelectionError as e:
-            return f"constraints.{n}.nodes: {e}"
-    for n, seam in enumerate(scene.seams):
-        try:
-            seam_pairs(seam, topo)
-        except SelectionError as e:
-            return f"seams.{n}.{e}"
-    return str(exc)
+        raise SceneError(str(exc)) from None
 
 
 def _warn_scale(mold, panels) -> None:

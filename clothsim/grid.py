@@ -307,8 +307,9 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     [m]; shear_stiffness / bending_stiffness [N/m] or None; gravity: an object with
     ``areal_density`` [kg/m^2], ``g`` [m/s^2] and ``direction``, or None; seams: objects with
     ``a``, ``b``, ``reverse`` and ``stiffness`` [N/m^2] (None = the default); mold: a loaded Mold
-    or None."""
-    from .selection import seam_pairs, select_nodes
+    or None. A selector that selects nothing valid raises SelectionError naming its field
+    (``constraints.N.nodes: ...``, ``seams.N.a: ...``)."""
+    from .selection import SelectionError, seam_pairs, select_nodes
 
     geoms = [p.geometry for p in panels]
     topology = Topology.from_masks([g.mask for g in geoms], [g.name for g in geoms],
@@ -328,14 +329,8 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     starts = np.searchsorted(topology.node_panel, np.arange(len(panels) + 1))
     for p, pb in enumerate(panels):
         g = pb.geometry
-        ij = topology.node_ij[starts[p]:starts[p + 1]]
-        if g.grain[0] == 1.0 and g.grain[1] == 0.0:
-            rest[starts[p]:starts[p + 1]] = np.stack([g.origin[0] + ij[:, 0] * g.spacing[0],
-                                                      g.origin[1] + ij[:, 1] * g.spacing[1],
-                                                      np.full(ij.shape[0], pb.z, float)], -1)
-        else:
-            rest[starts[p]:starts[p + 1], :2] = g.to_plane(ij)
-            rest[starts[p]:starts[p + 1], 2] = pb.z
+        rest[starts[p]:starts[p + 1], :2] = g.to_plane(topology.node_ij[starts[p]:starts[p + 1]])
+        rest[starts[p]:starts[p + 1], 2] = pb.z
         table_ids.append((table_id(pb.warp_table), table_id(pb.weft_table)))
     shear_tid = bend_tid = None
     if shear_stiffness is not None:
@@ -353,8 +348,11 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         l0 = SEAM_REST_RATIO * h_min
         slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain)))
                     for pb in panels for t in (pb.warp_table, pb.weft_table))
-        for seam in seams:
-            a, b, share, (sa, sb) = seam_pairs(seam, topology)
+        for n_seam, seam in enumerate(seams):
+            try:
+                a, b, share, (sa, sb) = seam_pairs(seam, topology)
+            except SelectionError as exc:
+                raise SelectionError(f"seams.{n_seam}.{exc}") from None
             side = [sa, sb]
             for k, (nodes, s) in enumerate(((a, sa), (b, sb))):
                 if isinstance(s, tuple):  # (panel, direction 0/1): the lattice spacing
@@ -388,25 +386,24 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         pl, g = pb.placement, pb.geometry
         gr = np.asarray(g.grain, float)
         c = np.array([pl.origin[0], pl.origin[1]]) + pl.size[0] / 2 * gr + pl.size[1] / 2 * np.array([-gr[1], gr[0]])
-        if gr[0] == 1.0 and gr[1] == 0.0:
-            c = np.array([pl.origin[0] + pl.size[0] / 2, pl.origin[1] + pl.size[1] / 2])
         centre[starts[p]:starts[p + 1]] = c
         grain[starts[p]:starts[p + 1]] = gr
-    for c in constraints:
-        m = select_nodes(c.nodes, topology)
+    for n_c, c in enumerate(constraints):
+        try:
+            m = select_nodes(c.nodes, topology)
+        except SelectionError as exc:
+            raise SelectionError(f"constraints.{n_c}.nodes: {exc}") from None
         for ax in c.axes:
             fixed[m, "xyz".index(ax)] = True
         if c.stretch is not None:
             s = np.array([c.stretch, c.stretch] if isinstance(c.stretch, (int, float)) else c.stretch, float)
-            if (grain[m, 0] == 1.0).all() and (grain[m, 1] == 0.0).all():
-                flat[m, :2] = centre[m] + (flat[m, :2] - centre[m]) * s
-            else:
-                d = flat[m, :2] - centre[m]
-                g = grain[m]
-                gp = np.stack([-g[:, 1], g[:, 0]], 1)
-                u = (d * g).sum(1) * s[0]
-                v = (d * gp).sum(1) * s[1]
-                flat[m, :2] = centre[m] + u[:, None] * g + v[:, None] * gp
+            # scaled along the grain and across it (on an x grain: (flat - centre) * s, exactly)
+            d = flat[m, :2] - centre[m]
+            g = grain[m]
+            gp = np.stack([-g[:, 1], g[:, 0]], 1)
+            u = (d * g).sum(1) * s[0]
+            v = (d * gp).sum(1) * s[1]
+            flat[m, :2] = centre[m] + u[:, None] * g + v[:, None] * gp
         if c.displacement is not None:
             shift[m] += np.asarray(c.displacement, float)
     # stretch acts in the panels' own planes, then each panel is placed (flat, rigidly moved or

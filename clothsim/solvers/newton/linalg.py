@@ -634,16 +634,13 @@ class PaddedMultigrid:
         np.cumsum(counts, out=fptr[1:])
         fidx = np.empty(fptr[-1], np.int64)
         src = -np.ones(fptr[-1], np.int64)
-        have = inv >= 0
-        miss = np.nonzero(~have)[0]
+        miss = np.nonzero(inv < 0)[0]
         fidx[fptr[miss]] = miss
-        rows = np.nonzero(have)[0]
-        k = inv[rows]
-        starts = fptr[rows]
-        for r0, kk in zip(starts, k):  # once per lattice (pattern is constant)
-            a, b = indptr[kk], indptr[kk + 1]
-            fidx[r0:r0 + b - a] = self.emb[indices[a:b]]
-            src[r0:r0 + b - a] = np.arange(a, b)
+        q = np.arange(indptr[-1])
+        k = np.repeat(np.arange(n), np.diff(indptr))  # the lattice row of every block
+        dest = fptr[self.emb[k]] + (q - indptr[k])
+        fidx[dest] = self.emb[indices]
+        src[dest] = q
         self._pattern = (fptr, fidx, src)
 
     def setup(self, indptr, indices, data, Pi):
