@@ -78,7 +78,13 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     mold_query_many(model.mold.kernel_args(), np.ascontiguousarray(positions[k]), sd, cp, nrm,
                     np.empty((m, 2), np.int64))
     force[k] = np.maximum(0.0, -np.einsum("ij,ij->i", F[k], nrm))
-    area = model.topology.deformed_node_area(positions)
+    topo = model.topology
+    area = topo.deformed_node_area(positions)
+    if not topo.is_grid:
+        # a cut panel's node carries only its share of the cells the outline crosses: its rest
+        # area (model.node_area) times the areal stretch of the cells round it
+        rest = topo.deformed_node_area(model.rest_positions)
+        area = model.node_area * np.divide(area, rest, out=np.ones_like(area), where=rest > 0)
     np.divide(force, area, out=pressure, where=area > 0)
     # where the sheet has gathered (a band pulled into a rope) its area is gone and the reaction
     # is a line load: the pressure there is unbounded (inf), not a huge finite number
@@ -125,8 +131,9 @@ def sheet_health(model, positions, in_contact, force=None) -> dict:
         _, line = np.unique(line, return_inverse=True)
         length = np.linalg.norm(positions[weft[:, 1]] - positions[weft[:, 0]], axis=1)
         weft_len = np.bincount(line, length)
-        rest_w = np.bincount(line) * model.spacing[1]
-        ratio = float((weft_len / rest_w).min()) if model.spacing[1] > 0 else math.nan
+        wc = topo.warp_count
+        rest_w = np.bincount(line, model.spring_rest_length[wc:wc + weft.shape[0]])
+        ratio = float((weft_len / rest_w).min()) if (rest_w > 0).all() else math.nan
     return {
         "slack_springs": int((force <= 0.0).sum()),
         "spring_count": int(model.spring_count),
