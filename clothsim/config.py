@@ -574,7 +574,11 @@ class MeshMoldSpec(_Strict):
     number, or three (per axis), multiplying the file's coordinates into metres (0.001 for a file
     in millimetres); rotate [deg]: about x, then y, then z; translate [m]: applied last;
     closed: true = must be watertight (inside = the enclosed volume), false = an open skin even
-    if watertight, omitted = detected."""
+    if watertight, omitted = detected; surface: 'faceted' (contact on the triangles themselves:
+    CAD molds with real sharp edges; the default) or 'smooth' (contact on a smooth surface
+    blended from the triangles' planes: scans, whose triangles only sample a smooth body; the
+    pressure then converges under refinement); smoothing [m]: the smooth surface's blending
+    radius (default: the mesh's median edge length; smooth only)."""
 
     kind: ClassVar[str] = "mesh"
     path: str
@@ -582,6 +586,19 @@ class MeshMoldSpec(_Strict):
     translate: tuple[float, float, float] | None = None
     rotate: tuple[float, float, float] | None = None
     closed: StrictBool | None = None
+    surface: Literal["faceted", "smooth"] | None = None  # None: faceted
+    smoothing: float | None = None
+
+    @field_validator("smoothing")
+    @classmethod
+    def _smoothing(cls, v):
+        return v if v is None else _positive(v)
+
+    @model_validator(mode="after")
+    def _smoothing_needs_smooth(self):
+        if self.smoothing is not None and self.surface != "smooth":
+            raise ValueError("smoothing: applies to surface: smooth only")
+        return self
 
     @field_validator("path")
     @classmethod

@@ -8,8 +8,8 @@ from typing import Mapping
 
 import numpy as np
 
-from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE, Mold, MoldError,
-                     _ro)
+from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, Mold,
+                     MoldError, _ro)
 
 
 # --------------------------------------------------------------------------------------------
@@ -223,15 +223,51 @@ def _build_mesh_mold(V, F, closed: bool | None, source: str) -> Mold:
     )
 
 
-def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "") -> Mold:
+def median_edge_length(mold: Mold) -> float:
+    """The median edge length [m] of a mesh mold (the default smoothing radius)."""
+    V, E = mold.vertices, mold.edges
+    return float(np.median(np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)))
+
+
+def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
+    """The same mesh mold with contact on its ``'faceted'`` polyhedron (``MOLD_MESH``) or on its
+    ``'smooth'`` blended surface (``MOLD_SMOOTH``, see :mod:`clothsim.mold.smooth`) of smoothing
+    radius ``smoothing`` [m] (default: the median edge length). The arrays are shared."""
+    import dataclasses
+
+    if mold.kind not in (MOLD_MESH, MOLD_SMOOTH):
+        raise MoldError(f"{mold.source}: 'surface' applies to mesh molds only")
+    if surface == "faceted":
+        if smoothing is not None:
+            raise MoldError(f"{mold.source}: 'smoothing' applies to surface: smooth only")
+        if mold.kind == MOLD_MESH:
+            return mold
+        prm = np.array(mold.params)
+        prm[14] = 0.0
+        return dataclasses.replace(mold, kind=MOLD_MESH, params=_ro(prm, np.float64))
+    if surface != "smooth":
+        raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
+    r = median_edge_length(mold) if smoothing is None else float(smoothing)
+    if not (np.isfinite(r) and r > 0):
+        raise MoldError(f"{mold.source}: 'smoothing' must be a positive length [m], got {smoothing!r}")
+    prm = np.array(mold.params)
+    prm[14] = r
+    return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64))
+
+
+def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "",
+                     surface: str = "faceted", smoothing: float | None = None) -> Mold:
     """Mesh mold from arrays: vertices (V,3) [m], faces (F,3) vertex ids.
 
     ``closed=None`` detects watertightness; ``closed=True`` on a mesh with boundary edges is an
     error; ``closed=False`` treats even a watertight mesh as an open skin (winding kept).
     Exact duplicate vertices are merged; degenerate and duplicate triangles are dropped with a
-    warning; inconsistent winding is repaired or reported.
+    warning; inconsistent winding is repaired or reported. ``surface``: ``'faceted'`` (contact on
+    the polyhedron) or ``'smooth'`` (on its smooth blended surface of radius ``smoothing`` [m],
+    default the median edge length; see :func:`with_surface`).
     """
-    return _build_mesh_mold(vertices, faces, closed, source or "<arrays>")
+    mold = _build_mesh_mold(vertices, faces, closed, source or "<arrays>")
+    return with_surface(mold, surface, smoothing)
 
 
 def _primitive(kind: int, params, source: str) -> Mold:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .record import MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE, Mold
+from .record import MESH_KINDS, MOLD_BOX, MOLD_CYLINDER, MOLD_PLANE, MOLD_SPHERE, Mold
 
 #: a mold this many times larger (or smaller) than the sheet gets a units warning: a file in
 #: millimetres read as metres is 1000x too large, one in centimetres 100x
@@ -18,7 +18,7 @@ def mold_size(mold: Mold) -> float | None:
     """The mold's overall size [m]: the bounding-box diagonal of a mesh or a box, a sphere's
     diameter, the larger of a cylinder's diameter and length; None for a plane (unbounded)."""
     p = mold.params
-    if mold.kind == MOLD_MESH:
+    if mold.kind in MESH_KINDS:
         lo, hi = mold.bounds
         return float(np.linalg.norm(hi - lo))
     if mold.kind == MOLD_SPHERE:

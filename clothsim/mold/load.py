@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MeshMoldSpec, validate_mold_spec
-from .build import _build_mesh_mold, _vec, mold_primitive
+from .build import _build_mesh_mold, _vec, mold_primitive, with_surface
 from .readers import _read_any, mold_file_status, read_mold_file
 from .record import Mold, MoldError
 
@@ -121,7 +121,8 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
 def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
     """Mold from a spec: ``None``; a typed :data:`clothsim.config.MoldSpec`; or the same as a
     plain mapping (checked by the same model): ``{"path": ..., "scale": s, "translate": [..],
-    "rotate": [..], "closed": bool}`` (relative paths resolve against ``base_dir``), or one
+    "rotate": [..], "closed": bool, "surface": "faceted" | "smooth", "smoothing": r}``
+    (relative paths resolve against ``base_dir``; the cached mesh is shared by both surfaces), or one
     primitive ``{"sphere": {...}}``, ``{"cylinder": {...}}``, ``{"plane": {...}}``,
     ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`). Raises MoldError."""
     if spec is None:
@@ -131,5 +132,6 @@ def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
     except ValueError as e:
         raise MoldError(str(e)) from None
     if isinstance(typed, MeshMoldSpec):
-        return _load_mesh_file(typed, base_dir)
+        return with_surface(_load_mesh_file(typed, base_dir), typed.surface or "faceted",
+                            typed.smoothing)
     return mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())

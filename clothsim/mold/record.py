@@ -15,6 +15,8 @@ MOLD_SPHERE = 2
 MOLD_CYLINDER = 3
 MOLD_PLANE = 4
 MOLD_BOX = 5
+#: a triangle mesh queried through its smooth (G1) blended surface (see :mod:`clothsim.mold.smooth`)
+MOLD_SMOOTH = 6
 
 FEATURE_FACE = 0
 FEATURE_EDGE = 1
@@ -24,7 +26,9 @@ FEATURE_VERTEX = 2
 QUERY_OUT_SIZE = 8
 
 _KIND_NAMES = {MOLD_MESH: "mesh", MOLD_SPHERE: "sphere", MOLD_CYLINDER: "cylinder",
-               MOLD_PLANE: "plane", MOLD_BOX: "box"}
+               MOLD_PLANE: "plane", MOLD_BOX: "box", MOLD_SMOOTH: "smooth mesh"}
+#: the kinds that carry a triangle mesh (drawn, exported and sized as that mesh)
+MESH_KINDS = (MOLD_MESH, MOLD_SMOOTH)
 
 
 class MoldError(ValueError):
@@ -95,13 +99,15 @@ class Mold:
     """
 
     kind: int
-    """``MOLD_MESH``, ``MOLD_SPHERE``, ``MOLD_CYLINDER``, ``MOLD_PLANE`` or ``MOLD_BOX``."""
+    """``MOLD_MESH``, ``MOLD_SMOOTH`` (the same mesh, contact on its smooth blended surface),
+    ``MOLD_SPHERE``, ``MOLD_CYLINDER``, ``MOLD_PLANE`` or ``MOLD_BOX``."""
     params: np.ndarray
     """float64 (16,): primitive parameters [m] (unit vectors dimensionless).
     sphere: center[0:3], radius[3]; cylinder: center[0:3], unit axis[3:6], radius[6], length[7]
     (the cylinder spans center +- axis*length/2); plane: point[0:3], unit outward normal[3:6]
     (the mold is the half-space below); box: min corner[0:3], max corner[3:6];
-    mesh: params[15] = bounding-box diagonal [m]."""
+    mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the smoothing
+    radius r [m] (see :mod:`clothsim.mold.smooth`)."""
     vertices: np.ndarray
     """float64 (V, 3) [m]: mesh vertices (exact duplicates merged, unreferenced removed)."""
     faces: np.ndarray
@@ -147,11 +153,21 @@ class Mold:
         return _KIND_NAMES[self.kind]
 
     @property
+    def surface(self) -> str | None:
+        """'faceted' or 'smooth' for a mesh mold, None for a primitive."""
+        return {MOLD_MESH: "faceted", MOLD_SMOOTH: "smooth"}.get(self.kind)
+
+    @property
+    def smoothing(self) -> float | None:
+        """The smoothing radius r [m] of a smooth mesh mold, else None."""
+        return float(self.params[14]) if self.kind == MOLD_SMOOTH else None
+
+    @property
     def bounds(self) -> np.ndarray:
         """float64 (2, 3) [m]: [min corner, max corner]. A plane is unbounded: +-inf on every
         axis except, for an axis-aligned normal, the upper (or lower) bound along that axis."""
         p = self.params
-        if self.kind == MOLD_MESH:
+        if self.kind in MESH_KINDS:
             return np.array([self.vertices.min(0), self.vertices.max(0)])
         if self.kind == MOLD_SPHERE:
             c, r = p[0:3], p[3]
@@ -194,7 +210,7 @@ class Mold:
 
         p = self.params
         res = max(int(resolution), 8)
-        if self.kind == MOLD_MESH:
+        if self.kind in MESH_KINDS:
             return self.vertices.copy(), self.faces.copy()
         if self.kind == MOLD_SPHERE:
             sub = int(np.clip(round(math.log2(max(res, 8) / 5.0)), 1, 6))
@@ -220,6 +236,9 @@ class Mold:
         if self.kind == MOLD_MESH:
             return (f"Mold(mesh, {len(self.faces)} triangles, closed={self.closed}, "
                     f"source={self.source!r})")
+        if self.kind == MOLD_SMOOTH:
+            return (f"Mold(smooth mesh, {len(self.faces)} triangles, closed={self.closed}, "
+                    f"smoothing={self.params[14]:.4g} m, source={self.source!r})")
         return f"Mold({self.kind_name}, params={self.params[:8].tolist()}, source={self.source!r})"
 
 
