@@ -229,10 +229,67 @@ def median_edge_length(mold: Mold) -> float:
     return float(np.median(np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)))
 
 
+#: default smoothing radius of a smooth mesh, in median edge lengths
+SMOOTHING_EDGES = 1.5
+#: every vertex's blending radius is at least this many times its longest edge (so every point of
+#: every face lies well inside some vertex's support, also on big flat CAD triangles)
+_COVER_EDGES = 1.25
+
+
+def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.ndarray:
+    """Per-vertex osculating jets (float64 (V, 16), the layout of :attr:`Mold.vertex_jets`): a
+    quadratic height function over the vertex's tangent plane (normal: its pseudo-normal),
+    through the vertex, fitted by weighted least squares to its 2-ring of neighbours (weights
+    1 / (1 + (rho / h)^2), h the mean 1-ring edge length; a small ridge keeps vertices with few
+    neighbours well posed). After F. Cazals & M. Pouget (2003), "Estimating differential
+    quantities using polynomial fitting of osculating jets", SGP."""
+    import scipy.sparse as sp
+
+    nV = len(V)
+    ii = np.r_[E[:, 0], E[:, 1]]
+    jj = np.r_[E[:, 1], E[:, 0]]
+    elen = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
+    A = sp.csr_matrix((np.ones(len(ii)), (ii, jj)), shape=(nV, nV))
+    deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
+    h = np.bincount(ii, weights=np.r_[elen, elen], minlength=nV) / deg
+    h[h <= 0] = 1.0
+    longest = np.zeros(nV)
+    np.maximum.at(longest, ii, np.r_[elen, elen])
+    A2 = (A + A @ A).tocoo()
+    keep = A2.row != A2.col
+    i, j = A2.row[keep], A2.col[keep]
+    n = vn
+    helper = np.where(np.abs(n[:, 0:1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(n, t1)
+    d = V[j] - V[i]
+    x1 = np.einsum("ij,ij->i", d, t1[i]) / h[i]
+    x2 = np.einsum("ij,ij->i", d, t2[i]) / h[i]
+    z = np.einsum("ij,ij->i", d, n[i]) / h[i]
+    w = 1.0 / (1.0 + x1 * x1 + x2 * x2)
+    B = np.stack([x1, x2, 0.5 * x1 * x1, x1 * x2, 0.5 * x2 * x2], axis=1)
+    M = np.zeros((nV, 5, 5))
+    np.add.at(M, i, w[:, None, None] * B[:, :, None] * B[:, None, :])
+    rhs = np.zeros((nV, 5))
+    np.add.at(rhs, i, (w * z)[:, None] * B)
+    wsum = np.bincount(i, weights=w, minlength=nV)
+    M += (1e-6 * np.maximum(wsum, 1.0))[:, None, None] * np.eye(5)[None]
+    coef = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
+    coef[:, 2:] /= h[:, None]
+    jets = np.zeros((nV, 16))
+    jets[:, 0:3] = t1
+    jets[:, 3:6] = t2
+    jets[:, 6:11] = coef
+    jets[:, 11] = np.maximum(r, _COVER_EDGES * longest)
+    return jets
+
+
 def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
     """The same mesh mold with contact on its ``'faceted'`` polyhedron (``MOLD_MESH``) or on its
     ``'smooth'`` blended surface (``MOLD_SMOOTH``, see :mod:`clothsim.mold.smooth`) of smoothing
-    radius ``smoothing`` [m] (default: the median edge length). The arrays are shared."""
+    radius ``smoothing`` [m] (default: ``SMOOTHING_EDGES`` = 1.5 median edge lengths). The mesh
+    arrays are shared; the smooth surface adds the vertices' fitted jets."""
     import dataclasses
 
     if mold.kind not in (MOLD_MESH, MOLD_SMOOTH):
@@ -243,16 +300,22 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
         if mold.kind == MOLD_MESH:
             return mold
         prm = np.array(mold.params)
-        prm[14] = 0.0
-        return dataclasses.replace(mold, kind=MOLD_MESH, params=_ro(prm, np.float64))
+        prm[13:15] = 0.0
+        return dataclasses.replace(mold, kind=MOLD_MESH, params=_ro(prm, np.float64),
+                                   vertex_jets=None)
     if surface != "smooth":
         raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
-    r = median_edge_length(mold) if smoothing is None else float(smoothing)
+    r = SMOOTHING_EDGES * median_edge_length(mold) if smoothing is None else float(smoothing)
     if not (np.isfinite(r) and r > 0):
         raise MoldError(f"{mold.source}: 'smoothing' must be a positive length [m], got {smoothing!r}")
+    if mold.kind == MOLD_SMOOTH and mold.params[14] == r:
+        return mold
+    jets = _vertex_jets(mold.vertices, mold.edges, mold.vertex_normals, r)
     prm = np.array(mold.params)
     prm[14] = r
-    return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64))
+    prm[13] = float(jets[:, 11].max())
+    return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
+                               vertex_jets=_ro(jets, np.float64))
 
 
 def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "",

@@ -31,6 +31,10 @@ _KIND_NAMES = {MOLD_MESH: "mesh", MOLD_SPHERE: "sphere", MOLD_CYLINDER: "cylinde
 MESH_KINDS = (MOLD_MESH, MOLD_SMOOTH)
 
 
+_NO_JETS = np.zeros((0, 16))
+_NO_JETS.setflags(write=False)
+
+
 class MoldError(ValueError):
     """A mold file or spec cannot be used. The message names the file (and line where known)."""
 
@@ -82,6 +86,8 @@ class MoldArgs(NamedTuple):
     """int64 (N, 2): (start, count) in ``bvh_faces``."""
     bvh_faces: np.ndarray
     """int64 (F,)."""
+    vertex_jets: np.ndarray
+    """float64 (V, 16) on a smooth mesh, else (0, 16): see :attr:`Mold.vertex_jets`."""
 
 
 def _ro(a: np.ndarray, dtype) -> np.ndarray:
@@ -146,6 +152,16 @@ class Mold:
     """int64 (F,): face ids ordered so that every node's faces are contiguous."""
     max_feature_normals: int
     """Rows ``normals_out`` of :func:`mold_feature_normals` needs (max vertex valence, >= 3)."""
+    vertex_jets: np.ndarray = None  # type: ignore[assignment]
+    """float64 (V, 16) on a smooth mesh (``MOLD_SMOOTH``), (0, 16) otherwise: per vertex its
+    local frame t1[0:3], t2[3:6] (with the vertex normal, a right-handed frame), the fitted
+    osculating jet's coefficients a, b, c, d, e [6:11] (height over the tangent plane
+    h = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2, x in m, c d e in 1/m) and the vertex's
+    blending radius [m] at [11] (see :mod:`clothsim.mold.smooth`)."""
+
+    def __post_init__(self):
+        if self.vertex_jets is None:
+            object.__setattr__(self, "vertex_jets", _NO_JETS)
 
     # ---- API -----------------------------------------------------------------------------
     @property
@@ -197,7 +213,7 @@ class Mold:
                         self.vertex_normals, self.edges, self.edge_normals, self.face_edges,
                         self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
                         self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
-                        self.bvh_range, self.bvh_faces)
+                        self.bvh_range, self.bvh_faces, self.vertex_jets)
 
     def surface_mesh(self, resolution: int = 48, extent: float = 1.0):
         """A triangle mesh for display: ``(vertices float64 (V,3) [m], faces int64 (F,3))``.

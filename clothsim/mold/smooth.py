@@ -4,29 +4,39 @@ pure functions of the mold's kernel arguments ``margs``.
 A membrane pressed onto a polyhedron carries line loads on its ridges, so the contact pressure on
 a faceted scan does not converge under lattice refinement. A scanned body is smooth and its
 triangles are only a sampling of it; this kind replaces the polyhedron, for contact, by a smooth
-(G1, continuous-normal) surface through the mesh: the zero set of the face-blended implicit
-function (a simplified form of C. Shen, J. F. O'Brien & J. R. Shewchuk 2004, "Interpolating and
-approximating implicit surfaces from polygon soup", ACM SIGGRAPH)::
+(G1, continuous-normal) surface through the mesh's vertices: the zero set of a partition-of-unity
+blend of per-vertex osculating jets (an implicit surface in the family of Shen, O'Brien &
+Shewchuk 2004, "Interpolating and approximating implicit surfaces from polygon soup", SIGGRAPH,
+and of Ohtake et al. 2003, "Multi-level partition of unity implicits", SIGGRAPH)::
 
-    phi(x) = sum_f w_f(x) n_f . (x - a_f) / sum_f w_f(x),   w_f(x) = psi(d_f(x) / r)
+    phi(x) = sum_v w_v(x) s_v(x) / sum_v w_v(x),     w_v(x) = psi(|x - v| / r_v)
+    s_v(x) = (x - v) . n_v - h_v(x1, x2),             x1 = (x - v) . t1_v,  x2 = (x - v) . t2_v
+    h_v = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2
 
-with n_f the unit outward normal of face f, a_f one of its vertices, d_f(x) [m] the unsigned
-distance from x to the triangle f, psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond)
-and r [m] the smoothing radius (``params[14]``; default the mesh's median edge length).
-psi'(0) = 0 makes w_f (hence phi) C1 across face planes; the gradient is analytic.
-Coplanar faces give their plane exactly (flat CAD regions stay flat); creases are rounded over
-about r; on a convex sampled surface the zero set lies just outside the polyhedron, within the
-sampling error.
+n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the quadratic
+height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
+``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
+= 0), r_v [m] the vertex's blending radius: the smoothing radius r (``params[14]``; default 1.5
+median edge lengths) or 1.25 x its longest edge if larger (so every point of every face lies
+inside some vertex's support). phi is C1 with an analytic gradient; each jet is exact to second
+order, so the surface converges to the sampled smooth body at about fourth order in the edge
+length (second for the facets), its normal and curvature converge too (no facet stripes in the
+pressure), and coplanar neighbourhoods give their plane exactly. (The lead's first design blended
+the faces' planes instead; measured on icospheres it undulates with an amplitude of about half
+the facets' sagitta at the mesh's own wavelength, i.e. an O(1) curvature error: see docs.)
 
 Queries (the conventions of :mod:`clothsim.mold`): the closest point c on {phi = 0} is found from
 the faceted closest point by Newton steps onto phi = 0 (x <- x - phi grad / |grad|^2) alternated
 with a tangential fixed-point correction until p - c is parallel to grad phi(c) (to 1e-13 m);
 the signed distance is (p - c) . n(c), n = grad phi / |grad phi|, and the feature is code 0 (a
 face, as on the analytic sphere) with the point-dependent normal n(c); ``out[7]`` is the nearest
-mesh face. Points with no face within r (far outside or deep inside: never in contact), points
-whose foot iteration does not converge, and, on an open mesh, points the faceted open-mesh rule
-puts outside beyond the rim get the faceted answer (still code 0, ``out[3:6]`` the faceted
+mesh face. Points farther than r from the mesh (far outside or deep inside: never in contact),
+points whose foot iteration does not converge, and, on an open mesh, points the faceted open-mesh
+rule puts outside beyond the rim get the faceted answer (still code 0, ``out[3:6]`` the faceted
 pseudo-normal).
+
+Thin parts thinner than about r (both sides' vertices within each other's supports) are blended
+into one another: use a smaller ``smoothing`` or ``surface: faceted`` there.
 """
 
 from __future__ import annotations
@@ -36,7 +46,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .queries import _box_d2, _mesh_query, _tri_closest
+from .queries import _box_d2, _mesh_query
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
 _FOOT_ITERS = 60
@@ -46,17 +56,21 @@ _NEWTON_ITERS = 16
 @njit(cache=True)
 def _blend(margs, x, y, z, r, g, stack):
     """phi(x) [m] and its gradient g (3,) (filled); returns (phi, W), W = sum of the weights
-    (0: no face within r of x; then phi = 0 and g = 0). stack: int64 scratch (>= 128)."""
+    (0: no vertex's support reaches x; then phi = 0 and g = 0). r: unused (the vertices' own
+    radii apply; kept for the call signature). stack: int64 scratch (>= 128)."""
     V = margs.vertices
     F = margs.faces
-    FN = margs.face_normals
+    VN = margs.vertex_normals
+    J = margs.vertex_jets
+    owner_ptr = margs.vertex_face_ptr
+    owner_idx = margs.vertex_face_idx
     bmin = margs.bvh_min
     bmax = margs.bvh_max
     child = margs.bvh_child
     rng = margs.bvh_range
     order = margs.bvh_faces
-    r2 = r * r
-    c20 = -20.0 / r2
+    rmax = margs.params[13]
+    rmax2 = rmax * rmax
     W = 0.0
     S = 0.0
     gw0 = 0.0
@@ -68,14 +82,14 @@ def _blend(margs, x, y, z, r, g, stack):
     g[0] = 0.0
     g[1] = 0.0
     g[2] = 0.0
-    if bmin.shape[0] == 0:
+    if bmin.shape[0] == 0 or J.shape[0] != V.shape[0]:
         return 0.0, 0.0
     stack[0] = 0
     sp = 1
     while sp > 0:
         sp -= 1
         n = stack[sp]
-        if _box_d2(bmin, bmax, n, x, y, z) >= r2:
+        if _box_d2(bmin, bmax, n, x, y, z) >= rmax2:
             continue
         if child[n, 0] >= 0:
             if sp + 2 > stack.shape[0]:
@@ -87,39 +101,52 @@ def _blend(margs, x, y, z, r, g, stack):
         start = rng[n, 0]
         for k in range(start, start + rng[n, 1]):
             f = order[k]
-            ia = F[f, 0]
-            ib = F[f, 1]
-            ic = F[f, 2]
-            qx, qy, qz, reg = _tri_closest(x, y, z, V[ia, 0], V[ia, 1], V[ia, 2],
-                                           V[ib, 0], V[ib, 1], V[ib, 2],
-                                           V[ic, 0], V[ic, 1], V[ic, 2])
-            dx = x - qx
-            dy = y - qy
-            dz = z - qz
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 >= r2:
-                continue
-            t = math.sqrt(d2) / r
-            om = 1.0 - t
-            om3 = om * om * om
-            w = om3 * om * (4.0 * t + 1.0)
-            # grad w = psi'(t)/r * (x - q)/d = -20 (1 - t)^3 (x - q) / r^2  (smooth at d = 0)
-            a = c20 * om3
-            wx = a * dx
-            wy = a * dy
-            wz = a * dz
-            nx = FN[f, 0]
-            ny = FN[f, 1]
-            nz = FN[f, 2]
-            s = nx * (x - V[ia, 0]) + ny * (y - V[ia, 1]) + nz * (z - V[ia, 2])
-            W += w
-            S += w * s
-            gw0 += wx
-            gw1 += wy
-            gw2 += wz
-            gs0 += w * nx + s * wx
-            gs1 += w * ny + s * wy
-            gs2 += w * nz + s * wz
+            for j in range(3):
+                v = F[f, j]
+                if owner_idx[owner_ptr[v]] != f:
+                    continue  # each vertex is visited once: from the first face of its ring
+                dx = x - V[v, 0]
+                dy = y - V[v, 1]
+                dz = z - V[v, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                rv = J[v, 11]
+                if d2 >= rv * rv:
+                    continue
+                t = math.sqrt(d2) / rv
+                om = 1.0 - t
+                om3 = om * om * om
+                w = om3 * om * (4.0 * t + 1.0)
+                # grad w = psi'(t)/rv * (x - v)/|x - v| = -20 (1 - t)^3 (x - v) / rv^2
+                a = -20.0 * om3 / (rv * rv)
+                wx = a * dx
+                wy = a * dy
+                wz = a * dz
+                # the vertex's jet: s = (x - v).n - h(x1, x2), x1, x2 its tangent coordinates
+                nx = VN[v, 0]
+                ny = VN[v, 1]
+                nz = VN[v, 2]
+                x1 = dx * J[v, 0] + dy * J[v, 1] + dz * J[v, 2]
+                x2 = dx * J[v, 3] + dy * J[v, 4] + dz * J[v, 5]
+                ca = J[v, 6]
+                cb = J[v, 7]
+                cc = J[v, 8]
+                cd = J[v, 9]
+                ce = J[v, 10]
+                s = (dx * nx + dy * ny + dz * nz
+                     - (ca * x1 + cb * x2 + 0.5 * cc * x1 * x1 + cd * x1 * x2 + 0.5 * ce * x2 * x2))
+                h1 = ca + cc * x1 + cd * x2
+                h2 = cb + cd * x1 + ce * x2
+                sx = nx - h1 * J[v, 0] - h2 * J[v, 3]
+                sy = ny - h1 * J[v, 1] - h2 * J[v, 4]
+                sz = nz - h1 * J[v, 2] - h2 * J[v, 5]
+                W += w
+                S += w * s
+                gw0 += wx
+                gw1 += wy
+                gw2 += wz
+                gs0 += w * sx + s * wx
+                gs1 += w * sy + s * wy
+                gs2 += w * sz + s * wz
     if not (W > 0.0):
         return 0.0, 0.0
     phi = S / W
