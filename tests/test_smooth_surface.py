@@ -41,15 +41,15 @@ def _phi_brute(mold, P):
     """phi and grad phi over all vertices (no BVH), numpy, from the formula of
     clothsim.mold.smooth: the vertices' jets blended with Wendland weights."""
     V, N, J = mold.vertices, mold.vertex_normals, mold.vertex_jets
-    t1, t2, (a, b, c, d, e), rv = J[:, 0:3], J[:, 3:6], J[:, 6:11].T, J[:, 11]
+    t1, t2, (a, b, c, d, e), rv, k4 = J[:, 0:3], J[:, 3:6], J[:, 6:11].T, J[:, 11], J[:, 12]
     phi = np.empty(len(P))
     grad = np.empty((len(P), 3))
     for i, p in enumerate(P):
         D = p - V
         t = np.linalg.norm(D, axis=1) / rv
         m = t < 1
-        w = (1 - t[m]) ** 4 * (4 * t[m] + 1)
-        gw = (-20 * (1 - t[m]) ** 3 / rv[m] ** 2)[:, None] * D[m]
+        w = k4[m] * (1 - t[m]) ** 4 * (4 * t[m] + 1)
+        gw = (-20 * k4[m] * (1 - t[m]) ** 3 / rv[m] ** 2)[:, None] * D[m]
         x1 = np.einsum("ij,ij->i", D[m], t1[m])
         x2 = np.einsum("ij,ij->i", D[m], t2[m])
         s = (np.einsum("ij,ij->i", D[m], N[m])

@@ -234,6 +234,9 @@ SMOOTHING_EDGES = 1.5
 #: every vertex's blending radius is at least this many times its longest edge (so every point of
 #: every face lies well inside some vertex's support, also on big flat CAD triangles)
 _COVER_EDGES = 1.25
+#: ... but at most this many smoothing radii (a wide vertex is visited by every query within its
+#: reach; the inside of a triangle larger than that is answered by the faceted query: its plane)
+_MAX_REACH = 3.0
 
 
 def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.ndarray:
@@ -281,8 +284,24 @@ def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.n
     jets[:, 0:3] = t1
     jets[:, 3:6] = t2
     jets[:, 6:11] = coef
-    jets[:, 11] = np.maximum(r, _COVER_EDGES * longest)
+    jets[:, 11] = np.clip(_COVER_EDGES * longest, r, _MAX_REACH * r)
+    jets[:, 12] = (r / jets[:, 11]) ** 4
     return jets
+
+
+def _bvh_reach(mold: Mold, rv: np.ndarray) -> np.ndarray:
+    """Per BVH node: the largest radius rv [m] of the vertices its faces own (see
+    :attr:`Mold.bvh_reach`)."""
+    owner = mold.vertex_face_idx[mold.vertex_face_ptr[:-1]]
+    face_r = np.zeros(len(mold.faces))
+    np.maximum.at(face_r, owner, rv)
+    fr = face_r[mold.bvh_faces]
+    rng = mold.bvh_range
+    reach = np.empty(len(rng))
+    for n in range(len(rng)):
+        s, c = rng[n]
+        reach[n] = fr[s:s + c].max() if c else 0.0
+    return reach
 
 
 def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
@@ -302,7 +321,7 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
         prm = np.array(mold.params)
         prm[13:15] = 0.0
         return dataclasses.replace(mold, kind=MOLD_MESH, params=_ro(prm, np.float64),
-                                   vertex_jets=None)
+                                   vertex_jets=None, bvh_reach=None)
     if surface != "smooth":
         raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
     r = SMOOTHING_EDGES * median_edge_length(mold) if smoothing is None else float(smoothing)
@@ -315,7 +334,8 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
     prm[14] = r
     prm[13] = float(jets[:, 11].max())
     return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
-                               vertex_jets=_ro(jets, np.float64))
+                               vertex_jets=_ro(jets, np.float64),
+                               bvh_reach=_ro(_bvh_reach(mold, jets[:, 11]), np.float64))
 
 
 def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "",

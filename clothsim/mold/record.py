@@ -33,6 +33,8 @@ MESH_KINDS = (MOLD_MESH, MOLD_SMOOTH)
 
 _NO_JETS = np.zeros((0, 16))
 _NO_JETS.setflags(write=False)
+_NO_REACH = np.zeros(0)
+_NO_REACH.setflags(write=False)
 
 
 class MoldError(ValueError):
@@ -88,6 +90,8 @@ class MoldArgs(NamedTuple):
     """int64 (F,)."""
     vertex_jets: np.ndarray
     """float64 (V, 16) on a smooth mesh, else (0, 16): see :attr:`Mold.vertex_jets`."""
+    bvh_reach: np.ndarray
+    """float64 (N,) on a smooth mesh, else (0,): see :attr:`Mold.bvh_reach`."""
 
 
 def _ro(a: np.ndarray, dtype) -> np.ndarray:
@@ -157,11 +161,19 @@ class Mold:
     local frame t1[0:3], t2[3:6] (with the vertex normal, a right-handed frame), the fitted
     osculating jet's coefficients a, b, c, d, e [6:11] (height over the tangent plane
     h = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2, x in m, c d e in 1/m) and the vertex's
-    blending radius [m] at [11] (see :mod:`clothsim.mold.smooth`)."""
+    blending radius r_v [m] at [11] and its weight factor (r / r_v)^4 at [12] (see
+    :mod:`clothsim.mold.smooth`)."""
+
+    bvh_reach: np.ndarray = None  # type: ignore[assignment]
+    """float64 (N,) on a smooth mesh, (0,) otherwise: per BVH node the largest blending radius
+    [m] of the vertices owned by its faces (a vertex is owned by the first face of its ring), so
+    the smooth surface's vertex search prunes each node by its own reach."""
 
     def __post_init__(self):
         if self.vertex_jets is None:
             object.__setattr__(self, "vertex_jets", _NO_JETS)
+        if self.bvh_reach is None:
+            object.__setattr__(self, "bvh_reach", _NO_REACH)
 
     # ---- API -----------------------------------------------------------------------------
     @property
@@ -213,7 +225,8 @@ class Mold:
                         self.vertex_normals, self.edges, self.edge_normals, self.face_edges,
                         self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
                         self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
-                        self.bvh_range, self.bvh_faces, self.vertex_jets)
+                        self.bvh_range, self.bvh_faces, self.vertex_jets,
+                        self.bvh_reach)
 
     def surface_mesh(self, resolution: int = 48, extent: float = 1.0):
         """A triangle mesh for display: ``(vertices float64 (V,3) [m], faces int64 (F,3))``.

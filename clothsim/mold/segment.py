@@ -205,7 +205,8 @@ def _smooth_bracket(margs, p0, dx, dy, dz, ta, fa, tb, fb, out):
 @njit(cache=True)
 def _smooth_segment_hit(margs, p0, p1):
     """mold_segment_hit on the smooth surface: sphere tracing with the signed distance (a
-    distance never overshoots the first crossing) from t = 0; if it stalls (a segment grazing the
+    distance never overshoots the first crossing) from t = 0, each step tried first with a Newton
+    step on the distance along the segment (a point inside brackets a crossing); if it stalls (a segment grazing the
     surface), a point inside is sought at t = 1, at the faceted hit and at the minimum of the
     distance along the segment (where its derivative n . d changes sign), and the first crossing
     before it is bracketed and refined to 1e-12 m."""
@@ -229,6 +230,17 @@ def _smooth_segment_hit(margs, p0, p1):
             return t
         if f > _HIT_TOL:
             was_outside = True
+            # Newton on the distance along the segment (its derivative is n . d): a point found
+            # inside brackets the crossing; the distance is unchanged by the trial otherwise
+            fd = out[3] * dx + out[4] * dy + out[5] * dz
+            if fd < 0.0:
+                tn = t - f / fd
+                if tn <= 1.0:
+                    fn, _ = _smooth_sd(margs, p0, dx, dy, dz, tn, out)
+                    if abs(fn) <= _HIT_TOL:
+                        return tn
+                    if fn < 0.0:
+                        return _smooth_bracket(margs, p0, dx, dy, dz, t, f, tn, fn, out)
         t += max(safe, _HIT_TOL) / L
         if t >= 1.0:
             return -1.0

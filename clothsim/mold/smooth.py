@@ -17,8 +17,12 @@ n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h
 height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
 ``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
 = 0), r_v [m] the vertex's blending radius: the smoothing radius r (``params[14]``; default 1.5
-median edge lengths) or 1.25 x its longest edge if larger (so every point of every face lies
-inside some vertex's support). phi is C1 with an analytic gradient; each jet is exact to second
+median edge lengths) or 1.25 x its longest edge if larger, up to 3 r (so every point of every
+face but the inside of triangles larger than about 2 r lies inside some vertex's support; the
+inside of such a big triangle, always flat, is answered by the faceted query), and such a wide vertex's weight scaled by (r / r_v)^4 (stored in
+the jet) so that it decides the surface only inside big triangles (flat CAD bases) and not where
+fine vertices are. Each BVH node is pruned by the largest r_v of the vertices its faces own
+(``bvh_reach``). phi is C1 with an analytic gradient; each jet is exact to second
 order, so the surface converges to the sampled smooth body at about fourth order in the edge
 length (second for the facets), its normal and curvature converge too (no facet stripes in the
 pressure), and coplanar neighbourhoods give their plane exactly. (The lead's first design blended
@@ -26,8 +30,9 @@ the faces' planes instead; measured on icospheres it undulates with an amplitude
 the facets' sagitta at the mesh's own wavelength, i.e. an O(1) curvature error: see docs.)
 
 Queries (the conventions of :mod:`clothsim.mold`): the closest point c on {phi = 0} is found from
-the faceted closest point by Newton steps onto phi = 0 (x <- x - phi grad / |grad|^2) alternated
-with a tangential fixed-point correction until p - c is parallel to grad phi(c) (to 1e-13 m);
+the faceted closest point by repeated projection of p onto the linearisation of phi at c (a
+Newton step onto phi = 0 and a tangential fixed-point correction in one) until the step is below
+1e-13 m, so that phi(c) = 0 and p - c is parallel to grad phi(c);
 the signed distance is (p - c) . n(c), n = grad phi / |grad phi|, and the feature is code 0 (a
 face, as on the analytic sphere) with the point-dependent normal n(c); ``out[7]`` is the nearest
 mesh face. Points farther than r from the mesh (far outside or deep inside: never in contact),
@@ -50,7 +55,6 @@ from .queries import _box_d2, _mesh_query
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
 _FOOT_ITERS = 60
-_NEWTON_ITERS = 16
 
 
 @njit(cache=True)
@@ -69,8 +73,7 @@ def _blend(margs, x, y, z, r, g, stack):
     child = margs.bvh_child
     rng = margs.bvh_range
     order = margs.bvh_faces
-    rmax = margs.params[13]
-    rmax2 = rmax * rmax
+    reach = margs.bvh_reach
     W = 0.0
     S = 0.0
     gw0 = 0.0
@@ -82,14 +85,14 @@ def _blend(margs, x, y, z, r, g, stack):
     g[0] = 0.0
     g[1] = 0.0
     g[2] = 0.0
-    if bmin.shape[0] == 0 or J.shape[0] != V.shape[0]:
+    if bmin.shape[0] == 0 or J.shape[0] != V.shape[0] or reach.shape[0] != bmin.shape[0]:
         return 0.0, 0.0
     stack[0] = 0
     sp = 1
     while sp > 0:
         sp -= 1
         n = stack[sp]
-        if _box_d2(bmin, bmax, n, x, y, z) >= rmax2:
+        if _box_d2(bmin, bmax, n, x, y, z) >= reach[n] * reach[n]:
             continue
         if child[n, 0] >= 0:
             if sp + 2 > stack.shape[0]:
@@ -115,9 +118,10 @@ def _blend(margs, x, y, z, r, g, stack):
                 t = math.sqrt(d2) / rv
                 om = 1.0 - t
                 om3 = om * om * om
-                w = om3 * om * (4.0 * t + 1.0)
-                # grad w = psi'(t)/rv * (x - v)/|x - v| = -20 (1 - t)^3 (x - v) / rv^2
-                a = -20.0 * om3 / (rv * rv)
+                k4 = J[v, 12]
+                w = k4 * om3 * om * (4.0 * t + 1.0)
+                # grad w = k4 psi'(t)/rv * (x - v)/|x - v| = -20 k4 (1 - t)^3 (x - v) / rv^2
+                a = -20.0 * k4 * om3 / (rv * rv)
                 wx = a * dx
                 wy = a * dy
                 wz = a * dz
@@ -173,64 +177,47 @@ def smooth_phi(margs, P, phi_out, grad_out, weight_out):
 
 
 @njit(cache=True)
-def _onto(margs, r, cx, cy, cz, g, stack, tol):
-    """Newton steps onto phi = 0 from c; returns (cx, cy, cz, ok) with g the gradient at the
-    returned point (|phi| / |g| <= tol there when ok)."""
-    prev = np.inf
-    for _ in range(_NEWTON_ITERS):
-        phi, W = _blend(margs, cx, cy, cz, r, g, stack)
-        if not (W > 0.0):
-            return cx, cy, cz, False
-        gg = g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
-        if not (gg > 0.0):
-            return cx, cy, cz, False
-        step = abs(phi) / math.sqrt(gg)
-        if step <= tol:
-            return cx, cy, cz, True
-        if not (step < prev):  # roundoff floor reached
-            return cx, cy, cz, step <= 1e3 * tol
-        prev = step
-        a = phi / gg
-        cx -= a * g[0]
-        cy -= a * g[1]
-        cz -= a * g[2]
-    return cx, cy, cz, False
-
-
-@njit(cache=True)
 def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
     """Closest point c on {phi = 0} to p, started from c; returns (cx, cy, cz, nx, ny, nz, sd,
-    ok): the unit normal n(c) and sd = (p - c).n(c) [m]."""
-    r = margs.params[14]
-    tol = 1e-15 * margs.params[15] + 1e-300
+    ok): the unit normal n(c) and sd = (p - c).n(c) [m].
+
+    Each step projects p onto the linearisation of phi at the current c (one evaluation of phi
+    and its gradient): c' = p - ((phi(c) + g.(p - c)) / |g|^2) g. Its fixed point is the foot
+    (phi(c) = 0, p - c parallel to g); it converges quadratically onto the surface and, along it,
+    linearly with the factor |sd| x curvature (fast for the near-surface points of contact).
+    Stops when the step is below 1e-13 m (then |phi(c)| / |g| and the tangential residual are
+    too); a growing step is halved; no convergence in 60 steps: ok False."""
     prev = np.inf
     damp = 1.0
     for _ in range(_FOOT_ITERS):
-        cx, cy, cz, ok = _onto(margs, r, cx, cy, cz, g, stack, tol)
-        if not ok:
+        phi, W = _blend(margs, cx, cy, cz, 0.0, g, stack)
+        if not (W > 0.0):
             break
-        gl = math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-        nx = g[0] / gl
-        ny = g[1] / gl
-        nz = g[2] / gl
+        gg = g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
+        if not (gg > 0.0):
+            break
         wx = px - cx
         wy = py - cy
         wz = pz - cz
-        s = wx * nx + wy * ny + wz * nz
-        tx = wx - s * nx
-        ty = wy - s * ny
-        tz = wz - s * nz
-        tl = math.sqrt(tx * tx + ty * ty + tz * tz)
-        if tl <= _FOOT_TOL:
-            return cx, cy, cz, nx, ny, nz, s, True
-        if tl >= prev:
+        lam = (phi + g[0] * wx + g[1] * wy + g[2] * wz) / gg
+        dx = wx - lam * g[0]
+        dy = wy - lam * g[1]
+        dz = wz - lam * g[2]
+        step = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if step <= _FOOT_TOL:
+            gl = math.sqrt(gg)
+            nx = g[0] / gl
+            ny = g[1] / gl
+            nz = g[2] / gl
+            return cx, cy, cz, nx, ny, nz, wx * nx + wy * ny + wz * nz, True
+        if step >= prev:
             damp *= 0.5
             if damp < 1e-3:
                 break
-        prev = tl
-        cx += damp * tx
-        cy += damp * ty
-        cz += damp * tz
+        prev = step
+        cx += damp * dx
+        cy += damp * dy
+        cz += damp * dz
     return cx, cy, cz, 0.0, 0.0, 1.0, 0.0, False
 
 
