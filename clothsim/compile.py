@@ -185,9 +185,28 @@ def _warn_scale(mold, panels) -> None:
 
 
 def compile_state(scene: Scene, model: Model) -> State:
-    """The initial State of a compiled scene (paper 3.1; see clothsim.initial)."""
+    """The initial State of a compiled scene (paper 3.1; see clothsim.initial). Warns
+    (``mold: no node of the sheet can reach the mold ...``) when the mold is out of the sheet's
+    reach (clothsim.mold.mold_reach_warning)."""
     ini = scene.initial
-    return initial_state(model, ini, None if ini.file is None else scene.resolve(ini.file))
+    state = initial_state(model, ini, None if ini.file is None else scene.resolve(ini.file))
+    _warn_reach(model, state)
+    return state
+
+
+def _warn_reach(model: Model, state: State) -> None:
+    """Warn when no node, where it starts or where the constraints take it, is within the
+    sheet's size of the mold."""
+    if model.mold is None:
+        return
+    import warnings
+
+    from .mold import mold_reach_warning
+
+    pts = np.concatenate([state.positions, model.prescribed_positions[model.fixed_axes.any(axis=1)]])
+    msg = mold_reach_warning(model.mold, pts, max(model.placement.size))
+    if msg:
+        warnings.warn(f"mold: {msg}", UserWarning, stacklevel=3)
 
 
 def compile_scene(scene: Scene, mold=_NO_MOLD) -> tuple[Model, State]:

@@ -574,7 +574,9 @@ class MeshMoldSpec(_Strict):
     number, or three (per axis), multiplying the file's coordinates into metres (0.001 for a file
     in millimetres); rotate [deg]: about x, then y, then z; translate [m]: applied last;
     closed: true = must be watertight (inside = the enclosed volume), false = an open skin even
-    if watertight, omitted = detected."""
+    if watertight, omitted = detected; up: the file's up axis, ``z`` (clothsim's own, the
+    default) or ``y`` (most scans and glTF): a Y-up file is turned +90 degrees about x before
+    everything else (its y becomes z, its front +z becomes -y)."""
 
     kind: ClassVar[str] = "mesh"
     path: str
@@ -582,6 +584,7 @@ class MeshMoldSpec(_Strict):
     translate: tuple[float, float, float] | None = None
     rotate: tuple[float, float, float] | None = None
     closed: StrictBool | None = None
+    up: Literal["y", "z"] | None = None
 
     @field_validator("path")
     @classmethod
