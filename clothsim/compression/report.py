@@ -177,8 +177,10 @@ def build_report(result_dir: str | Path) -> str:
         f"<p id='status'>{html.escape(str(s.get('status')))}: {s.get('iterations')} iterations, residual "
         f"<span id='residual'>{s.get('residual', 0):.3e}</span> N, solver {html.escape(str(s.get('solver')))}, "
         f"{s.get('contact_count')} contact nodes of {s.get('node_count')}; peak contact pressure "
-        f"<span id='peak'>{s.get('max_contact_pressure_mmhg', 0):.2f}</span> mmHg. clothsim "
-        f"<span id='version'>{html.escape(str(s.get('clothsim_version')))}</span>.</p>",
+        + (f"<span id='peak'>{s['max_contact_pressure_mmhg']:.2f}</span> mmHg. clothsim "
+           if s.get('max_contact_pressure_mmhg') is not None else
+           f"<span id='peak'>none</span> ({html.escape(str(s.get('contact_pressure_note', '')))}). clothsim ")
+        + f"<span id='version'>{html.escape(str(s.get('clothsim_version')))}</span>.</p>",
         "<h2>Contact pressure [mmHg]</h2>",
         _img(map_png(pos, faces, p_mmhg, "contact pressure [mmHg]", "viridis"), "pressure map"),
         "<h2>Strain (larger of warp and weft)</h2>",
