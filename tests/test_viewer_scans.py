@@ -71,3 +71,45 @@ def test_viewer_opens_the_stocking_with_its_up_axis():
         assert app.panels["fabric"].mold_preview.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-9)
     finally:
         app.close()
+
+
+def test_viewer_shows_the_units_and_reach_warnings():
+    """A mold 1000x the sheet warns "millimetres?" as soon as it is chosen; a mold out of reach
+    warns when the edit is applied (the compile's warning, shown under the mold)."""
+    import socket
+
+    pytest.importorskip("viser")
+    from clothsim.viewer import ViewerApp
+
+    d = {"name": "cap", "fabric": {"size": [0.1, 0.1], "divisions": [10, 10],
+                                   "warp": {"strain": [0, 1], "tension": [0, 250]},
+                                   "weft": {"strain": [0, 1], "tension": [0, 250]}},
+         "constraints": [{"nodes": "perimeter", "axes": "xyz", "stretch": 1.1}],
+         "initial": {"lift": 0.03},
+         "mold": {"sphere": {"center": [0.05, 0.05, -0.02], "radius": 0.04}},
+         "solver": {"method": "newton", "e": 1e-6}}
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    app = ViewerApp(scene_from_dict(d), port=port)
+    try:
+        app.wait_idle(60)
+        fabric = app.panels["fabric"]
+        g = app.gui
+        with app.quiet():
+            g["mold_scale"].value = 1000.0
+            g["mold"].value = "file: thermoform_mold.stl"
+        fabric.set_mold()
+        assert any("millimetres?" in w for w in fabric.mold_warnings)
+        assert "millimetres?" in g["mold_info"].content
+        # a sphere 0.5 m beside the sheet: out of reach, said on apply
+        with app.quiet():
+            g["mold_scale"].value = 1.0
+        far = {"sphere": {"center": [0.6, 0.05, -0.02], "radius": 0.04}}
+        app.scene_draft.set_mold(far)
+        app.apply(wait=True)
+        app.wait_idle(60)
+        assert any("can reach the mold" in w for w in fabric.mold_warnings), fabric.mold_warnings
+        assert "can reach the mold" in g["mold_info"].content
+    finally:
+        app.close()

@@ -13,6 +13,7 @@ class FabricPanel(Panel):
     def __init__(self, app):
         super().__init__(app)
         self.mold_preview = None  # a validated Mold of the draft, shown until applied ("none": no mold)
+        self.mold_warnings: list[str] = []  # "mold: ..." warnings (units, reach) of the last preview or apply
 
     def build(self, gui) -> None:
         app, g = self.app, self.gui
@@ -104,7 +105,8 @@ class FabricPanel(Panel):
         # inside a markdown code span nothing is interpreted (an HTML escape would show as
         # "&#x27;"): only a backtick could end the span early
         self.gui["mold_info"].content = (f"Current: `{str(spec).replace('`', chr(39))}`" if spec is not None
-                                         else "Current: no mold")
+                                         else "Current: no mold") + "".join(
+            f"\n\n**warning**: `{w.replace('`', chr(39))}`" for w in self.mold_warnings)
 
     def set_mold(self) -> None:
         g = self.gui
@@ -112,6 +114,12 @@ class FabricPanel(Panel):
                                               g["mold_up"].value)
         mold = self.app.scene_draft.set_mold(spec)
         self.mold_preview = mold if mold is not None else "none"
+        self.mold_warnings = []
+        if mold is not None:  # units at once; the reach is checked when the edit is applied
+            from ...mold import mold_scale_warning
+
+            msg = mold_scale_warning(mold, self.app.sim.model.placement.size)
+            self.mold_warnings = [f"mold: {msg}"] if msg else []
         self.app.draft_changed(mold=True)
         self.refresh_mold_info()
 
