@@ -40,3 +40,15 @@ def test_stocking_pressures_are_graduated_and_classed(stocking):
     # the girth mean of the ankle slice is the Laplace-like reading, above the calf's
     slices = {round(x["height_m"], 2): x for x in s["profiles"][0]["slices"]}
     assert slices[0.15]["mean_mmhg"] > slices[0.35]["mean_mmhg"]
+
+
+def test_report_of_a_panel_scene(stocking, tmp_path):
+    """`app.py report` on the stocking's result (a panel scene: result.npz arrays are flat per
+    node); it used to index them as a grid and fail with an IndexError."""
+    from clothsim.compression.report import build_report
+
+    out = stocking.save(tmp_path / "stocking")
+    text = build_report(out)
+    assert "stocking" in text and "<img" in text
+    s = stocking.summary()
+    assert f"{s['max_contact_pressure_mmhg']:.2f}" in text

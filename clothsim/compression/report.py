@@ -52,9 +52,12 @@ def _fields(out: Path):
     topo = model.topology
     with np.load(out / "result.npz") as d:
         pg, cg = d["positions"], d["in_contact"]
-    ij = tuple(topo.node_ij.T)
-    pos = np.ascontiguousarray(pg.reshape(-1, 3) if topo.is_grid else pg[ij], dtype=float)
-    con = np.ascontiguousarray(cg.reshape(-1) if topo.is_grid else cg[ij], dtype=bool)
+    # result.npz keeps a full rectangle's arrays as (nx+1, ny+1, ...) and a panel scene's flat
+    # (N, ...) in node order
+    pos = np.ascontiguousarray(pg.reshape(-1, 3), dtype=float)
+    con = np.ascontiguousarray(cg.reshape(-1), dtype=bool)
+    if pos.shape[0] != topo.node_count:
+        raise ReportError(f"{out}: result.npz has {pos.shape[0]} nodes, the scene {topo.node_count}")
     strain, _, _, pressure = node_fields(model, State(pos, con, 0))
     wc, fc = topo.warp_count, topo.weft_count
     node_strain = np.maximum(topo.spread(strain[:wc], "warp"), topo.spread(strain[wc:wc + fc], "weft"))
