@@ -317,18 +317,100 @@ class Wrap(_Strict):
         return _finite(v)
 
 
+class Region(_Strict):
+    """An axis-aligned box [m]: ``min`` and ``max`` corners (min < max on every axis)."""
+
+    min: tuple[float, float, float]
+    max: tuple[float, float, float]
+
+    @field_validator("min", "max")
+    @classmethod
+    def _corner(cls, v):
+        return _coords(v)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if not all(a < b for a, b in zip(self.min, self.max)):
+            raise ValueError(f"min must be below max on every axis (got {list(self.min)}, {list(self.max)})")
+        return self
+
+
+class WrapHull(_Strict):
+    """The sheet (or a panel) wrapped round a body slab, clear of it (clothsim.hullwrap): each row
+    goes round the convex hull of the mold's cross-section at its height (the mold's part inside
+    ``region``, when given), grown by ``clearance`` [m], by arc length. axis: the body axis;
+    center [m]: a point on it, where the sheet's middle row sits; heights [m]: [lowest row,
+    highest row] along the axis measured from center (omitted: the sheet's own height, centred);
+    start_angle [deg]: the ray (in ``initial.wrap``'s frame) that marks the perimeter's start;
+    offset: where the sheet's left edge sits, as a fraction of the perimeter past that start;
+    fraction: the share of the perimeter each row's width covers (1: once round; 0.5 for each of
+    two panels)."""
+
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    clearance: float = 0.01
+    heights: tuple[float, float] | None = None
+    region: Region | None = None
+    start_angle: float = 0.0
+    offset: float = 0.0
+    fraction: float = 1.0
+
+    @field_validator("axis")
+    @classmethod
+    def _axis(cls, v):
+        return _direction(v)
+
+    @field_validator("center")
+    @classmethod
+    def _center(cls, v):
+        return _coords(v)
+
+    @field_validator("clearance")
+    @classmethod
+    def _clear(cls, v):
+        _finite(v)
+        if not 0 <= v <= COORD_MAX:
+            raise ValueError(f"must be between 0 and {COORD_MAX:g} m (got {v})")
+        return v
+
+    @field_validator("heights")
+    @classmethod
+    def _heights(cls, v):
+        if v is None:
+            return v
+        _coords(v)
+        if not v[0] < v[1]:
+            raise ValueError(f"must be [lowest, highest] with lowest < highest (got {list(v)})")
+        return v
+
+    @field_validator("start_angle", "offset")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v)
+
+    @field_validator("fraction")
+    @classmethod
+    def _fraction(cls, v):
+        _finite(v)
+        if not 0 < v <= 10:
+            raise ValueError(f"must be above 0 and at most 10 (got {v})")
+        return v
+
+
 class PanelPlacement(_Strict):
     """Where a panel starts in space: ``transform`` (rigid; the default is the identity: the panel
-    in z = 0) or ``wrap`` (rolled round an axis at a radius, warp round the axis, like
-    ``initial.wrap``)."""
+    in z = 0), ``wrap`` (rolled round an axis at a radius, warp round the axis, like
+    ``initial.wrap``) or ``wrap_hull`` (round a body: round the hull of the mold's slab, like
+    ``initial.wrap_hull``)."""
 
     transform: PanelTransform | None = None
     wrap: Wrap | None = None
+    wrap_hull: WrapHull | None = None
 
     @model_validator(mode="after")
     def _one(self):
-        if self.transform is not None and self.wrap is not None:
-            raise ValueError("give transform or wrap, not both")
+        if sum(x is not None for x in (self.transform, self.wrap, self.wrap_hull)) > 1:
+            raise ValueError("give one of transform, wrap and wrap_hull")
         return self
 
 
@@ -415,7 +497,8 @@ class Initial(_Strict):
 
     lift [m]: interior nodes raised along +z by a smooth dome of this height.
     file: an earlier result's positions (nx+1, ny+1, 3) provide the free coordinates.
-    wrap: the sheet rolled onto a cylinder. perturb [m] with seed: a random perturbation of the
+    wrap: the sheet rolled onto a cylinder. wrap_hull: the sheet laid round the hull of the mold's
+    slab at each row's height, clear of it (see :class:`WrapHull`). perturb [m] with seed: a random perturbation of the
     free coordinates (tests start from perturbed states). auto_clearance: lift the sheet just
     clear of the mold if it touches it, instead of refusing the scene. interpolate (default true):
     free nodes start with the in-plane stretch of the constrained ones spread smoothly over the
@@ -425,6 +508,7 @@ class Initial(_Strict):
     lift: float = 0.0
     file: str | None = None
     wrap: Wrap | None = None
+    wrap_hull: WrapHull | None = None
     perturb: float = 0.0
     seed: Int = 0
     auto_clearance: bool = False
@@ -434,6 +518,12 @@ class Initial(_Strict):
     @classmethod
     def _fin(cls, v):
         return _coords(v)
+
+    @model_validator(mode="after")
+    def _one_wrap(self):
+        if self.wrap is not None and self.wrap_hull is not None:
+            raise ValueError("give wrap or wrap_hull, not both")
+        return self
 
 
 class Gravity(_Strict):
@@ -574,7 +664,9 @@ class MeshMoldSpec(_Strict):
     number, or three (per axis), multiplying the file's coordinates into metres (0.001 for a file
     in millimetres); rotate [deg]: about x, then y, then z; translate [m]: applied last;
     closed: true = must be watertight (inside = the enclosed volume), false = an open skin even
-    if watertight, omitted = detected; surface: 'faceted' (contact on the triangles themselves:
+    if watertight, omitted = detected; up: the file's up axis, ``z`` (clothsim's own, the
+    default) or ``y`` (most scans and glTF): a Y-up file is turned +90 degrees about x before
+    everything else (its y becomes z, its front +z becomes -y); surface: 'faceted' (contact on the triangles themselves:
     CAD molds with real sharp edges; the default) or 'smooth' (contact on a smooth surface
     blended from the triangles' planes: scans, whose triangles only sample a smooth body; the
     pressure then converges under refinement); smoothing [m]: the smooth surface's blending
@@ -586,6 +678,7 @@ class MeshMoldSpec(_Strict):
     translate: tuple[float, float, float] | None = None
     rotate: tuple[float, float, float] | None = None
     closed: StrictBool | None = None
+    up: Literal["y", "z"] | None = None
     surface: Literal["faceted", "smooth"] | None = None  # None: faceted
     smoothing: float | None = None
 

@@ -43,7 +43,8 @@ class Placement:
     plane (None: x); wrap: an object with ``center`` [m], ``axis``, ``radius`` [m] and
     ``start_angle`` [deg] (the panel rolled onto a cylinder, warp round the axis, weft along it,
     centred on ``center``), or None; rotation (3, 3) and translation (3,) [m]: a rigid placement
-    (used when wrap is None; None: the identity)."""
+    (used when wrap is None; None: the identity); hull: a clothsim.hullwrap.HullWrap (the panel
+    laid round the hull of a mold's slab), or None."""
 
     origin: tuple = (0.0, 0.0, 0.0)
     size: tuple = (0.0, 0.0)
@@ -51,9 +52,14 @@ class Placement:
     grain: tuple | None = None
     rotation: np.ndarray | None = None
     translation: np.ndarray | None = None
+    hull: object = None
 
     def apply(self, flat: np.ndarray) -> np.ndarray:
         """Points of the flat panel (N, 3) [m] -> their placement in space (N, 3) [m]."""
+        if self.hull is not None:
+            g = np.asarray(self.grain if self.grain is not None else (1.0, 0.0), float)
+            d = flat[:, :2] - np.asarray(self.origin[:2])
+            return self.hull.place(d @ g, d @ np.array([-g[1], g[0]]), flat[:, 2] - self.origin[2])
         w = self.wrap
         if w is None:
             if self.rotation is None:
@@ -98,7 +104,7 @@ class Placements:
     @property
     def identity(self) -> bool:
         """True when every panel stays where its flat lattice is (no wrap, no rigid motion)."""
-        return all(pl.wrap is None and pl.rotation is None for _, _, pl in self.parts)
+        return all(pl.wrap is None and pl.rotation is None and pl.hull is None for _, _, pl in self.parts)
 
     @property
     def size(self) -> tuple:

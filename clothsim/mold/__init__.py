@@ -51,7 +51,7 @@ Mold specs are typed in :mod:`clothsim.config` (``MoldSpec``).
 """
 
 from .build import median_edge_length, mold_from_arrays, mold_primitive, with_surface
-from .checks import SCALE_WARNING_RATIO, mold_scale_warning, mold_size
+from .checks import SCALE_WARNING_RATIO, mold_reach_warning, mold_scale_warning, mold_size
 from .load import MOLD_CACHE_SIZE, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info
 from .readers import MAX_MOLD_FILE_BYTES
 from .queries import mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
@@ -82,6 +82,7 @@ __all__ = [
     "mold_cache_info",
     "MOLD_CACHE_SIZE",
     "MAX_MOLD_FILE_BYTES",
+    "mold_reach_warning",
     "mold_scale_warning",
     "mold_size",
     "SCALE_WARNING_RATIO",

@@ -33,9 +33,20 @@ def _rotation_xyz(deg) -> np.ndarray:
     return Rz @ Ry @ Rx
 
 
-def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate=None):
-    """Scale (a positive number or three), then rotate (degrees about x, y, z), then translate."""
+#: the file's up axis -> the rotation that makes it clothsim's +z (a Y-up file turned +90 degrees
+#: about x: (x, y, z) -> (x, -z, y), the convention of Blender's glTF import)
+UP_ROTATIONS = {"z": np.eye(3), "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])}
+
+
+def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate=None, up=None):
+    """Up axis first (``up``: 'y' turns a Y-up file to Z-up; 'z' or None: unchanged), then scale
+    (a positive number or three), then rotate (degrees about x, y, z), then translate.
+    V (n, 3) [file units] -> (n, 3) [m]."""
     src = f"{name}: transform"
+    if up not in (None, "z", "y"):
+        raise MoldError(f"{src}: 'up' must be 'y' or 'z', got {str(up)[:20]!r}")
+    if up == "y":
+        V = V @ UP_ROTATIONS["y"].T
     s = np.asarray(1.0 if scale is None else scale, dtype=np.float64).reshape(-1)
     if s.size not in (1, 3) or not np.isfinite(s).all() or not (s > 0).all():
         raise MoldError(f"{src}: 'scale' must be a positive number (or three), got {scale!r}")
@@ -48,12 +59,13 @@ def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate
 
 
 def load_mold_bytes(data: bytes, filename: str, *, scale=1.0, translate=None, rotate=None,
-                    closed: bool | None = None) -> Mold:
+                    closed: bool | None = None, up: str | None = None) -> Mold:
     """Mold from file contents (an upload). ``filename`` only selects the format and names the
-    mold in messages; nothing is written to disk."""
+    mold in messages; nothing is written to disk. ``up``: the file's up axis ('y' or 'z',
+    see :func:`_apply_transform`)."""
     name = str(filename)
     V, F = _read_any(bytes(data), name)
-    V = _apply_transform(V, name, scale, translate, rotate)
+    V = _apply_transform(V, name, scale, translate, rotate, up)
     return _build_mesh_mold(V, F, closed, name)
 
 
@@ -94,7 +106,7 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
         path = Path(base_dir) / path
     st = mold_file_status(path)
     key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev,
-           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed)
+           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed, spec.up)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None:
@@ -105,7 +117,8 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             mold = load_mold_bytes(data, str(path), scale=1.0 if spec.scale is None else spec.scale,
-                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed)
+                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed,
+                                   up=spec.up)
         hit = (mold, [(w.message, w.category) for w in caught])
         with _cache_lock:
             _cache_stats["misses"] += 1
@@ -121,8 +134,9 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
 def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
     """Mold from a spec: ``None``; a typed :data:`clothsim.config.MoldSpec`; or the same as a
     plain mapping (checked by the same model): ``{"path": ..., "scale": s, "translate": [..],
-    "rotate": [..], "closed": bool, "surface": "faceted" | "smooth", "smoothing": r}``
-    (relative paths resolve against ``base_dir``; the cached mesh is shared by both surfaces), or one
+    "rotate": [..], "closed": bool, "up": "y" | "z", "surface": "faceted" | "smooth",
+    "smoothing": r}`` (relative paths resolve against ``base_dir``; the cached mesh is shared by
+    both surfaces), or one
     primitive ``{"sphere": {...}}``, ``{"cylinder": {...}}``, ``{"plane": {...}}``,
     ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`). Raises MoldError."""
     if spec is None:

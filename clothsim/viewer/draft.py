@@ -308,8 +308,9 @@ class SceneDraft:
         opts.update(self.uploads)
         return opts
 
-    def mold_spec(self, label: str, scale, offset) -> dict | None:
-        """The spec of mold choice ``label`` with a scale (mesh files) and an offset [m] applied."""
+    def mold_spec(self, label: str, scale, offset, up: str | None = None) -> dict | None:
+        """The spec of mold choice ``label`` with a scale (mesh files) and an offset [m] applied;
+        ``up`` ('y' or 'z', mesh files): the file's up axis (None: the choice's own)."""
         opts = self.mold_options()
         if label not in opts:
             raise MoldError(f"unknown mold choice {label[:60]!r}")
@@ -328,6 +329,13 @@ class SceneDraft:
                 spec["translate"] = [a + b for a, b in zip(t0, off)]
             if spec["scale"] == 1.0:
                 spec.pop("scale")
+            if up is not None:
+                if up not in ("y", "z"):
+                    raise MoldError(f"up: must be 'y' or 'z' (got {str(up)[:20]!r})")
+                if up == "y":
+                    spec["up"] = "y"
+                else:
+                    spec.pop("up", None)
         elif any(off):
             _kind, prm = next(iter(spec.items()))
             for key in ("center", "point", "min", "max"):

@@ -438,10 +438,16 @@ class ViewerApp:
             self._after_model_change()
 
     def _do_apply(self, reset: bool) -> None:
+        import warnings
+
         scene = self.scene_draft.validate()
-        self.sim.replace_scene(scene, warm_start=not reset)
+        with warnings.catch_warnings(record=True) as caught:  # the mold's units and reach
+            warnings.simplefilter("always")
+            self.sim.replace_scene(scene, warm_start=not reset)
+        self.panels["fabric"].mold_warnings = [str(w.message) for w in caught if str(w.message).startswith("mold: ")]
         self.panels["fabric"].mold_preview = None
         self._after_model_change()
+        self.panels["fabric"].refresh_mold_info()
 
     def _after_model_change(self) -> None:
         with self._lock:

@@ -13,6 +13,7 @@ class FabricPanel(Panel):
     def __init__(self, app):
         super().__init__(app)
         self.mold_preview = None  # a validated Mold of the draft, shown until applied ("none": no mold)
+        self.mold_warnings: list[str] = []  # "mold: ..." warnings (units, reach) of the last preview or apply
 
     def build(self, gui) -> None:
         app, g = self.app, self.gui
@@ -35,6 +36,9 @@ class FabricPanel(Panel):
         g["mold_offset"] = app.on(gui.add_vector3("Mold offset [m]", (0.0, 0.0, 0.0), step=0.001,
                                                   min=(-big,) * 3, max=(big,) * 3),
                                   lambda v: self.set_mold(), "mold")
+        g["mold_up"] = app.on(gui.add_dropdown("Mold up axis (mesh files)", ("z", "y"), initial_value="z",
+                                               hint="y: a Y-up file (most scans) is turned to clothsim's Z-up"),
+                              lambda v: self.set_mold(), "mold")
         up = gui.add_upload_button("Upload mold", icon=viser.Icon.UPLOAD, mime_type="*/*",
                                    hint="STL, OBJ, PLY, OFF, GLB, the paper's .txt, .vtk, .wrl")
         up.on_upload(app.upload_callback(up, self.mold_uploaded, "mold"))
@@ -57,6 +61,8 @@ class FabricPanel(Panel):
         else:
             g["panels"].content = self.panels_table()
         g["lift"].value = float(self.app.scene_draft.data.get("initial", {}).get("lift", 0.0))
+        with self.app.quiet():
+            g["mold_up"].value = (data.get("mold") or {}).get("up") or "z"
         self.refresh_mold_options()
 
     def panels_table(self) -> str:
@@ -99,13 +105,21 @@ class FabricPanel(Panel):
         # inside a markdown code span nothing is interpreted (an HTML escape would show as
         # "&#x27;"): only a backtick could end the span early
         self.gui["mold_info"].content = (f"Current: `{str(spec).replace('`', chr(39))}`" if spec is not None
-                                         else "Current: no mold")
+                                         else "Current: no mold") + "".join(
+            f"\n\n**warning**: `{w.replace('`', chr(39))}`" for w in self.mold_warnings)
 
     def set_mold(self) -> None:
         g = self.gui
-        spec = self.app.scene_draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value)
+        spec = self.app.scene_draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value,
+                                              g["mold_up"].value)
         mold = self.app.scene_draft.set_mold(spec)
         self.mold_preview = mold if mold is not None else "none"
+        self.mold_warnings = []
+        if mold is not None:  # units at once; the reach is checked when the edit is applied
+            from ...mold import mold_scale_warning
+
+            msg = mold_scale_warning(mold, self.app.sim.model.placement.size)
+            self.mold_warnings = [f"mold: {msg}"] if msg else []
         self.app.draft_changed(mold=True)
         self.refresh_mold_info()
 
