@@ -202,11 +202,11 @@ def hull_wrap(spec, mold, outline_uv: np.ndarray, row_spacing: float, where: str
     """The HullWrap of a panel (outline_uv (K, 2) [m] in its grain frame, row_spacing [m] its
     lattice spacing across the grain) round ``mold`` (a loaded mesh Mold); SceneError naming
     ``where`` when there is no mesh mold."""
-    from .mold import MOLD_MESH
+    from .mold.record import MESH_KINDS
 
     if mold is None:
         raise SceneError(f"{where}: needs a mold (the sheet is wrapped round the mold's hull)")
-    if mold.kind != MOLD_MESH:
+    if mold.kind not in MESH_KINDS:
         raise SceneError(f"{where}: needs a mesh mold (a primitive: use wrap, a cylinder)")
     F = np.asarray(mold.faces, np.int64)
     E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
