@@ -72,6 +72,7 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
 
     F = np.empty((n, 3))
     forces_and_energy(positions, *model.spring_args(), model.external_force, F)
+    model.add_seam_forces(positions, F)
     k = np.nonzero(in_contact)[0]
     m = len(k)
     sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
