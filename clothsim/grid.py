@@ -305,7 +305,7 @@ def _adjacency(n: int, spring_nodes: np.ndarray):
 def seam_adjacency(n: int, seam_nodes: np.ndarray):
     """Per node the seam elements touching it, in CSR form: (ptr (n+1,), elem) with node k's
     elements elem[ptr[k]:ptr[k+1]] (each once, even where an element names k twice)."""
-    q = np.repeat(np.arange(seam_nodes.shape[0]), 3)
+    q = np.repeat(np.arange(seam_nodes.shape[0]), seam_nodes.shape[1])
     k = seam_nodes.reshape(-1)
     pairs = np.unique(np.stack([k, q], 1), axis=0) if k.size else np.zeros((0, 2), np.int64)
     ptr = np.zeros(n + 1, np.int64)

@@ -93,6 +93,17 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     return force, pressure
 
 
+def seam_report(model, positions) -> dict:
+    """Per seam (scene order) its sides' rest arc lengths [m], its ease (how much longer the
+    longer side is [%]: the longer side gathers onto the shorter) and its widest gap [m] at
+    positions (N,3) (the longest seam spring, or the farthest node from the point of the other
+    side it is sewn to): {"seams": [...], "max_seam_gap_m": the widest over all seams}."""
+    gaps = model.seam_gaps(positions)
+    rows = [{"a_length_m": info.a_length, "b_length_m": info.b_length, "ease_pct": info.ease,
+             "max_gap_m": float(g.max()) if g.size else 0.0} for info, g in zip(model.seams, gaps)]
+    return {"seams": rows, "max_seam_gap_m": max(r["max_gap_m"] for r in rows)}
+
+
 def node_fields(model, state):
     """Per-spring strain and force, per-node contact force and pressure."""
     S = model.spring_count
@@ -253,6 +264,8 @@ class Result:
             ab = self.model.spring_nodes[seam]
             pos = self.state.positions
             out["max_seam_gap_m"] = float(np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1).max())
+        if self.model.seams:
+            out.update(seam_report(self.model, self.state.positions))
         if self.model.mold is not None:
             from .contact import max_penetration
 
