@@ -201,13 +201,14 @@ class NodeRange(_Strict):
     With ``panels``: ``panel`` names the panel the selector reads (omitted: every panel);
     ``side`` a named set of that panel's lattice (left, right, ... as in constraints); ``edge``
     ``[v0, v1]`` the lattice nodes along the panel's outline from vertex v0 to vertex v1
-    (counter-clockwise), ordered along it."""
+    (counter-clockwise), ordered along it; a vertex is its index in the outline, or for a panel
+    read from a pattern file the name of one of its notches (``notch1``, ``notch2``, ...)."""
 
     i: IndexRange | Int | None = None
     j: IndexRange | Int | None = None
     panel: str | None = None
     side: Literal[NODE_SETS] | None = None  # type: ignore[valid-type]
-    edge: tuple[Int, Int] | None = None
+    edge: tuple[Int | str, Int | str] | None = None
 
     @model_validator(mode="after")
     def _one_kind(self):

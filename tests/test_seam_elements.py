@@ -217,3 +217,26 @@ def test_paper_relaxation_sews_unequal_counts():
     res = clothsim.solve(load_scene(EASED, over + ["solver.method=paper", "solver.time_limit_s=60"]))
     assert res.converged, res.solve.message
     assert np.abs(res.state.positions - ref.state.positions).max() < 1e-5
+
+
+def test_edges_named_by_pattern_notches():
+    """An edge of a panel read from a pattern file may name its vertices by the file's notches:
+    configs/garments/sleeve_dxf.yaml's FRONT piece has notch1 at vertex 2 (half-way up its right
+    side), so ``edge: [notch1, 3]`` is the upper half of that side (9 nodes, 0.04 m) and sews to
+    back's whole left side (17 nodes, 0.08 m) with 100 % ease; an unknown name, or a name on a
+    panel without a pattern, is refused naming the field."""
+    from clothsim.config import SceneError
+
+    dxf = ROOT / "configs" / "garments" / "sleeve_dxf.yaml"
+    m = compile_model(load_scene(dxf, ["seams.0.a={panel: front, edge: [notch1, 3]}"]))
+    by_index = compile_model(load_scene(dxf, ["seams.0.a={panel: front, edge: [2, 3]}"]))
+    info = m.seams[0]
+    assert (info.a_length, info.b_length) == (pytest.approx(0.04), pytest.approx(0.08))
+    assert info.ease == pytest.approx(100.0) and info.elements.size == 17
+    np.testing.assert_array_equal(m.seam_nodes, by_index.seam_nodes)
+    with pytest.raises(SceneError, match=r"seams\.0\.a\.edge: no vertex 'notch9' on panel 'front'; "
+                                         r"its named vertices: notch1, notch2"):
+        compile_model(load_scene(dxf, ["seams.0.a={panel: front, edge: [notch9, 3]}"]))
+    with pytest.raises(SceneError, match=r"constraints\.0\.nodes\.edge: no vertex 'notch1' on panel 'front'; "
+                                         r"it has no named vertices"):
+        compile_model(load_scene(TWO, ["constraints.0.nodes={panel: front, edge: [notch1, 3]}"]))
