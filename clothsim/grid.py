@@ -132,13 +132,12 @@ class SeamInfo:
     """One seam of a model, for reports: a_length, b_length [m] the rest arc lengths of its two
     sides; springs: indices of its zero-length springs (sides of equal node counts) into the
     model's springs; elements: indices of its seam elements (unequal counts) into
-    ``Model.seam_nodes``; sewn: indices into ``Model.seam_draw`` of its nodes sewn to points."""
+    ``Model.seam_nodes``."""
 
     a_length: float
     b_length: float
     springs: np.ndarray
     elements: np.ndarray
-    sewn: np.ndarray
 
     @property
     def ease(self) -> float:
@@ -169,9 +168,8 @@ class Model:
     [m] each panel's; placement: where each panel's flat lattice starts in space.
     Seam elements (seams of unequal node counts, clothsim.kernels.seam_forces_and_energy):
     seam_nodes (Q,K) int64, seam_weight (Q,K) the gap's coefficients, seam_stiffness (Q,)
-    [N/m]; Q = 0 when the scene has none. seam_draw (P,3) int64 and seam_draw_t (P,): each node
-    of those seams, sewn to the point (1 - t) x_b0 + t x_b1 of the other side (for drawing and
-    gaps). seams: one SeamInfo per scene seam."""
+    [N/m]; Q = 0 when the scene has none (each element's first node is the node it sews, with
+    weight 1). seams: one SeamInfo per scene seam."""
 
     node_count: int
     topology: Topology
@@ -198,8 +196,6 @@ class Model:
     seam_nodes: np.ndarray = _empty((0, 1), np.int64)
     seam_weight: np.ndarray = _empty((0, 1))
     seam_stiffness: np.ndarray = _empty(0)
-    seam_draw: np.ndarray = _empty((0, 3), np.int64)
-    seam_draw_t: np.ndarray = _empty(0)
     seams: tuple = ()
 
     @property
@@ -222,29 +218,29 @@ class Model:
 
     def seam_gaps(self, pos: np.ndarray) -> list:
         """Per seam (in scene order) its gaps [m] at positions pos (N,3): the zero-length
-        springs' lengths, and for a seam of unequal counts the distance of each node of either
-        side to the point of the other side it is sewn to."""
-        from .kernels import sewn_distances
+        springs' lengths, and for a seam of unequal counts each element's |g| (the distance from
+        its node to the point of the other side it is sewn to)."""
+        from .kernels import seam_gaps
 
-        g = np.empty(self.seam_draw.shape[0])
+        g = np.empty(self.seam_count)
         if g.size:
-            sewn_distances(pos, self.seam_draw, self.seam_draw_t, g)
+            seam_gaps(pos, self.seam_nodes, self.seam_weight, g)
         out = []
         for info in self.seams:
             ab = self.spring_nodes[info.springs]
-            out.append(np.concatenate([np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1), g[info.sewn]]))
+            out.append(np.concatenate([np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1), g[info.elements]]))
         return out
 
     def seam_points(self, pos: np.ndarray) -> np.ndarray:
-        """(P, 2, 3) [m]: the two sewn points of every seam spring and element (a node and the
-        point it is sewn to), for drawing."""
+        """(P, 2, 3) [m]: the two ends of every seam spring, and every seam element's node and
+        the point of the other side it is sewn to (x - g), for drawing."""
         ab = self.spring_nodes[self.spring_family == FAMILY_SEAM]
         a = [pos[ab[:, 0]]]
         b = [pos[ab[:, 1]]]
-        if self.seam_draw.shape[0]:
-            d, t = self.seam_draw, self.seam_draw_t[:, None]
-            a.append(pos[d[:, 0]])
-            b.append((1.0 - t) * pos[d[:, 1]] + t * pos[d[:, 2]])
+        if self.seam_count:
+            x = pos[self.seam_nodes[:, 0]]
+            a.append(x)
+            b.append(x - (self.seam_weight[:, :, None] * pos[self.seam_nodes]).sum(axis=1))
         return np.stack([np.concatenate(a), np.concatenate(b)], axis=1)
 
     @property
@@ -433,7 +429,7 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     sp = lattice_springs(topology, geoms, table_ids, shear_table=shear_tid, bend_table=bend_tid)
 
     seam_infos = []
-    el_nodes, el_weight, el_k, draws, draw_t = [], [], [], [], []
+    el_nodes, el_weight, el_k = [], [], []
     if seams:
         tables.append(Table(np.array([0.0, 1.0]), np.array([1.0, 2.0]), compression=True))
         tid = len(tables) - 1
@@ -442,13 +438,13 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain)))
                     for pb in panels for t in (pb.warp_table, pb.weft_table))
         n_springs = sum(x.shape[0] for x in sp.nodes)
-        n_elements = n_draw = 0
+        n_elements = 0
         for n_seam, seam in enumerate(seams):
             k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / h_min
             try:
                 a_all, b_all, _ = seam_sides(seam, topology)
                 if a_all.size != b_all.size:
-                    dense_is_a, enodes, eweight, share, draw, dt, la, lb = arc_elements(rest[a_all], rest[b_all])
+                    dense_is_a, enodes, eweight, share, la, lb = arc_elements(rest[a_all], rest[b_all])
                 else:
                     a, b, share, (sa, sb) = seam_pairs(seam, topology)
             except SelectionError as exc:
@@ -460,13 +456,9 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
                 el_nodes.append(both[enodes])
                 el_weight.append(eweight)
                 el_k.append(k_line * share * 0.5 * (la + lb))  # [N/m] per element
-                draws.append(both[draw])
-                draw_t.append(dt)
                 seam_infos.append(SeamInfo(arc[0], arc[1], np.zeros(0, np.int64),
-                                           np.arange(n_elements, n_elements + share.size),
-                                           np.arange(n_draw, n_draw + dt.size)))
+                                           np.arange(n_elements, n_elements + share.size)))
                 n_elements += share.size
-                n_draw += dt.size
                 continue
             side = [sa, sb]
             for k, (nodes, s) in enumerate(((a, sa), (b, sb))):
@@ -479,8 +471,7 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
             length = share * 0.5 * (side[0] + side[1])
             k = k_line * length  # [N/m] per pair
             sp.add(a, b, l0, k * l0, tid, FAMILY_SEAM)
-            seam_infos.append(SeamInfo(arc[0], arc[1], np.arange(n_springs, n_springs + a.size), np.zeros(0, np.int64),
-                                       np.zeros(0, np.int64)))
+            seam_infos.append(SeamInfo(arc[0], arc[1], np.arange(n_springs, n_springs + a.size), np.zeros(0, np.int64)))
             n_springs += a.size
     seam_extra = {}
     if el_nodes:
@@ -490,9 +481,7 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         el_weight = [np.concatenate([x, np.zeros((x.shape[0], K - x.shape[1]))], 1) for x in el_weight]
         seam_extra = dict(seam_nodes=np.ascontiguousarray(np.concatenate(el_nodes), np.int64),
                           seam_weight=np.ascontiguousarray(np.concatenate(el_weight)),
-                          seam_stiffness=np.ascontiguousarray(np.concatenate(el_k)),
-                          seam_draw=np.ascontiguousarray(np.concatenate(draws), np.int64),
-                          seam_draw_t=np.ascontiguousarray(np.concatenate(draw_t)))
+                          seam_stiffness=np.ascontiguousarray(np.concatenate(el_k)))
 
     spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)

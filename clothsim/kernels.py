@@ -278,18 +278,20 @@ def seam_forces_and_energy(pos, nodes, weight, k, out):
 
 
 @njit(cache=True)
-def sewn_distances(pos, draw, t, out):
-    """Distance [m] from each sewn node draw[p, 0] to its point (1 - t) x_b0 + t x_b1 on the
-    other side (b0, b1 = draw[p, 1], draw[p, 2]) into out (P,)."""
-    for p in range(draw.shape[0]):
-        a = draw[p, 0]
-        b0 = draw[p, 1]
-        b1 = draw[p, 2]
-        s = 0.0
-        for c in range(3):
-            d = pos[a, c] - (1.0 - t[p]) * pos[b0, c] - t[p] * pos[b1, c]
-            s += d * d
-        out[p] = math.sqrt(s)
+def seam_gaps(pos, nodes, weight, out):
+    """|g_q| [m] of every seam element into out (Q,): how far its node is from the point of the
+    other side it is sewn to (arrays as in ``seam_forces_and_energy``)."""
+    for q in range(nodes.shape[0]):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for i in range(nodes.shape[1]):
+            n = nodes[q, i]
+            w = weight[q, i]
+            g0 += w * pos[n, 0]
+            g1 += w * pos[n, 1]
+            g2 += w * pos[n, 2]
+        out[q] = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
 
 
 @njit(cache=True, error_model="numpy")

@@ -96,8 +96,8 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
 def seam_report(model, positions) -> dict:
     """Per seam (scene order) its sides' rest arc lengths [m], its ease (how much longer the
     longer side is [%]: the longer side gathers onto the shorter) and its widest gap [m] at
-    positions (N,3) (the longest seam spring, or the farthest node from the point of the other
-    side it is sewn to): {"seams": [...], "max_seam_gap_m": the widest over all seams}."""
+    positions (N,3) (the longest seam spring, or the farthest sewn node from the point of the
+    other side it is sewn to): {"seams": [...], "max_seam_gap_m": the widest over all seams}."""
     gaps = model.seam_gaps(positions)
     rows = [{"a_length_m": info.a_length, "b_length_m": info.b_length, "ease_pct": info.ease,
              "max_gap_m": float(g.max()) if g.size else 0.0} for info, g in zip(model.seams, gaps)]

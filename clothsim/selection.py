@@ -245,12 +245,10 @@ def arc_elements(pa: np.ndarray, pb: np.ndarray):
     exactly: it shifts load between rows.)
 
     Returns (slave_is_a, nodes (Ns, K) indices into the concatenation [slave side, master side],
-    weight (Ns, K) the gap's coefficients (1 on the slave node, summing to 0 per element;
-    padding has weight 0 and repeats the element's first node), share (Ns,) int N_i dsigma
-    (summing to 1), draw (P, 3) indices into the same concatenation and draw_t (P,): every node
-    of either side and the segment (b0, b1) of the other side holding the point at its sigma,
-    (1 - t) x_b0 + t x_b1, for drawing and for reporting gaps, La, Lb [m] the sides' rest arc
-    lengths)."""
+    the slave node first, weight (Ns, K) the gap's coefficients (1 on the slave node, summing to
+    0 per element; padding has weight 0 and repeats the element's first node), share (Ns,)
+    int N_i dsigma (summing to 1), La, Lb [m] the sides' rest arc lengths). The point node i is
+    sewn to is x_i - g_i: sum over the master nodes of -weight x."""
     sa, La = _arc_fractions(pa, "a")
     sb, Lb = _arc_fractions(pb, "b")
     slave_is_a = sa.size > sb.size
@@ -286,9 +284,4 @@ def arc_elements(pa: np.ndarray, pb: np.ndarray):
         nodes[i, :] = cols[0]
         nodes[i, :len(cols)] = cols
         weight[i, :len(cols)] = [1.0 if c == i else rows[i][c] / share[i] for c in cols]
-    # drawing: every node sewn to the point of the other side at its arc fraction
-    k1, t1 = _locate(sm, ss)
-    k2, t2 = _locate(ss, sm)
-    draw = np.concatenate([np.stack([np.arange(ns), ns + k1, ns + k1 + 1], 1),
-                           np.stack([ns + np.arange(nm), k2, k2 + 1], 1)])
-    return slave_is_a, nodes, weight, share, draw, np.concatenate([t1, t2]), La, Lb
+    return slave_is_a, nodes, weight, share, La, Lb

@@ -55,8 +55,8 @@ def _poll(fn, timeout=30.0, every=0.3):
 
 
 def test_unequal_seam_threads_and_gap_list_in_chromium():
-    """configs/garments/eased_seam.yaml started 3 cm open (its upper panel moved up): the 44
-    threads (21 + 23 sewn nodes) show as orange pixels in the page, which go when the threads
+    """configs/garments/eased_seam.yaml started 3 cm open (its upper panel moved up): the 23
+    threads (one per sewn node) show as orange pixels in the page, which go when the threads
     are hidden; after Start the status line in the page lists 'seam 0: widest gap ... m (ease
     10.0 %)' with the gap closed below 1e-5 m."""
     require_chromium()
@@ -73,7 +73,7 @@ def test_unequal_seam_threads_and_gap_list_in_chromium():
                 page.goto(app.url)
                 wait_for_render(page, min_pixels=2000, timeout=90)
                 close_notifications(page)
-                assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 44
+                assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 23
                 shown = _poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
                 app.renderer.h_seams.visible = False
                 hidden = _poll(lambda: page.evaluate(ORANGE_JS) < (shown or 0) / 4 and page.evaluate(ORANGE_JS) + 1,

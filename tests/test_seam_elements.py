@@ -42,7 +42,7 @@ def test_dual_mortar_weights(na, nb):
     sa = np.sort(np.concatenate([[0, 1], rng.uniform(0.02, 0.98, na - 2)]))
     sb = np.linspace(0, 1, nb)
     pa, pb = _line(sa, 0.3), _line(sb, 0.3)
-    slave_is_a, nodes, weight, share, draw, t, la, lb = arc_elements(pa, pb)
+    slave_is_a, nodes, weight, share, la, lb = arc_elements(pa, pb)
     assert slave_is_a == (na > nb)
     ns = max(na, nb)
     assert nodes.shape[0] == ns and share.sum() == pytest.approx(1.0, abs=1e-15)
@@ -62,10 +62,6 @@ def test_dual_mortar_weights(na, nb):
     np.testing.assert_allclose(load[:ns], share, atol=1e-15)
     np.testing.assert_allclose(load[ns:], -trap, atol=1e-15)
     assert la == pytest.approx(0.3) and lb == pytest.approx(0.3)
-    # every node of either side is drawn to the point of the other side at its arc fraction
-    assert draw.shape == (na + nb, 3)
-    pts = (1 - t)[:, None] * both[draw[:, 1]] + t[:, None] * both[draw[:, 2]]
-    np.testing.assert_allclose(pts, both[draw[:, 0]], atol=1e-15)
 
 
 def _small_unequal():
@@ -136,7 +132,7 @@ def test_no_seam_elements_unless_counts_differ():
 
     for over in ([], ["seams=[]"]):
         m = compile_model(load_scene(TWO, over))
-        assert m.seam_count == 0 and m.seam_draw.shape[0] == 0
+        assert m.seam_count == 0
         lvl = NewtonLevel(m)
         ip, ind, slot, diag = _bsr_pattern(m.node_count, m.spring_nodes)
         np.testing.assert_array_equal(lvl.indices, ind)
@@ -172,7 +168,7 @@ def test_two_panel_tube_with_unequal_counts_equals_equal_counts():
     assert pu.mean() == pytest.approx(p2.mean(), rel=1e-7)
     assert np.ptp(pu) < 1e-4 * pu.mean()
     assert eu == pytest.approx(e1, rel=1e-5) and pu.mean() == pytest.approx(p1.mean(), rel=1e-5)
-    r = np.hypot(*une.state.positions[une.model.seam_draw[:, 0], :2].T)
+    r = np.hypot(*une.state.positions[une.model.seam_nodes.ravel(), :2].T)
     np.testing.assert_allclose(r, 0.05, atol=1e-12)
     s = une.summary()
     assert [row["ease_pct"] for row in s["seams"]] == [pytest.approx(0.0, abs=1e-9)] * 2
