@@ -4,8 +4,10 @@ A :class:`~clothsim.topology.Topology` says which nodes exist and which warp and
 join them; this module gives them their rest lengths, tributary widths and tables, adds the
 optional shear, bending and seam families (built only when a scene asks for them: an unused term
 costs nothing), and the constraint masks. Springs are stored warp first, then weft (in the
-topology's order), then shear, bending and seams. Grid sequencing's coarse models come from the
-same builder on the stride-2 lattice (:func:`coarsen_model`).
+topology's order), then shear, bending and seams. A seam of unequal node counts is not a spring:
+it is a set of seam elements (``Model.seam_nodes``, built by
+:func:`clothsim.selection.arc_elements`; none when no seam needs them). Grid sequencing's coarse
+models come from the same builder on the stride-2 lattice (:func:`coarsen_model`).
 
 Tributary width (paper Fig. 3): a warp spring carries the band of width dy around its row: half
 of it (dy/2) on each side where the lattice has a cell, so half on the bottom and top rows of a
