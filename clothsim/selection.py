@@ -253,7 +253,7 @@ def arc_elements(pa: np.ndarray, pb: np.ndarray):
     sb, Lb = _arc_fractions(pb, "b")
     slave_is_a = sa.size > sb.size
     ss, sm = (sa, sb) if slave_is_a else (sb, sa)
-    ns, nm = ss.size, sm.size
+    ns = ss.size
     # exact integrals of products of hat functions: both are linear between merged breakpoints,
     # so two-point Gauss quadrature on each merged interval is exact
     br = np.unique(np.concatenate([ss, sm]))

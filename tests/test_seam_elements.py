@@ -18,7 +18,7 @@ import clothsim
 from clothsim.compile import compile_model
 from clothsim.config import load_scene
 from clothsim.grid import FAMILY_SEAM, seam_adjacency
-from clothsim.kernels import forces_and_energy, node_force, seam_node_force
+from clothsim.kernels import node_force, seam_node_force
 from clothsim.selection import arc_elements
 
 from conftest import ROOT
