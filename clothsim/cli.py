@@ -80,6 +80,10 @@ def cmd_run(args) -> int:
               f"(it gathers: nothing holds its width)")
     if "max_seam_gap_m" in s:
         print(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
+        for n, r in enumerate(s.get("seams") or []):
+            if r["ease_pct"] > 0.01:  # an eased seam: say how much its longer side gathers
+                print(f"  seam {n}: sides {r['a_length_m']:.4g} m and {r['b_length_m']:.4g} m, ease "
+                      f"{r['ease_pct']:.1f} % (the longer side gathers), open by at most {r['max_gap_m']:.2e} m")
     if s.get("gathered_contact_nodes"):
         print(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
               f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"

@@ -172,18 +172,58 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     panels = scene_panels(scene, mold)
     if warn:
         _warn_scale(mold, panels)
+    seams, constraints = _named_vertices(scene)
     try:
         return build_model(
             panels=panels,
-            constraints=scene.constraints,
+            constraints=constraints,
             shear_stiffness=None if scene.shear is None else scene.shear.stiffness,
             bending_stiffness=None if scene.bending is None else scene.bending.stiffness,
             gravity=scene.gravity,
-            seams=scene.seams,
+            seams=seams,
             mold=mold,
         )
     except SelectionError as exc:
         raise SceneError(str(exc)) from None
+
+
+def _named_vertices(scene: Scene):
+    """The scene's seams and constraints with every outline vertex given by name (a pattern
+    piece's notch, ``edge: [notch1, notch2]``) replaced by its index in the panel's outline
+    (clothsim.patterns.Piece.vertex_names). Nothing is read unless a selector names a vertex."""
+    sels = [(f"seams.{n}.{k}", s, k) for n, s in enumerate(scene.seams) for k in ("a", "b")]
+    sels += [(f"constraints.{n}.nodes", c, "nodes") for n, c in enumerate(scene.constraints)]
+    named = [(w, o, k) for w, o, k in sels
+             if getattr(getattr(o, k), "edge", None) is not None and any(isinstance(v, str) for v in getattr(o, k).edge)]
+    if not named:
+        return scene.seams, scene.constraints
+    by_panel = {p.name: n for n, p in enumerate(scene.panels)}
+    cache: dict = {}
+    fixed: dict = {}
+    for where, obj, key in named:
+        sel = getattr(obj, key)
+        n = by_panel.get(sel.panel)
+        if n is None:
+            continue  # the builder names the unknown panel
+        if n not in cache:
+            cache[n] = dict(_pattern_piece(scene, n).vertex_names) if scene.panels[n].pattern is not None else {}
+        names = cache[n]
+        edge = []
+        for v in sel.edge:
+            if isinstance(v, str):
+                if v not in names:
+                    known = (f"its named vertices: {', '.join(names)}" if names else
+                             "it has no named vertices (names come from a pattern file's notches)")
+                    raise SceneError(f"{where}.edge: no vertex '{v}' on panel '{sel.panel}'; {known}")
+                v = names[v]
+            edge.append(v)
+        fixed[id(obj), key] = sel.model_copy(update={"edge": tuple(edge)})
+
+    def resolved(obj, keys):
+        upd = {k: fixed[id(obj), k] for k in keys if (id(obj), k) in fixed}
+        return obj.model_copy(update=upd) if upd else obj
+
+    return ([resolved(s, ("a", "b")) for s in scene.seams], [resolved(c, ("nodes",)) for c in scene.constraints])
 
 
 def _warn_scale(mold, panels) -> None:

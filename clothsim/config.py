@@ -201,13 +201,14 @@ class NodeRange(_Strict):
     With ``panels``: ``panel`` names the panel the selector reads (omitted: every panel);
     ``side`` a named set of that panel's lattice (left, right, ... as in constraints); ``edge``
     ``[v0, v1]`` the lattice nodes along the panel's outline from vertex v0 to vertex v1
-    (counter-clockwise), ordered along it."""
+    (counter-clockwise), ordered along it; a vertex is its index in the outline, or for a panel
+    read from a pattern file the name of one of its notches (``notch1``, ``notch2``, ...)."""
 
     i: IndexRange | Int | None = None
     j: IndexRange | Int | None = None
     panel: str | None = None
     side: Literal[NODE_SETS] | None = None  # type: ignore[valid-type]
-    edge: tuple[Int, Int] | None = None
+    edge: tuple[Int | str, Int | str] | None = None
 
     @model_validator(mode="after")
     def _one_kind(self):
@@ -566,10 +567,13 @@ class Seam(_Strict):
     """A sewn seam (eq. 1, F_seams): node line ``a`` is sewn to node line ``b`` of the same sheet,
     node by node in index order (``reverse: true`` pairs a's first node with b's last). Each pair
     is joined by a zero-length linear spring, the sewing force ``k * gap`` [N] pulling the two
-    nodes together, with ``k = stiffness x`` the pair's share of the seam length [m].
+    nodes together, with ``k = stiffness x`` the pair's share of the seam length [m]. Sides of
+    unequal node counts are sewn along arc length: each node of the denser side to the point of
+    the other side at the same fraction of its length (the same law, k |gap|^2 / 2); a longer
+    side gathers onto the shorter one (ease).
 
     a, b: node sets or index ranges as in constraints; each must select one line of nodes (a
-    single i or a single j) and both the same number of nodes. stiffness [N/m per metre of seam,
+    single i or a single j) or an outline edge. stiffness [N/m per metre of seam,
     N/m^2]: omitted = 1000 x the stiffest slope of the warp and weft tables / the smaller grid
     spacing, so that the seam opens by about a thousandth of a grid spacing times the strain
     across it (``summary.json: max_seam_gap_m`` says by how much)."""
@@ -926,17 +930,19 @@ class Scene(_Strict):
 
     @model_validator(mode="after")
     def _seams_fit(self):
-        """Each seam joins two node lines of equal length that do not overlap (checked here for
-        the ``fabric`` sheet; panel seams are checked when the panels' lattices are built)."""
+        """Each seam joins two node lines that are not the same (checked here for the ``fabric``
+        sheet; panel seams are checked when the panels' lattices are built)."""
         if not self.seams or self.panels:
             return self
-        from .selection import SelectionError, seam_pairs
+        from .selection import SelectionError, seam_pairs, seam_sides
         from .topology import Topology
 
         topology = Topology.rectangle(*self.fabric.divisions)
         for n, seam in enumerate(self.seams):
             try:
-                seam_pairs(seam, topology)
+                a, b, _ = seam_sides(seam, topology)
+                if a.size == b.size:
+                    seam_pairs(seam, topology)
             except SelectionError as exc:
                 raise ValueError(f"seams.{n}.{exc}") from None
         return self

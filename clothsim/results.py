@@ -72,6 +72,7 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
 
     F = np.empty((n, 3))
     forces_and_energy(positions, *model.spring_args(), model.external_force, F)
+    model.add_seam_forces(positions, F)
     k = np.nonzero(in_contact)[0]
     m = len(k)
     sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
@@ -133,6 +134,17 @@ def gathered_line_load(model, positions: np.ndarray, force: np.ndarray, gathered
         out.update(rope_length_m=length, max_line_load_n_per_m=float((f[ok] / trib[ok]).max()),
                    mean_line_load_n_per_m=float(f.sum() / length))
     return out
+
+
+def seam_report(model, positions) -> dict:
+    """Per seam (scene order) its sides' rest arc lengths [m], its ease (how much longer the
+    longer side is [%]: the longer side gathers onto the shorter) and its widest gap [m] at
+    positions (N,3) (the longest seam spring, or the farthest sewn node from the point of the
+    other side it is sewn to): {"seams": [...], "max_seam_gap_m": the widest over all seams}."""
+    gaps = model.seam_gaps(positions)
+    rows = [{"a_length_m": info.a_length, "b_length_m": info.b_length, "ease_pct": info.ease,
+             "max_gap_m": float(g.max()) if g.size else 0.0} for info, g in zip(model.seams, gaps)]
+    return {"seams": rows, "max_seam_gap_m": max(r["max_gap_m"] for r in rows)}
 
 
 def node_fields(model, state):
@@ -314,6 +326,8 @@ class Result:
             ab = self.model.spring_nodes[seam]
             pos = self.state.positions
             out["max_seam_gap_m"] = float(np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1).max())
+        if self.model.seams:
+            out.update(seam_report(self.model, self.state.positions))
         if self.model.mold is not None:
             from .contact import max_penetration
 
