@@ -48,13 +48,53 @@ def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate
 
 
 def load_mold_bytes(data: bytes, filename: str, *, scale=1.0, translate=None, rotate=None,
-                    closed: bool | None = None) -> Mold:
+                    closed: bool | None = None, max_triangles: int | None = None,
+                    progress=None) -> Mold:
     """Mold from file contents (an upload). ``filename`` only selects the format and names the
-    mold in messages; nothing is written to disk."""
+    mold in messages; nothing is written to disk.
+
+    ``max_triangles``: refuse (MoldError) a mesh with more triangles, once read and before the
+    costly build. ``progress(fraction, stage)``: told how far the parse is (0..1) between stages
+    and during the build; it may raise to abandon the parse (the exception propagates)."""
     name = str(filename)
-    V, F = _read_any(bytes(data), name)
+    if progress is not None:
+        progress(0.0, "reading the file")
+    V, F = _read_any(bytes(data) if not isinstance(data, bytes) else data, name)
+    if max_triangles is not None and len(F) > max_triangles:
+        raise MoldError(f"{name}: {len(F):,} triangles, over the limit of {max_triangles:,} for an "
+                        f"upload (simplify the mesh, or name the file in the scene)")
     V = _apply_transform(V, name, scale, translate, rotate)
-    return _build_mesh_mold(V, F, closed, name)
+    return _build_mesh_mold(V, F, closed, name, progress)
+
+
+def _cache_key(spec: MeshMoldSpec, base_dir: Path | None):
+    """(resolved path, cache key) of a mesh mold spec (file checked by mold_file_status)."""
+    path = Path(spec.path).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    st = mold_file_status(path)
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev,
+           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed)
+    return path, key
+
+
+def cache_mold(spec: Any, mold: Mold, base_dir: Path | None = None) -> None:
+    """Remember ``mold`` as what :func:`load_mold` of the mesh spec ``spec`` builds (the viewer
+    parses an upload once, off its update loop, and stores the file: loading the stored file's
+    spec then costs a cache look-up, not a second parse). The caller vouches that ``mold`` is
+    the file's content with the spec's transform."""
+    try:
+        typed = validate_mold_spec(spec)
+    except ValueError as e:
+        raise MoldError(str(e)) from None
+    if not isinstance(typed, MeshMoldSpec):
+        return
+    _path, key = _cache_key(typed, base_dir)
+    with _cache_lock:
+        _cache[key] = (mold, [])
+        _cache.move_to_end(key)
+        while len(_cache) > MOLD_CACHE_SIZE:
+            _cache.popitem(last=False)
 
 
 #: how many loaded mesh molds :func:`load_mold` keeps (least recently used dropped first)
@@ -89,12 +129,7 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
     modification time and inode) with the same scale/transform/closed returns the Mold built
     before, without reading the file or rebuilding the BVH. The warnings its build raised are
     raised again on every load."""
-    path = Path(spec.path).expanduser()
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    st = mold_file_status(path)
-    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev,
-           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed)
+    path, key = _cache_key(spec, base_dir)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None:

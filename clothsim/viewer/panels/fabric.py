@@ -1,18 +1,79 @@
 """The Fabric & mold tab: sheet size and divisions, initial lift; the mold (the scene's, a bundled
-file, a primitive or an upload) with a scale and an offset."""
+file, a primitive or an upload) with a scale and an offset.
+
+An uploaded mold is parsed once, in a worker thread (:class:`MoldUploadJob`), never on the update
+loop: every tab keeps its updates while a large mesh is read and its search tree built. The panel
+shows the parse's stage and progress and a **Cancel upload** button; the update loop polls the job
+(:meth:`FabricPanel.poll_upload`) and, when it is done, stores the file and makes it the draft's
+mold (the parsed mold is handed to the mold cache, so the stored file is not parsed again)."""
 
 from __future__ import annotations
 
+import html
+import threading
+import time
+
 import viser
 
-from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, SCENE_MOLD
+from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, MOLD_UPLOAD_MAX_TRIANGLES, SCENE_MOLD
 from . import Panel
+
+
+class UploadCancelled(Exception):
+    """Raised inside a parse when its upload was cancelled."""
+
+
+class MoldUploadJob:
+    """One uploaded mold parsed in a worker thread. ``fraction`` (0..1) and ``stage`` tell how
+    far it is; :meth:`cancel` makes the parse stop at its next progress report (between stages
+    and every few thousand search-tree nodes: within about a second); when ``done`` is set,
+    ``mold`` holds the result, or ``error`` the exception, or ``cancelled`` is true."""
+
+    def __init__(self, name: str, data: bytes, scale, offset, parse):
+        self.name, self.data, self.scale, self.offset = name, data, scale, tuple(offset)
+        self.fraction = 0.0
+        self.stage = "starting"
+        self.t0 = time.perf_counter()
+        self.mold = None
+        self.error: Exception | None = None
+        self.done = threading.Event()
+        self._cancel = threading.Event()
+        self.thread = threading.Thread(target=self._run, args=(parse,), name="clothsim-mold-upload", daemon=True)
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancel.is_set()
+
+    def cancel(self) -> None:
+        self._cancel.set()
+
+    def _progress(self, fraction: float, stage: str) -> None:
+        if self._cancel.is_set():
+            raise UploadCancelled
+        self.fraction = float(fraction)
+        self.stage = stage
+
+    def _run(self, parse) -> None:
+        try:
+            self.mold = parse(self.name, self.data, self.scale, self.offset, progress=self._progress)
+            if self._cancel.is_set():
+                self.mold = None
+        except UploadCancelled:
+            pass
+        except Exception as exc:  # noqa: BLE001 - reported on the panel's error line
+            self.error = exc
+        finally:
+            if self.mold is None:
+                self.data = b""  # free the upload at once
+            self.done.set()
 
 
 class FabricPanel(Panel):
     def __init__(self, app):
         super().__init__(app)
         self.mold_preview = None  # a validated Mold of the draft, shown until applied ("none": no mold)
+        self.job: MoldUploadJob | None = None  # the upload being parsed
+        self._job_shown = 0.0
 
     def build(self, gui) -> None:
         app, g = self.app, self.gui
@@ -36,9 +97,15 @@ class FabricPanel(Panel):
                                                   min=(-big,) * 3, max=(big,) * 3),
                                   lambda v: self.set_mold(), "mold")
         up = gui.add_upload_button("Upload mold", icon=viser.Icon.UPLOAD, mime_type="*/*",
-                                   hint="STL, OBJ, PLY, OFF, GLB, the paper's .txt, .vtk, .wrl")
+                                   hint=f"STL, OBJ, PLY, OFF, GLB, the paper's .txt, .vtk, .wrl; at most "
+                                        f"{MOLD_UPLOAD_MAX_TRIANGLES:,} triangles and "
+                                        f"{app.upload_limit / 2**20:.0f} MB")
         up.on_upload(app.upload_callback(up, self.mold_uploaded, "mold"))
         g["mold_upload"] = up
+        g["mold_progress_text"] = gui.add_html("", visible=False)
+        g["mold_progress"] = gui.add_progress_bar(0.0, visible=False, animated=True)
+        g["mold_cancel"] = gui.add_button("Cancel upload", icon=viser.Icon.X, color="red", visible=False)
+        g["mold_cancel"].on_click(lambda _e: self.cancel_upload())
         g["mold_info"] = gui.add_markdown("")
         app.err("mold")
 
@@ -110,7 +177,65 @@ class FabricPanel(Panel):
         self.refresh_mold_info()
 
     def mold_uploaded(self, name: str, data: bytes) -> None:
+        """An upload arrived (on the update loop): parse it in a worker thread (an upload still
+        being parsed is cancelled); :meth:`poll_upload` takes it from there."""
+        if self.job is not None and not self.job.done.is_set():
+            self.job.cancel()
         g = self.gui
-        label = self.app.scene_draft.add_upload(name, data, g["mold_scale"].value, g["mold_offset"].value)
+        job = MoldUploadJob(name, data, g["mold_scale"].value, g["mold_offset"].value,
+                            self.app.scene_draft.parse_upload)
+        self.job = job
+        self._job_shown = 0.0
+        self._show_progress(job)
+        job.thread.start()
+
+    def cancel_upload(self) -> None:
+        """The Cancel button (any thread): the parse stops at its next progress report."""
+        job = self.job
+        if job is not None:
+            job.cancel()
+        self.app._wake.set()
+
+    def busy(self) -> bool:
+        """An upload is being parsed."""
+        return self.job is not None
+
+    def poll_upload(self) -> None:
+        """On the update loop: show the parse's progress; when it is done, store the upload and
+        make it the draft's mold, or show why not (raises: the error line of the mold group)."""
+        job = self.job
+        if job is None:
+            return
+        if not job.done.is_set():
+            now = time.perf_counter()
+            if now - self._job_shown >= 0.25:
+                self._job_shown = now
+                self._show_progress(job)
+            return
+        self.job = None
+        self._hide_progress()
+        name = job.name[:60]
+        if job.cancelled:
+            raise ValueError(f"{name}: upload cancelled; the mold is unchanged")
+        if job.error is not None:
+            raise job.error
+        label = self.app.scene_draft.store_upload(job.name, job.data, job.mold, job.scale, job.offset)
+        job.data = b""
         self.refresh_mold_options(select=label)
         self.set_mold()
+
+    def _show_progress(self, job: MoldUploadJob) -> None:
+        g = self.gui
+        pct = 100.0 * min(max(job.fraction, 0.0), 1.0)
+        what = "cancelling" if job.cancelled else job.stage
+        g["mold_progress_text"].content = (
+            f'<div style="font-size:0.85em">Parsing <b>{html.escape(job.name[:60])}</b> '
+            f'({len(job.data) / 2**20:.1f} MB): {html.escape(what)}... {pct:.0f} % '
+            f'({time.perf_counter() - job.t0:.0f} s)</div>')
+        g["mold_progress"].value = pct
+        for k in ("mold_progress_text", "mold_progress", "mold_cancel"):
+            g[k].visible = True
+
+    def _hide_progress(self) -> None:
+        for k in ("mold_progress_text", "mold_progress", "mold_cancel"):
+            self.gui[k].visible = False
