@@ -149,7 +149,7 @@ def test_large_upload_parsed_off_the_loop_with_progress_then_cancelled(app, big_
     assert report["still_parsing"], f"the parse ended before the checks ({report}); use a larger mesh"
     assert report["progress_visible"]
     assert max(report["latencies"]) < 3.0, report  # the loop ran the edits during the parse
-    assert report["max_gap"] < 5.0 and report["updates"] >= 3, report  # the other tab kept getting updates
+    assert report["max_gap"] < 5.0 and report["updates"] >= 2, report  # the other tab kept getting updates
     prog = report["progress"]
     assert len(set(prog)) >= 3 and all(b >= a for a, b in zip(prog, prog[1:])), prog  # the bar moved
     assert report["parses"] == 1, report  # parsed once: the stored file's load hit the mold cache

@@ -230,8 +230,10 @@ def _build_mesh_mold(V, F, closed: bool | None, source: str, progress=None) -> M
     vb = np.zeros(nV, dtype=np.int64)
     vb[edges[edge_faces[:, 1] < 0].reshape(-1)] = 1
     tell("building the search tree")
-    bmin, bmax, child, rng, order = _build_bvh(
-        V, F, progress=None if progress is None else (lambda f: tell("building the search tree", f)))
+    if progress is None:
+        bmin, bmax, child, rng, order = _build_bvh(V, F)
+    else:
+        bmin, bmax, child, rng, order = _build_bvh(V, F, progress=lambda f: tell("building the search tree", f))
     params = np.zeros(16)
     params[15] = float(np.linalg.norm(V.max(0) - V.min(0)))
     maxval = int(np.diff(vf_ptr).max()) if nV else 3

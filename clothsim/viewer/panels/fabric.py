@@ -31,6 +31,7 @@ class MoldUploadJob:
 
     def __init__(self, name: str, data: bytes, scale, offset, parse):
         self.name, self.data, self.scale, self.offset = name, data, scale, tuple(offset)
+        self.size = len(data)  # [bytes]
         self.fraction = 0.0
         self.stage = "starting"
         self.t0 = time.perf_counter()
@@ -230,7 +231,7 @@ class FabricPanel(Panel):
         what = "cancelling" if job.cancelled else job.stage
         g["mold_progress_text"].content = (
             f'<div style="font-size:0.85em">Parsing <b>{html.escape(job.name[:60])}</b> '
-            f'({len(job.data) / 2**20:.1f} MB): {html.escape(what)}... {pct:.0f} % '
+            f'({job.size / 2**20:.1f} MB): {html.escape(what)}... {pct:.0f} % '
             f'({time.perf_counter() - job.t0:.0f} s)</div>')
         g["mold_progress"].value = pct
         for k in ("mold_progress_text", "mold_progress", "mold_cancel"):
