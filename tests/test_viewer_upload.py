@@ -79,7 +79,8 @@ def test_large_upload_parsed_off_the_loop_with_progress_then_cancelled(app, big_
     second or two, that tab keeps receiving updates (the progress), and the progress bar moves.
     The mesh is parsed once (storing it and making it the draft's mold load it from the mold
     cache). A second upload cancelled mid-parse stops within seconds, stores nothing and leaves
-    the mold as it was."""
+    the mold as it was. Rescaling the uploaded mold (a new parse of its file) runs off the loop
+    too; cancelled, the scale widget shows the scale in use again."""
     fabric = app.panels["fabric"]
     up_uuid = app.gui["mold_upload"]._impl.uuid
     c_uuid = app.gui["C"]._impl.uuid
@@ -141,6 +142,19 @@ def test_large_upload_parsed_off_the_loop_with_progress_then_cancelled(app, big_
             assert await _until(lambda: job.done.is_set(), 15), "cancel did not stop the parse"
             report["cancel_s"] = time.monotonic() - t0
             assert await _until(lambda: fabric.job is None, 10)
+            # ---- a rescale of the uploaded mold: its file is parsed off the loop too; cancelled
+            report["upload_cancel_error"] = app.errors["mold"]
+            scale_uuid = app.gui["mold_scale"]._impl.uuid
+            await other.send(encode(_messages.GuiUpdateMessage(scale_uuid, {"value": 2.0})))
+            assert await _until(lambda: fabric.job is not None and fabric.job.spec is not None, 30), app.errors
+            job = fabric.job
+            t0 = time.monotonic()
+            await other.send(encode(_messages.GuiUpdateMessage(c_uuid, {"value": 3.25})))
+            ok = await _until(lambda: app.sim.settings.C == 3.25, 10)
+            report["rescale_latency"] = time.monotonic() - t0 if ok else float("inf")
+            report["rescale_running"] = not job.done.is_set()
+            await other.send(encode(_messages.GuiUpdateMessage(cancel_uuid, {"value": True})))
+            assert await _until(lambda: job.done.is_set() and fabric.job is None, 30)
             watcher.cancel()
 
     asyncio.run(scenario())
@@ -154,11 +168,15 @@ def test_large_upload_parsed_off_the_loop_with_progress_then_cancelled(app, big_
     assert len(set(prog)) >= 3 and all(b >= a for a, b in zip(prog, prog[1:])), prog  # the bar moved
     assert report["parses"] == 1, report  # parsed once: the stored file's load hit the mold cache
     assert report["cancel_s"] < 5.0, report
-    assert "upload cancelled" in app.errors["mold"], app.errors
+    assert "upload cancelled" in report["upload_cancel_error"], report
     assert app.gui["mold"].value == "upload: big.stl"
     assert sorted(p.name for p in app.upload_dir.iterdir()) == ["mold_upload_1.stl"]
     assert not app.gui["mold_progress"].visible and not app.gui["mold_cancel"].visible
-    assert app.sim.settings.C == 3.0
+    # the rescale ran off the loop and, cancelled, left the mold and its widget as they were
+    assert report["rescale_running"] and report["rescale_latency"] < 3.0, report
+    assert "loading cancelled" in app.errors["mold"], app.errors
+    assert app.gui["mold_scale"].value == 1.0 and "scale" not in app.draft["mold"], app.draft["mold"]
+    assert app.sim.settings.C == 3.25
     # the uploaded mold applies without a further parse
     n = len(parsed)
     app.apply(wait=True)

@@ -46,7 +46,8 @@ Mold specs are typed in :mod:`clothsim.config` (``MoldSpec``).
 
 from .build import mold_from_arrays, mold_primitive
 from .checks import SCALE_WARNING_RATIO, mold_scale_warning, mold_size
-from .load import MOLD_CACHE_SIZE, cache_mold, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info
+from .load import (MOLD_CACHE_SIZE, cache_mold, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info,
+                   mold_cached)
 from .readers import MAX_MOLD_FILE_BYTES
 from .queries import mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
 from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MOLD_BOX, MOLD_CYLINDER, MOLD_MESH,
@@ -68,6 +69,7 @@ __all__ = [
     "QUERY_OUT_SIZE",
     "load_mold",
     "cache_mold",
+    "mold_cached",
     "load_mold_bytes",
     "clear_mold_cache",
     "mold_cache_info",

@@ -124,7 +124,22 @@ def _freeze(v: Any):
     return tuple(float(x) for x in np.asarray(v, dtype=np.float64).reshape(-1))
 
 
-def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
+def mold_cached(spec: Any, base_dir: Path | None = None) -> bool:
+    """True if :func:`load_mold` of ``spec`` would cost nothing worth waiting for: a primitive, a
+    mesh file already in the cache, or a spec that is refused at once (its error is left to
+    :func:`load_mold`)."""
+    try:
+        typed = validate_mold_spec(spec)
+        if not isinstance(typed, MeshMoldSpec):
+            return True
+        _path, key = _cache_key(typed, base_dir)
+    except (ValueError, MoldError):
+        return True
+    with _cache_lock:
+        return key in _cache
+
+
+def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None, progress=None) -> Mold:
     """A mesh mold from its file, through the cache: the same resolved file (same size,
     modification time and inode) with the same scale/transform/closed returns the Mold built
     before, without reading the file or rebuilding the BVH. The warnings its build raised are
@@ -140,7 +155,8 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             mold = load_mold_bytes(data, str(path), scale=1.0 if spec.scale is None else spec.scale,
-                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed)
+                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed,
+                                   progress=progress)
         hit = (mold, [(w.message, w.category) for w in caught])
         with _cache_lock:
             _cache_stats["misses"] += 1
@@ -153,12 +169,13 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
     return hit[0]
 
 
-def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
+def load_mold(spec: Any, base_dir: Path | None = None, progress=None) -> Mold | None:
     """Mold from a spec: ``None``; a typed :data:`clothsim.config.MoldSpec`; or the same as a
     plain mapping (checked by the same model): ``{"path": ..., "scale": s, "translate": [..],
     "rotate": [..], "closed": bool}`` (relative paths resolve against ``base_dir``), or one
     primitive ``{"sphere": {...}}``, ``{"cylinder": {...}}``, ``{"plane": {...}}``,
-    ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`). Raises MoldError."""
+    ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`); ``progress`` as in
+    :func:`load_mold_bytes` (told only when a mesh file is parsed). Raises MoldError."""
     if spec is None:
         return None
     try:
@@ -166,5 +183,5 @@ def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
     except ValueError as e:
         raise MoldError(str(e)) from None
     if isinstance(typed, MeshMoldSpec):
-        return _load_mesh_file(typed, base_dir)
+        return _load_mesh_file(typed, base_dir, progress)
     return mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())

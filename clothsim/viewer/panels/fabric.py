@@ -12,9 +12,11 @@ from __future__ import annotations
 import html
 import threading
 import time
+from pathlib import Path
 
 import viser
 
+from ...mold import load_mold, mold_cached
 from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, MOLD_UPLOAD_MAX_TRIANGLES, SCENE_MOLD
 from . import Panel
 
@@ -29,9 +31,14 @@ class MoldUploadJob:
     and every few thousand search-tree nodes: within about a second); when ``done`` is set,
     ``mold`` holds the result, or ``error`` the exception, or ``cancelled`` is true."""
 
-    def __init__(self, name: str, data: bytes, scale, offset, parse):
+    def __init__(self, name: str, data: bytes, scale, offset, parse, *, size: int | None = None,
+                 spec: dict | None = None, restore: dict | None = None):
         self.name, self.data, self.scale, self.offset = name, data, scale, tuple(offset)
-        self.size = len(data)  # [bytes]
+        self.size = len(data) if size is None else size  # [bytes]
+        # a mold file being loaded for a mold edit (not an upload): its spec, and the edit's
+        # widgets' last valid values (shown again if the load fails or is cancelled)
+        self.spec = spec
+        self.restore = restore or {}
         self.fraction = 0.0
         self.stage = "starting"
         self.t0 = time.perf_counter()
@@ -73,7 +80,7 @@ class FabricPanel(Panel):
     def __init__(self, app):
         super().__init__(app)
         self.mold_preview = None  # a validated Mold of the draft, shown until applied ("none": no mold)
-        self.job: MoldUploadJob | None = None  # the upload being parsed
+        self.job: MoldUploadJob | None = None  # the upload (or mold file) being parsed
         self._job_shown = 0.0
 
     def build(self, gui) -> None:
@@ -170,8 +177,35 @@ class FabricPanel(Panel):
                                          else "Current: no mold")
 
     def set_mold(self) -> None:
-        g = self.gui
-        spec = self.app.scene_draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value)
+        """A mold edit (choice, scale, offset). A mesh file not yet in the mold cache (a bundled
+        file chosen, an upload rescaled) is parsed in a worker thread like an upload, so the edit
+        does not stall the loop; the draft changes when it is done."""
+        app, g = self.app, self.gui
+        draft = app.scene_draft
+        spec = draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value)
+        if spec is not None:
+            base = draft.validate({**draft.data, "mold": spec}).base_dir  # field-level check first
+            if not mold_cached(spec, base):
+                if self.job is not None and not self.job.done.is_set():
+                    self.job.cancel()
+                restore = {k: app._valid[id(g[k])] for k in ("mold", "mold_scale", "mold_offset")
+                           if id(g[k]) in app._valid}
+                path = Path(spec["path"])
+                try:
+                    size = (path if path.is_absolute() or base is None else Path(base) / path).stat().st_size
+                except OSError:
+                    size = 0
+                job = MoldUploadJob(path.name, b"", g["mold_scale"].value, g["mold_offset"].value,
+                                    lambda *_a, progress: load_mold(spec, base, progress=progress),
+                                    size=size, spec=spec, restore=restore)
+                self.job = job
+                self._job_shown = 0.0
+                self._show_progress(job)
+                job.thread.start()
+                return
+        self._mold_set(spec)
+
+    def _mold_set(self, spec) -> None:
         mold = self.app.scene_draft.set_mold(spec)
         self.mold_preview = mold if mold is not None else "none"
         self.app.draft_changed(mold=True)
@@ -216,21 +250,33 @@ class FabricPanel(Panel):
         self.job = None
         self._hide_progress()
         name = job.name[:60]
+        if (job.cancelled or job.error is not None) and job.restore:
+            app = self.app
+            for k, v in job.restore.items():  # the edit did not happen: show the mold in use again
+                app._valid[id(self.gui[k])] = v
+                app._restore(self.gui[k])
         if job.cancelled:
-            raise ValueError(f"{name}: upload cancelled; the mold is unchanged")
+            raise ValueError(f"{name}: {'loading' if job.spec is not None else 'upload'} cancelled; "
+                             f"the mold is unchanged")
         if job.error is not None:
             raise job.error
+        if job.spec is not None:  # a mold edit: the file is in the mold cache now
+            self._mold_set(job.spec)
+            self.app._mark_valid("mold")
+            return
         label = self.app.scene_draft.store_upload(job.name, job.data, job.mold, job.scale, job.offset)
         job.data = b""
         self.refresh_mold_options(select=label)
         self.set_mold()
+        self.app._mark_valid("mold")  # the mold widgets show the mold in use
 
     def _show_progress(self, job: MoldUploadJob) -> None:
         g = self.gui
         pct = 100.0 * min(max(job.fraction, 0.0), 1.0)
         what = "cancelling" if job.cancelled else job.stage
         g["mold_progress_text"].content = (
-            f'<div style="font-size:0.85em">Parsing <b>{html.escape(job.name[:60])}</b> '
+            f'<div style="font-size:0.85em">{"Loading" if job.spec is not None else "Parsing"} '
+            f'<b>{html.escape(job.name[:60])}</b> '
             f'({job.size / 2**20:.1f} MB): {html.escape(what)}... {pct:.0f} % '
             f'({time.perf_counter() - job.t0:.0f} s)</div>')
         g["mold_progress"].value = pct
