@@ -55,11 +55,12 @@ from .panels.constraints import ConstraintsPanel
 from .panels.fabric import FabricPanel
 from .panels.files import FilesPanel
 from .panels.material import MaterialPanel
+from .panels.probes import ProbesPanel
 from .panels.run import RunPanel
 from .panels.solver import SolverPanel
 from .panels.view import ViewPanel
 from .plot import PLOT_POINTS, ResidualPlot
-from .render import Frame, SceneRenderer, frame_camera
+from .render import Frame, SceneRenderer, camera_box, frame_camera, needs_reframe
 
 
 class _Quiet(threading.local):
@@ -109,6 +110,7 @@ class ViewerApp:
         self._hist = (np.zeros(0), np.zeros(0))
         self._view_dirty = True
         self._mold_dirty = True
+        self._framed_model = None
         self._work_avg: float | None = None
         self.upload_dir = Path(tempfile.mkdtemp(prefix="clothsim-uploads-"))  # mkdtemp: mode 0700
         self.frames_pushed = 0
@@ -129,15 +131,18 @@ class ViewerApp:
         self.port = self.server.get_port()
         self.server.gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
         self.server.scene.set_up_direction("+z")
-        self.server.on_client_connect(lambda client: frame_camera(client, self.sim.model))
+        self.framed_box: tuple | None = None  # the box every tab's camera was last pointed at
+        self.reframes = 0
+        self.server.on_client_connect(self._frame_new_client)
         self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused)
 
         self.renderer = SceneRenderer(self.server.scene)
         self.gui: dict[str, object] = {}
         self.panels = {"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
                        "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
-                       "fabric": FabricPanel(self), "files": FilesPanel(self)}
+                       "fabric": FabricPanel(self), "files": FilesPanel(self), "probes": ProbesPanel(self)}
         self.plot = self._build_gui()
+        self.server.scene.on_click()(self.panels["probes"].on_scene_click)  # records the ray only
         self.sync_widgets()
         self._mark_valid()
         self.value_guard = GuiValueGuard(self.server, self._input_handles(), self._value_refused)
@@ -318,9 +323,11 @@ class ViewerApp:
         plot = ResidualPlot(gui, self.sim.settings.e, self.min_period)
         self.gui["plot"] = plot.handle
         p["view"].build_legend(gui)
+        p["probes"].build_readout(gui)
         tabs = gui.add_tab_group()
         for key, title in (("view", "View"), ("solver", "Solver"), ("constraints", "Constraints"),
-                           ("material", "Material"), ("fabric", "Fabric & mold"), ("files", "Files")):
+                           ("material", "Material"), ("fabric", "Fabric & mold"), ("probes", "Probes"),
+                           ("files", "Files")):
             with tabs.add_tab(title):
                 p[key].build(gui)
         return plot
@@ -452,12 +459,14 @@ class ViewerApp:
         self._mold_dirty = True
         self.scene_draft.reset_to(self.sim.scene)
         self.panels["run"].sync()
+        self.panels["probes"].reset()
 
     # ------------------------------------------------------------------ uploads
     def _upload_refused(self, client_id, message, filename: str, reason: str) -> None:
         """From viser's event loop: the upload guard refused a transfer (its parts are freed)."""
         msg = f"{filename[:60]}: {reason}"
-        group = "mold" if message.source_component_uuid == self.gui["mold_upload"]._impl.uuid else "material"
+        groups = {self.gui["mold_upload"]._impl.uuid: "mold", self.gui["scene_upload"]._impl.uuid: "files"}
+        group = groups.get(message.source_component_uuid, "material")
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
         client = self.server.get_clients().get(client_id)
         if client is not None:
@@ -476,6 +485,37 @@ class ViewerApp:
             self.post(lambda: fn(name, data), group)
 
         return cb
+
+    # ------------------------------------------------------------------ camera
+    def _frame_new_client(self, client) -> None:
+        """A new tab: its camera on the sheet as shown now."""
+        f = self._last_frame
+        frame_camera(client, self.sim.model, f.positions if f is not None and f.model is self.sim.model else None)
+
+    def frame(self, client=None) -> None:
+        """(update loop) Point the camera of ``client`` (None: every tab) at the sheet as shown."""
+        f = self._last_frame
+        model = f.model if f is not None else self.sim.model
+        pos = f.positions if f is not None else None
+        clients = [client] if client is not None else list(self.server.get_clients().values())
+        for c in clients:
+            frame_camera(c, model, pos)
+        if client is None:
+            self.framed_box = camera_box(model, pos)
+            self.reframes += 1
+
+    def _auto_frame(self, frame: Frame) -> None:
+        """Re-frame every tab when the sheet grew well beyond what the cameras were pointed at
+        (a stretch), or when the model changed (a new scene)."""
+        box = (frame.positions.min(axis=0), frame.positions.max(axis=0))
+        if self._framed_model is not frame.model:
+            self._framed_model = frame.model
+            self.framed_box = camera_box(frame.model, frame.positions)
+            if self.frames_pushed > 1:  # the first frame: tabs were framed on connecting
+                self.frame()
+            return
+        if needs_reframe(self.framed_box, box):
+            self.frame()
 
     # ------------------------------------------------------------------ display
     def _push(self) -> None:
@@ -513,7 +553,9 @@ class ViewerApp:
             self.pushed_iteration = frame.iteration
             self.frames_pushed += 1
             self._last_frame = frame
+            self._auto_frame(frame)
         self.panels["run"].update_status(running, self._last_frame)
+        self.panels["probes"].update(self._last_frame, still=not running)
         self._update_plot(running)
 
     def _update_plot(self, running: bool) -> None:
