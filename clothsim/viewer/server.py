@@ -490,7 +490,11 @@ class ViewerApp:
     def _frame_new_client(self, client) -> None:
         """A new tab: its camera on the sheet as shown now."""
         f = self._last_frame
-        frame_camera(client, self.sim.model, f.positions if f is not None and f.model is self.sim.model else None)
+        model = self.sim.model
+        # the shown frame, else the current state (the initial deformation: a wrapped sleeve is
+        # not where its flat rest positions are)
+        pos = f.positions if f is not None and f.model is model else self.sim.state.positions.copy()
+        frame_camera(client, model, pos if len(pos) == model.node_count else None)
 
     def frame(self, client=None) -> None:
         """(update loop) Point the camera of ``client`` (None: every tab) at the sheet as shown."""
@@ -510,9 +514,7 @@ class ViewerApp:
         box = (frame.positions.min(axis=0), frame.positions.max(axis=0))
         if self._framed_model is not frame.model:
             self._framed_model = frame.model
-            self.framed_box = camera_box(frame.model, frame.positions)
-            if self.frames_pushed > 1:  # the first frame: tabs were framed on connecting
-                self.frame()
+            self.frame()  # tabs that connected before this frame may have been framed on another state
             return
         if needs_reframe(self.framed_box, box):
             self.frame()

@@ -39,6 +39,9 @@ class ProbesPanel(Panel):
         self._nodes: list = []  # probe scene nodes
         self._pick_node = None
         self._shown = True
+        self.clicks = 0  # clicks received from the tabs
+        self.last_ray: tuple | None = None
+        self.misses = 0  # clicks whose ray missed the sheet
 
     # ------------------------------------------------------------------ widgets
     def build_readout(self, gui) -> None:
@@ -55,6 +58,8 @@ class ProbesPanel(Panel):
         """viser's click callback (thread pool): record the ray only."""
         with self._lock:
             self._ray = (tuple(event.ray_origin), tuple(event.ray_direction))
+            self.last_ray = self._ray
+            self.clicks += 1
         self.app.post(lambda: None)  # wake the update loop
 
     def pick_ray(self, origin, direction) -> None:
@@ -77,6 +82,8 @@ class ProbesPanel(Panel):
             if hit is not None:
                 self.picked = hit[0]
                 self._pick_key = None
+            else:
+                self.misses += 1
         if self.picked is not None and self.picked >= model.node_count:
             self.picked = None
         key = (id(model), frame.iteration, id(frame.positions))
