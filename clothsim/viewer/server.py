@@ -13,7 +13,11 @@ Threads and ownership (the pattern of viser's own examples):
   :class:`~clothsim.viewer.render.SceneRenderer`, which creates scene nodes once per model and
   updates them in place. Its rate is bounded (``max_rate_hz``, default 25) and adapts so that its
   own work stays below a few percent of the wall time: the solver's numba kernels hold the GIL,
-  so any Python the viewer runs is time the solver loses.
+  so any Python the viewer runs is time the solver loses. After each push it re-frames the tabs'
+  cameras when the sheet grew well beyond their view, and lets the probes panel read a recorded
+  click (a ray) and, on still frames, the probes;
+- the **report** download is built on a thread of its own from a Result snapshot the loop took
+  (it renders figures for seconds) and only sends the file.
 
 Every edit is validated before anything changes (an invalid value leaves the scene as it was and
 shows a red message next to the widget). Solver settings (C, e, max iterations, method) apply to
