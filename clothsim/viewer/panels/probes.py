@@ -2,8 +2,9 @@
 
 - **Probes**: each of the scene's probes is drawn on the mold as its sensor disc's outline with a
   label (``ankle 21.3 mmHg``); the tab lists them with the contact fraction and the classes.
-  Readings are taken on still frames (paused, stopped, converged): reading a probe queries the
-  mold at every node, which the viewer does not spend while the solver runs.
+  Readings are taken on still frames (paused, stopped, converged), on a thread of their own:
+  reading a probe queries the mold at thousands of points (about 0.3 s a probe on the class II
+  sleeve), which neither the solver nor the display loop should wait for.
 - **Readout**: a click on the sheet shows the nearest node's contact pressure [mmHg], warp and
   weft strain and tension [N/m] under the colour legend, and marks the node.
 
@@ -41,6 +42,8 @@ class ProbesPanel(Panel):
         self._shown = True
         self.clicks = 0  # clicks received from the tabs
         self.last_ray: tuple | None = None
+        self._job: threading.Thread | None = None  # the probe reading under way
+        self._done: tuple | None = None  # (key, iteration, readings) of a finished reading
         self.misses = 0  # clicks whose ray missed the sheet
 
     # ------------------------------------------------------------------ widgets
@@ -53,6 +56,7 @@ class ProbesPanel(Panel):
         g["show_probes"] = gui.add_checkbox("Show probes", True)
         g["show_probes"].on_update(lambda _e: app.view_changed())
         g["probes_table"] = gui.add_markdown(self.table())
+        app.err("probes")
 
     def on_scene_click(self, event) -> None:
         """viser's click callback (thread pool): record the ray only."""
@@ -95,16 +99,35 @@ class ProbesPanel(Panel):
             self.gui["readout"].content = readout_text(self.readout) + \
                 ("" if still else "  \n<small>(running: values of the frame shown)</small>")
         show = bool(self.gui["show_probes"].value)
-        if still and self._key != key:
+        if still and self._key != key and self._job is None and getattr(self.app.sim.scene, "probes", None):
             self._key = key
-            self.readings = probe_readings(self.app.sim.scene, model, frame.positions, frame.in_contact)
-            self.read_at = frame.iteration
+            self._job = threading.Thread(target=self._read, name="clothsim-probes", daemon=True,
+                                         args=(self.app.sim.scene, model, frame.positions.copy(),
+                                               frame.in_contact.copy(), frame.iteration, key))
+            self._job.start()
+        with self._lock:
+            done, self._done = self._done, None
+        if done is not None and done[0] == self._key:  # a reading of the frame shown
+            self.readings, self.read_at = done[2], done[1]
             self._draw_probes()
             self.gui["probes_table"].content = self.table()
         if show != self._shown:
             self._shown = show
             for h in self._nodes:
                 h.visible = show
+
+    def _read(self, scene, model, positions, in_contact, iteration, key) -> None:
+        """(its own thread) Read the probes on a copy of a still frame; the loop draws them."""
+        try:
+            readings = probe_readings(scene, model, positions, in_contact)
+            with self._lock:
+                self._done = (key, iteration, readings)
+        except Exception as exc:
+            msg = f"probes: {type(exc).__name__}: {exc}"
+            self.app.post(lambda: (_ for _ in ()).throw(ValueError(msg)), "probes")
+        finally:
+            self._job = None
+            self.app.post(lambda: None)  # wake the update loop
 
     def _show_pick(self, p, model) -> None:
         scene = self.app.server.scene
