@@ -192,29 +192,103 @@ class SweepBlock(_Strict):
         return self
 
 
+class FitBlock(_Strict):
+    """``fit:`` makes every run of the sweep an inverse sizing (clothsim.compression.fit, as
+    ``python app.py fit``): ``vary`` the fields (``PATH`` or ``PATH=LO:HI``; default bounds: the
+    run's start value +-30 %; a swept value of a fitted field is that run's start value) until the probes read ``target`` (``PROBE=VALUE[mmHg|Pa|kPa]``).
+    Each run's folder holds the fitted run's files plus fitted.yaml, fit.csv and fit.json; its
+    summary.json carries ``fit`` (fit.json) and the status ``not_fitted`` or ``out_of_reach`` when
+    the target was not met."""
+
+    vary: list[str] = Field(min_length=1)
+    target: list[str] = Field(min_length=1)
+    tol_mmhg: float = 0.1
+    max_solves: int = Field(default=12, ge=1, le=100)
+
+    @field_validator("vary")
+    @classmethod
+    def _vary(cls, v):
+        from .compression.fit import FitError, parse_vary
+
+        try:
+            for x in v:
+                parse_vary(x)
+        except FitError as exc:
+            raise ValueError(str(exc).replace("--vary ", "")) from None
+        return v
+
+    @field_validator("target")
+    @classmethod
+    def _target(cls, v):
+        from .compression.fit import FitError, parse_target
+
+        try:
+            for x in v:
+                parse_target(x)
+        except FitError as exc:
+            raise ValueError(str(exc).replace("--target ", "")) from None
+        return v
+
+    @field_validator("tol_mmhg")
+    @classmethod
+    def _tol(cls, v):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"must be positive and finite (got {v})")
+        return v
+
+    def parsed(self):
+        """(list of Vary, list of Target)."""
+        from .compression.fit import parse_target, parse_vary
+
+        return [parse_vary(x) for x in self.vary], [parse_target(x) for x in self.target]
+
+
+#: outputs of a fitting sweep: the fit's own (fit:PATH is the fitted value of a varied field)
+FIT_OUTPUTS = {"fit_converged": "the fit met every target within tol_mmhg",
+               "fit_solves": "solves the fit spent"}
+
+
+def _fit_output(name: str) -> bool:
+    return name.startswith("fit:") and len(name) > 4
+
+
 class SweepFile(_Strict):
     """A sweep: base scene (path relative to the sweep file), fixed overrides (``set``), the
-    parameters to vary and the outputs to tabulate and plot (keys of summary.json, max_z_m,
-    min_z_m, run_time_s, or a probe's reading: probe:NAME_mmhg, probe:NAME_pa,
-    probe:NAME_contact_fraction)."""
+    parameters to vary, an optional ``fit`` (each run an inverse sizing, see FitBlock) and the
+    outputs to tabulate and plot (keys of summary.json, max_z_m, min_z_m, run_time_s, a probe's
+    reading: probe:NAME_mmhg, probe:NAME_pa, probe:NAME_contact_fraction; with ``fit``:
+    fit:PATH, the fitted value of a varied field, fit_converged and fit_solves)."""
 
     name: str | None = None
     base: str
     fixed: dict[str, Any] = Field(default_factory=dict, alias="set")
     sweep: SweepBlock
+    fit: FitBlock | None = None
     outputs: list[str] = Field(default_factory=lambda: list(DEFAULT_OUTPUTS))
 
     @field_validator("outputs")
     @classmethod
     def _outputs(cls, v):
-        known = set(SUMMARY_KEYS) | set(EXTRA_KEYS)
+        known = set(SUMMARY_KEYS) | set(EXTRA_KEYS) | set(FIT_OUTPUTS)
         for i, name in enumerate(v):
-            if name not in known and not _probe_output(name):
+            if name not in known and not _probe_output(name) and not _fit_output(name):
                 raise ValueError(f"unknown output '{name}' (known: {', '.join(sorted(known))}, "
-                                 f"or probe:NAME_mmhg / _pa / _contact_fraction)")
+                                 f"probe:NAME_mmhg / _pa / _contact_fraction, or fit:FIELD)")
         if len(set(v)) != len(v):
             raise ValueError("an output is listed twice")
         return v
+
+    @model_validator(mode="after")
+    def _fit_outputs(self):
+        fit_outs = [o for o in self.outputs if _fit_output(o) or o in FIT_OUTPUTS]
+        if fit_outs and self.fit is None:
+            raise ValueError(f"outputs: {fit_outs[0]} needs a fit: block (fit: {{vary: [...], target: [...]}})")
+        if self.fit is not None:
+            paths = [v.path for v in self.fit.parsed()[0]]
+            for o in self.outputs:
+                if _fit_output(o) and o[4:] not in paths:
+                    raise ValueError(f"outputs: {o}: '{o[4:]}' is not a field the fit varies ({', '.join(paths)})")
+        return self
 
 
 @dataclass
@@ -314,8 +388,12 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
                                 for line in str(exc).splitlines())
         if scene is not None:
             scene._source = sweep.base_path
-            run.scene_hash = hashlib.sha1(_canonical(scene.to_dict()).encode()).hexdigest()[:16]
-            if scene.mold is not None:
+            fit = sweep.spec.fit.model_dump() if sweep.spec.fit is not None else None
+            key = scene.to_dict() if fit is None else [scene.to_dict(), fit]  # a new target reruns
+            run.scene_hash = hashlib.sha1(_canonical(key).encode()).hexdigest()[:16]
+            if fit is not None:
+                msg = _check_fit(sweep, run)
+            if scene.mold is not None and msg is None:
                 key = _canonical([scene.mold, str(scene.base_dir)])
                 if key not in molds:
                     try:
@@ -331,6 +409,19 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
     if n_bad > len(errors):
         errors.append(f"... and {n_bad - len(errors)} more invalid runs")
     return errors
+
+
+def _check_fit(sweep: Sweep, run: Run) -> str | None:
+    """A fitting sweep's run: its targets name probes of its scene and its varied fields hold
+    numbers (the message, or None)."""
+    from .compression.fit import FitError, check_fit
+
+    varies, targets = sweep.spec.fit.parsed()
+    try:
+        check_fit(run.scene, sweep.base_path, varies, targets)
+    except (FitError, SceneError) as exc:
+        return "fit: " + str(exc).replace("--target ", "target ").replace("--vary ", "vary ")
+    return None
 
 
 # ----------------------------------------------------------------------------- the worker
@@ -368,17 +459,18 @@ def run_one(task: dict) -> dict:
               "scene_hash": task.get("scene_hash", ""), "pid": os.getpid(), "host": _hostname()}
     files: dict[str, bytes] = {}
     try:
-        from .simulation import solve
+        if task.get("fit"):
+            files, result = _fit_one(task)
+        else:
+            from .simulation import solve
 
-        scene = scene_from_dict(task["scene"], task["source"])
-        result = solve(scene)
-        with tempfile.TemporaryDirectory(prefix="clothsim-run-") as td:
-            result.save(td)
-            for p in sorted(Path(td).iterdir()):
-                if p.is_file() and not p.name.startswith("."):
-                    files[p.name] = p.read_bytes()
-        z = result.positions[..., 2]
-        record["extra"] = {"max_z_m": float(z.max()), "min_z_m": float(z.min())}
+            scene = scene_from_dict(task["scene"], task["source"])
+            result = solve(scene)
+            files = _result_files(result)
+        record["extra"] = {}
+        if result is not None:
+            z = result.positions[..., 2]
+            record["extra"] = {"max_z_m": float(z.max()), "min_z_m": float(z.min())}
     except Exception as exc:  # a failing run is recorded, never raised
         summary = {"converged": False, "status": "error", "message": f"{type(exc).__name__}: {exc}"}
         files = {
@@ -392,6 +484,51 @@ def run_one(task: dict) -> dict:
     record["numba_compiled"] = m1 - m0
     record["extra"]["run_time_s"] = time.perf_counter() - t0
     return {"run_id": task["run_id"], "files": files, "record": record}
+
+
+def _result_files(result, extra=None) -> dict[str, bytes]:
+    """The files of a single headless run (Result.save into a private temporary folder), plus
+    ``extra(folder)`` writing more files there first."""
+    files = {}
+    with tempfile.TemporaryDirectory(prefix="clothsim-run-") as td:
+        if extra is not None:
+            extra(Path(td))
+        else:
+            result.save(td)
+        for p in sorted(Path(td).iterdir()):
+            if p.is_file() and not p.name.startswith("."):
+                files[p.name] = p.read_bytes()
+    return files
+
+
+def _fit_one(task: dict):
+    """One run of a fitting sweep: fit the run's scene (warm starts inside the fit) and return
+    (files, the fitted Result or None). The fitted run's files plus fitted.yaml, fit.csv and
+    fit.json; summary.json gains ``fit`` (fit.json's content) and, when the targets were not met,
+    the status ``not_fitted`` (or ``out_of_reach``, with the reachable range in the message)."""
+    from .compression.fit import FitError, FitResult, fit_data, fit_info, write_outputs
+
+    spec = FitBlock.model_validate(task["fit"])
+    varies, targets = spec.parsed()
+    try:
+        res = fit_data(task["scene"], Path(task["source"]), varies, targets, tol_mmhg=spec.tol_mmhg,
+                       max_solves=spec.max_solves)
+    except FitError as exc:
+        res = FitResult(False, str(exc), [], [], tries=exc.tries)
+        info = {**fit_info(res, varies, targets), "fields": {}, "readings_mmhg": {}}
+        summary = {"converged": False, "status": "out_of_reach", "message": str(exc), "fit": info}
+        files = {"scene.yaml": yaml.safe_dump(task["scene"], sort_keys=False).encode(),
+                 "fit.csv": res.tries_csv(varies, targets).encode(),
+                 "fit.json": json.dumps(info, indent=2).encode(),
+                 "summary.json": json.dumps(summary, indent=2).encode()}
+        return files, None
+    files = _result_files(res.result, lambda d: write_outputs(res, d, varies, targets))
+    summary = json.loads(files["summary.json"])
+    summary["fit"] = fit_info(res, varies, targets)
+    if not res.converged:
+        summary.update(converged=False, status="not_fitted", message=res.message)
+    files["summary.json"] = json.dumps(summary, indent=2).encode()
+    return files, res.result
 
 
 def warm_cache(task: dict) -> dict:
@@ -536,6 +673,12 @@ def read_row(out: Path, run: Run) -> dict:
         for p in row.get("probes") or []:  # probe outputs: probe:NAME_mmhg, _pa, _contact_fraction
             for key, field in PROBE_OUTPUTS.items():
                 row[f"probe:{p['name']}_{key}"] = p.get(field)
+        fit = row.get("fit")
+        if isinstance(fit, dict):  # a fitting sweep's run: fit:PATH, fit_converged, fit_solves
+            for path, value in (fit.get("fields") or {}).items():
+                row[f"fit:{path}"] = value
+            row["fit_converged"] = fit.get("converged")
+            row["fit_solves"] = fit.get("solves")
     except (OSError, ValueError):
         try:
             row.update(json.loads((d / "crashed.json").read_text()))
@@ -736,7 +879,8 @@ def _hms(s: float) -> str:
 
 def _task(run: Run, sweep: Sweep) -> dict:
     return {"run_id": run.run_id, "index": run.index, "params": run.params, "scene": run.scene,
-            "source": str(sweep.base_path), "scene_hash": run.scene_hash}
+            "source": str(sweep.base_path), "scene_hash": run.scene_hash,
+            "fit": sweep.spec.fit.model_dump() if sweep.spec.fit is not None else None}
 
 
 _THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")

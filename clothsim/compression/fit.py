@@ -40,7 +40,12 @@ from . import MMHG
 
 
 class FitError(ValueError):
-    """A fit that cannot run or cannot reach its target (message says why)."""
+    """A fit that cannot run or cannot reach its target (message says why). ``tries``: the
+    solves spent before it was refused (empty for bad input)."""
+
+    def __init__(self, message: str, tries: list | None = None):
+        super().__init__(message)
+        self.tries = list(tries or [])
 
 
 @dataclass
@@ -214,20 +219,36 @@ def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, ov
         tol_mmhg: float = 0.1, max_solves: int = 12, log=None) -> FitResult:
     """Find field values whose probe readings meet the targets within ``tol_mmhg`` (see the module
     docstring). Raises FitError on bad input or an unreachable target (with the reachable range)."""
-    from ..config import apply_overrides, read_yaml, scene_from_dict
+    from ..config import apply_overrides, read_yaml
 
-    if not varies or not targets:
-        raise FitError("fit needs at least one --vary and one --target")
     scene_path = Path(scene_path)
     data, _ = read_yaml(scene_path)
     data = apply_overrides(data, overrides or [])
-    scene = scene_from_dict(copy.deepcopy(data), scene_path)
+    return fit_data(data, scene_path, varies, targets, tol_mmhg=tol_mmhg, max_solves=max_solves, log=log)
+
+
+def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list[Target]) -> list[float]:
+    """Check a fit before any solve: the scene validates, every target names one of its probes and
+    every varied path holds a number. Returns the start values; raises FitError (or SceneError)."""
+    from ..config import scene_from_dict
+
+    if not varies or not targets:
+        raise FitError("fit needs at least one --vary and one --target")
+    scene = scene_from_dict(copy.deepcopy(data), source)
     names = [p.name for p in scene.probes]
     for t in targets:
         if t.probe not in names:
             raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
                            f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
-    x0 = [_get_path(data, v.path) for v in varies]
+    return [_get_path(data, v.path) for v in varies]
+
+
+def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[Target], *,
+             tol_mmhg: float = 0.1, max_solves: int = 12, log=None) -> FitResult:
+    """:func:`fit` on a raw scene dict (as in the YAML; ``source``: the file its relative paths
+    resolve against). The sweep runner calls this for each run of a sweep with a ``fit:`` block."""
+    x0 = check_fit(data, source, varies, targets)
+    scene_path = source
     lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
     hi = [v.hi if v.hi is not None else x + 0.3 * abs(x) for v, x in zip(varies, x0)]
     for v, x, a, b in zip(varies, x0, lo, hi):
@@ -273,7 +294,7 @@ def _secant(f: _Solver, x0: float, lo: float, hi: float, tol: float, max_solves:
         a, b = sorted((p_lo, p_hi))
         raise FitError(f"target {target.probe} = {target.mmhg:.2f} mmHg is out of reach: {vary.path} from {lo:.6g} "
                        f"to {hi:.6g} gives {a:.2f} to {b:.2f} mmHg (reachable range; widen it with "
-                       f"--vary {vary.path}=LO:HI)")
+                       f"--vary {vary.path}=LO:HI)", f.tries)
 
     r0 = ev(x0)
     if done(r0):
@@ -377,10 +398,15 @@ def write_outputs(res: FitResult, out: str | Path, varies: list[Vary], targets: 
     if res.result is not None:  # file references made absolute, so it runs from anywhere
         atomic_write_bytes(out / "fitted.yaml", res.result.scene.resolved().to_yaml().encode())
     atomic_write_bytes(out / "fit.csv", res.tries_csv(varies, targets).encode())
-    info = {"converged": res.converged, "message": res.message,
+    atomic_write_bytes(out / "fit.json", json.dumps(fit_info(res, varies, targets), indent=2).encode())
+    return out
+
+
+def fit_info(res: FitResult, varies: list[Vary], targets: list[Target]) -> dict:
+    """What fit.json holds: converged, message, fields {path: value}, targets_mmhg,
+    readings_mmhg {probe: mmHg} and the number of solves."""
+    return {"converged": res.converged, "message": res.message,
             "fields": {v.path: x for v, x in zip(varies, res.values)},
             "targets_mmhg": {t.probe: t.mmhg for t in targets},
             "readings_mmhg": {t.probe: p for t, p in zip(targets, res.readings_mmhg)},
             "solves": len(res.tries)}
-    atomic_write_bytes(out / "fit.json", json.dumps(info, indent=2).encode())
-    return out

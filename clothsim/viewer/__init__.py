@@ -1,9 +1,11 @@
 """The browser viewer (viser), split by job:
 
 - :mod:`.server`: :class:`ViewerApp`, the viser server and its one update loop;
-- :mod:`.draft`: :class:`SceneDraft`, the edited scene with typed edit operations (no viser);
+- :mod:`.draft`: :class:`SceneDraft`, the edited scene with typed edit operations, and scene
+  files (the scene + files zip, opening an uploaded scene) (no viser);
 - :mod:`.panels`: one module per GUI panel (run, view, solver, constraints, material,
-  fabric & mold, files);
+  fabric & mold, probes and the click readout, files);
+- :mod:`.pick`: the node under a click, its readout, the probes' readings and rings (no viser);
 - :mod:`.render` (scene nodes, camera), :mod:`.glb` (GLB writer, colour map) and :mod:`.fields`
   (per-node fields): rendering;
 - :mod:`.plot`: the residual plot;

@@ -400,7 +400,140 @@ class SceneDraft:
         head = f"# saved by the clothsim viewer on {time.strftime('%Y-%m-%d %H:%M')}\n"
         mold = self.data.get("mold") or {}  # the draft's own spec (a dict, as in the YAML)
         if self.upload_dir is not None and str(self.upload_dir) in str(mold.get("path", "")):
-            head += "# the mold was uploaded: its temporary copy disappears when the viewer stops\n"
+            head += ("# the mold was uploaded: its temporary copy disappears when the viewer stops; "
+                     "'Save scene + files (.zip)' keeps it\n")
         if self.pending:
             head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"
         return head + scene.to_yaml()
+
+    def scene_zip(self) -> bytes:
+        """The draft and the files it references (an uploaded mold included) as a zip that reruns
+        anywhere (see :func:`scene_zip_bytes`)."""
+        head = (f"# saved by the clothsim viewer on {time.strftime('%Y-%m-%d %H:%M')}\n"
+                "# unzip and run: python app.py run scene.yaml (file references are relative to this file)\n")
+        if self.pending:
+            head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"
+        return scene_zip_bytes(self.validate(), head)
+
+
+# ---------------------------------------------------------------------- scene files: zip, open
+SCENE_EXTS = (".yaml", ".yml", ".zip")
+ZIP_MAX_MEMBERS = 200
+
+
+def _safe_name(name: str) -> str:
+    """A plain file name (letters, digits, '._-'), never a path."""
+    base = re.sub(r"[^A-Za-z0-9._-]", "_", Path(str(name)).name)[:80].lstrip(".")
+    return base or "file"
+
+
+def scene_zip_bytes(scene: Scene, head: str = "") -> bytes:
+    """A zip holding ``scene.yaml`` and every file the scene references (mold mesh, CSV tables,
+    pattern files, initial positions) under ``files/``, the scene's references rewritten to those
+    relative paths: unzip it anywhere and ``python app.py run scene.yaml`` reruns it. The mold is
+    stored as ``files/mold<ext>``, the others under their own names."""
+    import io
+    import zipfile
+
+    import yaml
+
+    d = scene.resolved().to_dict()
+    stored: dict[str, str] = {}  # source path -> name in the zip
+    used: set[str] = set()
+
+    def add(path: str, name: str | None = None) -> str:
+        src = str(Path(path).resolve())
+        if src not in stored:
+            arc = "files/" + (name or _safe_name(Path(src).name))
+            k = 1
+            while arc in used:
+                k += 1
+                stem, ext = Path(arc).stem, Path(arc).suffix
+                arc = f"files/{stem}_{k}{ext}"
+            used.add(arc)
+            stored[src] = arc
+        return stored[src]
+
+    if (d.get("mold") or {}).get("path"):
+        d["mold"]["path"] = add(d["mold"]["path"], "mold" + Path(d["mold"]["path"]).suffix.lower())
+    for panel in d.get("panels", []):
+        if panel.get("pattern"):
+            panel["pattern"]["file"] = add(panel["pattern"]["file"])
+    for holder in [d["fabric"]] + d.get("panels", []):
+        for key in ("warp", "weft"):
+            if (holder.get(key) or {}).get("csv"):
+                holder[key]["csv"] = add(holder[key]["csv"])
+    if d.get("initial", {}).get("file"):
+        d["initial"]["file"] = add(d["initial"]["file"])
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("scene.yaml", head + yaml.safe_dump(d, sort_keys=False))
+        for src, arc in stored.items():
+            z.write(src, arc)
+    return buf.getvalue()
+
+
+def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> Scene:
+    """A scene uploaded to the viewer (a ``.yaml`` or a ``.zip`` as *Save scene + files* writes
+    it), validated like a scene file given on the command line. The file (or the zip's members)
+    is written into ``dest``, a new private folder, so that relative references resolve inside it.
+    A zip must hold exactly one ``.yaml`` at its top level (``scene.yaml`` preferred), at most
+    ZIP_MAX_MEMBERS members of at most ``limit_bytes`` in all once unpacked, no absolute path,
+    no ``..`` and no link. Raises SceneError with the uploaded file's name (never ``dest``)."""
+    import zipfile
+
+    label = _safe_name(name)
+    ext = Path(str(name)).suffix.lower()
+    if ext not in SCENE_EXTS:
+        raise SceneError(f"{label}: a scene is a .yaml file or a .zip of scene.yaml and its files (got '{ext or 'no extension'}')")
+    dest.mkdir(mode=0o700, parents=True, exist_ok=False)
+    if ext == ".zip":
+        import io
+
+        try:
+            z = zipfile.ZipFile(io.BytesIO(data))
+            infos = z.infolist()
+        except (zipfile.BadZipFile, ValueError, OSError) as exc:
+            raise SceneError(f"{label}: not a readable zip ({exc})") from None
+        if len(infos) > ZIP_MAX_MEMBERS:
+            raise SceneError(f"{label}: {len(infos)} members, more than {ZIP_MAX_MEMBERS}")
+        if sum(i.file_size for i in infos) > limit_bytes:
+            raise SceneError(f"{label}: unpacks to more than the upload limit of {limit_bytes / 2**20:.0f} MB")
+        for i in infos:
+            parts = Path(i.filename).parts
+            is_link = (i.external_attr >> 16) & 0o170000 == 0o120000
+            if i.filename.startswith(("/", "\\")) or ".." in parts or ":" in i.filename or is_link:
+                raise SceneError(f"{label}: member {i.filename[:60]!r} is not a plain relative path")
+        yamls = [i.filename for i in infos if "/" not in i.filename.rstrip("/")
+                 and Path(i.filename).suffix.lower() in (".yaml", ".yml")]
+        if "scene.yaml" in yamls:
+            yamls = ["scene.yaml"]
+        if len(yamls) != 1:
+            raise SceneError(f"{label}: the zip must hold one scene .yaml at its top level (found "
+                             f"{', '.join(yamls) or 'none'})")
+        written = 0
+        for i in infos:
+            if i.is_dir():
+                continue
+            target = dest / i.filename
+            target.parent.mkdir(parents=True, exist_ok=True)
+            with z.open(i) as src:
+                blob = src.read(limit_bytes + 1 - written)
+            written += len(blob)
+            if written > limit_bytes:
+                raise SceneError(f"{label}: unpacks to more than the upload limit of {limit_bytes / 2**20:.0f} MB")
+            target.write_bytes(blob)
+        path = dest / yamls[0]
+    else:
+        path = dest / label
+        path.write_bytes(data)
+    from ..config import load_scene
+
+    try:
+        scene = load_scene(path)
+        if scene.mold is not None:
+            load_mold(scene.mold, scene.base_dir)
+    except (SceneError, MoldError, MaterialError) as exc:
+        msg = str(exc).replace(str(path), label).replace(str(dest) + "/", "")
+        raise type(exc)(msg) from None
+    return scene

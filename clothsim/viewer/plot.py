@@ -12,6 +12,9 @@ import numpy as np
 
 PLOT_POINTS = 1500
 TOP_PAD = 10.0 ** (1 / 3)  # room above the top tick label (issue 15, item 24)
+#: uPlot padding [px] (top, right, bottom, left): in the browser the chart's canvas starts at the
+#: top tick, whatever the scale's range, and cut that tick's label in half without it
+PADDING = (14, 12, 0, 0)
 
 
 def thin(x: np.ndarray, y: np.ndarray, n: int = PLOT_POINTS) -> tuple[np.ndarray, np.ndarray]:
@@ -44,7 +47,7 @@ class ResidualPlot:
                     {"label": "||V||inf [N]", "stroke": "#1c7ed6", "width": 1.5},
                     {"label": "target e", "stroke": "#e03131", "width": 1.0, "dash": (6.0, 4.0)}),
             scales={"x": {"time": False}, "y": {"distr": 3, "log": 10}},
-            title="Convergence", aspect=1.8)
+            title="Convergence", aspect=1.8, padding=PADDING)
         self._key: tuple | None = None
         self._axes_key: tuple | None = None
         self._last = 0.0

@@ -16,6 +16,9 @@ from .glb import GlbMeshWriter, colormap, vertex_normals
 
 MOLD_GREY = (150, 150, 160)
 MOLD_PENDING = (235, 140, 50)  # a mold shown before it is applied
+#: the sheet is slightly see-through by default, so that a mold under it shows (issue 15, item 24:
+#: the default scene's mold was hidden under the opaque sheet)
+DEFAULT_SHEET_OPACITY = 0.8
 
 
 @dataclass
@@ -38,7 +41,7 @@ class ViewSettings:
     auto_range: bool = True
     range_min: float = 0.0
     range_max: float = 1.0
-    sheet_opacity: float = 1.0
+    sheet_opacity: float = DEFAULT_SHEET_OPACITY
     show_fixed: bool = True
     show_mold: bool = True
     mold_opacity: float = 0.6
@@ -227,9 +230,45 @@ class SceneRenderer:
         return legend_text(view.field, self.field_key, lo, hi, uniform)
 
 
-def frame_camera(client, model) -> None:
-    """Point a newly connected tab's camera at the sheet and its mold."""
-    p = model.rest_positions
+def frame_camera(client, model, positions: np.ndarray | None = None) -> None:
+    """Point a tab's camera at the sheet (its ``positions`` [m] (N, 3), default the rest
+    positions) and its mold."""
+    lo, hi = camera_box(model, positions)
+    c = 0.5 * (lo + hi)
+    r = max(float(np.linalg.norm(hi - lo)) * 0.5, 1e-3)
+    d = np.array([0.45, -1.0, 0.8])
+    client.camera.up_direction = (0.0, 0.0, 1.0)
+    client.camera.position = tuple(c + 1.6 * r * d / np.linalg.norm(d))
+    client.camera.look_at = tuple(c)
+    client.camera.near = r * 0.01
+    client.camera.far = r * 100.0
+
+
+#: re-frame when the sheet leaves the framed box grown by this share of its diagonal (issue 15,
+#: item 24: a stretched sheet ran off the screen)
+REFRAME_GROWTH = 0.25
+
+
+def needs_reframe(framed, box) -> bool:
+    """True if ``box`` (lo (3,), hi (3,)) [m] reaches beyond ``framed`` (the box the camera was
+    last pointed at; None: never framed) by more than REFRAME_GROWTH of framed's diagonal."""
+    if framed is None:
+        return True
+    flo, fhi = (np.asarray(x, float) for x in framed)
+    lo, hi = (np.asarray(x, float) for x in box)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return False
+    margin = REFRAME_GROWTH * max(float(np.linalg.norm(fhi - flo)), 1e-9)
+    return bool((lo < flo - margin).any() or (hi > fhi + margin).any())
+
+
+def camera_box(model, positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) [m] of the sheet (``positions``, default the rest positions) and, when it is not
+    much larger than the sheet, the mold: what the camera frames."""
+    p = model.rest_positions if positions is None else positions
+    p = p[np.isfinite(p).all(axis=1)]
+    if not len(p):
+        p = model.rest_positions
     lo, hi = p.min(axis=0), p.max(axis=0)
     if model.mold is not None:
         try:
@@ -239,11 +278,4 @@ def frame_camera(client, model) -> None:
                 lo, hi = np.minimum(lo, mb[0]), np.maximum(hi, mb[1])
         except Exception:
             pass
-    c = 0.5 * (lo + hi)
-    r = max(float(np.linalg.norm(hi - lo)) * 0.5, 1e-3)
-    d = np.array([0.45, -1.0, 0.8])
-    client.camera.up_direction = (0.0, 0.0, 1.0)
-    client.camera.position = tuple(c + 1.6 * r * d / np.linalg.norm(d))
-    client.camera.look_at = tuple(c)
-    client.camera.near = r * 0.01
-    client.camera.far = r * 100.0
+    return lo, hi

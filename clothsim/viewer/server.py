@@ -13,7 +13,11 @@ Threads and ownership (the pattern of viser's own examples):
   :class:`~clothsim.viewer.render.SceneRenderer`, which creates scene nodes once per model and
   updates them in place. Its rate is bounded (``max_rate_hz``, default 25) and adapts so that its
   own work stays below a few percent of the wall time: the solver's numba kernels hold the GIL,
-  so any Python the viewer runs is time the solver loses.
+  so any Python the viewer runs is time the solver loses. After each push it re-frames the tabs'
+  cameras when the sheet grew well beyond their view, and lets the probes panel read a recorded
+  click (a ray) and, on still frames, the probes;
+- the **report** download is built on a thread of its own from a Result snapshot the loop took
+  (it renders figures for seconds) and only sends the file.
 
 Every edit is validated before anything changes (an invalid value leaves the scene as it was and
 shows a red message next to the widget). Solver settings (C, e, max iterations, method) apply to
@@ -55,11 +59,12 @@ from .panels.constraints import ConstraintsPanel
 from .panels.fabric import FabricPanel
 from .panels.files import FilesPanel
 from .panels.material import MaterialPanel
+from .panels.probes import ProbesPanel
 from .panels.run import RunPanel
 from .panels.solver import SolverPanel
 from .panels.view import ViewPanel
 from .plot import PLOT_POINTS, ResidualPlot
-from .render import Frame, SceneRenderer, frame_camera
+from .render import Frame, SceneRenderer, camera_box, frame_camera, needs_reframe
 
 
 STARTUP_NOTE = "Compiling kernels (first run only)"
@@ -144,6 +149,7 @@ class ViewerApp:
         self._hist = (np.zeros(0), np.zeros(0))
         self._view_dirty = True
         self._mold_dirty = True
+        self._framed_model = None
         self._work_avg: float | None = None
         self.upload_dir = Path(tempfile.mkdtemp(prefix="clothsim-uploads-"))  # mkdtemp: mode 0700
         self.frames_pushed = 0
@@ -167,6 +173,8 @@ class ViewerApp:
         self.port = self.server.get_port()
         self.server.gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
         self.server.scene.set_up_direction("+z")
+        self.framed_box: tuple | None = None  # the box every tab's camera was last pointed at
+        self.reframes = 0
         self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused)
 
         if background:
@@ -190,12 +198,14 @@ class ViewerApp:
         if self._stop.is_set():
             return
         self.scene_draft = SceneDraft(scene, upload_dir=self.upload_dir)
-        self.server.on_client_connect(lambda client: frame_camera(client, self.sim.model))
+        self.server.on_client_connect(self._frame_new_client)  # registered once the model exists
         self.renderer = SceneRenderer(self.server.scene)
         self.panels.update({"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
                             "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
-                            "fabric": FabricPanel(self), "files": FilesPanel(self)})
+                            "fabric": FabricPanel(self), "files": FilesPanel(self),
+                            "probes": ProbesPanel(self)})
         self.plot = self._build_gui()
+        self.server.scene.on_click()(self.panels["probes"].on_scene_click)  # records the ray only
         self.sync_widgets()
         self._mark_valid()
         self.value_guard = GuiValueGuard(self.server, self._input_handles(), self._value_refused)
@@ -232,7 +242,7 @@ class ViewerApp:
             return
         for client in list(self.server.get_clients().values()):  # tabs opened while compiling
             try:
-                frame_camera(client, self.sim.model)
+                self._frame_new_client(client)
             except Exception:  # noqa: BLE001 - a tab that just closed
                 pass
         self._startup_note.remove()
@@ -422,9 +432,11 @@ class ViewerApp:
         plot = ResidualPlot(gui, self.sim.settings.e, self.min_period)
         self.gui["plot"] = plot.handle
         p["view"].build_legend(gui)
+        p["probes"].build_readout(gui)
         tabs = gui.add_tab_group()
         for key, title in (("view", "View"), ("solver", "Solver"), ("constraints", "Constraints"),
-                           ("material", "Material"), ("fabric", "Fabric & mold"), ("files", "Files")):
+                           ("material", "Material"), ("fabric", "Fabric & mold"), ("probes", "Probes"),
+                           ("files", "Files")):
             with tabs.add_tab(title):
                 p[key].build(gui)
         return plot
@@ -577,14 +589,15 @@ class ViewerApp:
         self._mold_dirty = True
         self.scene_draft.reset_to(self.sim.scene)
         self.panels["run"].sync()
+        self.panels["probes"].reset()
 
     # ------------------------------------------------------------------ uploads
     def _upload_refused(self, client_id, message, filename: str, reason: str) -> None:
         """From viser's event loop: the upload guard refused a transfer (its parts are freed)."""
         msg = f"{filename[:60]}: {reason}"
-        mold_upload = self.gui.get("mold_upload")
-        group = "mold" if mold_upload is not None and message.source_component_uuid == mold_upload._impl.uuid \
-            else "material"
+        groups = {self.gui[k]._impl.uuid: g for k, g in (("mold_upload", "mold"), ("scene_upload", "files"))
+                  if k in self.gui}
+        group = groups.get(message.source_component_uuid, "material")
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
         client = self.server.get_clients().get(client_id)
         if client is not None:
@@ -603,6 +616,39 @@ class ViewerApp:
             self.post(lambda: fn(name, data), group)
 
         return cb
+
+    # ------------------------------------------------------------------ camera
+    def _frame_new_client(self, client) -> None:
+        """A new tab: its camera on the sheet as shown now."""
+        f = self._last_frame
+        model = self.sim.model
+        # the shown frame, else the current state (the initial deformation: a wrapped sleeve is
+        # not where its flat rest positions are)
+        pos = f.positions if f is not None and f.model is model else self.sim.state.positions.copy()
+        frame_camera(client, model, pos if len(pos) == model.node_count else None)
+
+    def frame(self, client=None) -> None:
+        """(update loop) Point the camera of ``client`` (None: every tab) at the sheet as shown."""
+        f = self._last_frame
+        model = f.model if f is not None else self.sim.model
+        pos = f.positions if f is not None else None
+        clients = [client] if client is not None else list(self.server.get_clients().values())
+        for c in clients:
+            frame_camera(c, model, pos)
+        if client is None:
+            self.framed_box = camera_box(model, pos)
+            self.reframes += 1
+
+    def _auto_frame(self, frame: Frame) -> None:
+        """Re-frame every tab when the sheet grew well beyond what the cameras were pointed at
+        (a stretch), or when the model changed (a new scene)."""
+        box = (frame.positions.min(axis=0), frame.positions.max(axis=0))
+        if self._framed_model is not frame.model:
+            self._framed_model = frame.model
+            self.frame()  # tabs that connected before this frame may have been framed on another state
+            return
+        if needs_reframe(self.framed_box, box):
+            self.frame()
 
     # ------------------------------------------------------------------ display
     def _push(self) -> None:
@@ -640,7 +686,9 @@ class ViewerApp:
             self.pushed_iteration = frame.iteration
             self.frames_pushed += 1
             self._last_frame = frame
+            self._auto_frame(frame)
         self.panels["run"].update_status(running, self._last_frame)
+        self.panels["probes"].update(self._last_frame, still=not running)
         self._update_plot(running)
 
     def _update_plot(self, running: bool) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ..fields import FIELDS
 from ..glb import colorbar_image
-from ..render import ViewSettings
+from ..render import DEFAULT_SHEET_OPACITY, ViewSettings
 from . import Panel
 
 
@@ -24,7 +24,8 @@ class ViewPanel(Panel):
         g["auto_range"] = gui.add_checkbox("Auto range", True)
         g["range_min"] = gui.add_number("Range min", 0.0, min=-1e12, max=1e12)
         g["range_max"] = gui.add_number("Range max", 1.0, min=-1e12, max=1e12)
-        g["sheet_opacity"] = gui.add_slider("Sheet opacity", min=0.2, max=1.0, step=0.05, initial_value=1.0)
+        g["sheet_opacity"] = gui.add_slider("Sheet opacity", min=0.2, max=1.0, step=0.05,
+                                            initial_value=DEFAULT_SHEET_OPACITY)
         for k in ("field", "auto_range", "range_min", "range_max", "sheet_opacity"):
             g[k].on_update(lambda _e: app.view_changed())
         g["show_fixed"] = gui.add_checkbox("Show constrained nodes", True)
@@ -32,6 +33,9 @@ class ViewPanel(Panel):
         g["mold_opacity"] = gui.add_slider("Mold opacity", min=0.1, max=1.0, step=0.05, initial_value=0.6)
         for k in ("show_fixed", "show_mold", "mold_opacity"):
             g[k].on_update(lambda _e: app.view_changed(mold=True))
+        g["frame"] = gui.add_button("Frame the sheet", hint="point the camera at the sheet as it is now "
+                                                            "(also done when a stretch takes it off the view)")
+        g["frame"].on_click(lambda e: app.post(lambda: app.frame(e.client)) if e.client is not None else None)
 
     def settings(self) -> ViewSettings:
         g = self.gui
