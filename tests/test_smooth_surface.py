@@ -41,7 +41,7 @@ def _phi_brute(mold, P):
     """phi and grad phi over all vertices (no BVH), numpy, from the formula of
     clothsim.mold.smooth: the vertices' jets blended with Wendland weights."""
     V, N, J = mold.vertices, mold.vertex_normals, mold.vertex_jets
-    t1, t2, (a, b, c, d, e), rv, k4 = J[:, 0:3], J[:, 3:6], J[:, 6:11].T, J[:, 11], J[:, 12]
+    t1, t2, (a, b, c, d, e, f, g, k, l), rv, k4 = J[:, 0:3], J[:, 3:6], J[:, 6:15].T, J[:, 15], J[:, 16]
     phi = np.empty(len(P))
     grad = np.empty((len(P), 3))
     for i, p in enumerate(P):
@@ -52,10 +52,12 @@ def _phi_brute(mold, P):
         gw = (-20 * k4[m] * (1 - t[m]) ** 3 / rv[m] ** 2)[:, None] * D[m]
         x1 = np.einsum("ij,ij->i", D[m], t1[m])
         x2 = np.einsum("ij,ij->i", D[m], t2[m])
-        s = (np.einsum("ij,ij->i", D[m], N[m])
-             - (a[m] * x1 + b[m] * x2 + c[m] * x1 ** 2 / 2 + d[m] * x1 * x2 + e[m] * x2 ** 2 / 2))
-        gs = (N[m] - (a[m] + c[m] * x1 + d[m] * x2)[:, None] * t1[m]
-              - (b[m] + d[m] * x1 + e[m] * x2)[:, None] * t2[m])
+        hv = (a[m] * x1 + b[m] * x2 + c[m] * x1 ** 2 / 2 + d[m] * x1 * x2 + e[m] * x2 ** 2 / 2
+              + f[m] * x1 ** 3 / 6 + g[m] * x1 ** 2 * x2 / 2 + k[m] * x1 * x2 ** 2 / 2 + l[m] * x2 ** 3 / 6)
+        h1 = a[m] + c[m] * x1 + d[m] * x2 + f[m] * x1 ** 2 / 2 + g[m] * x1 * x2 + k[m] * x2 ** 2 / 2
+        h2 = b[m] + d[m] * x1 + e[m] * x2 + g[m] * x1 ** 2 / 2 + k[m] * x1 * x2 + l[m] * x2 ** 2 / 2
+        s = np.einsum("ij,ij->i", D[m], N[m]) - hv
+        gs = N[m] - h1[:, None] * t1[m] - h2[:, None] * t2[m]
         W = w.sum()
         phi[i] = (w * s).sum() / W
         grad[i] = ((w[:, None] * gs).sum(0) + (s[:, None] * gw).sum(0) - phi[i] * gw.sum(0)) / W

@@ -11,9 +11,9 @@ and of Ohtake et al. 2003, "Multi-level partition of unity implicits", SIGGRAPH)
 
     phi(x) = sum_v w_v(x) s_v(x) / sum_v w_v(x),     w_v(x) = psi(|x - v| / r_v)
     s_v(x) = (x - v) . n_v - h_v(x1, x2),             x1 = (x - v) . t1_v,  x2 = (x - v) . t2_v
-    h_v = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2
+    h_v = a x1 + b x2 + c x1^2/2 + d x1 x2 + e x2^2/2 + f x1^3/6 + g x1^2 x2/2 + k x1 x2^2/2 + l x2^3/6
 
-n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the quadratic
+n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the cubic
 height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
 ``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
 = 0), r_v [m] the vertex's blending radius: the smoothing radius r (``params[14]``; default 1.5
@@ -112,13 +112,13 @@ def _blend(margs, x, y, z, r, g, stack):
                 dy = y - V[v, 1]
                 dz = z - V[v, 2]
                 d2 = dx * dx + dy * dy + dz * dz
-                rv = J[v, 11]
+                rv = J[v, 15]
                 if d2 >= rv * rv:
                     continue
                 t = math.sqrt(d2) / rv
                 om = 1.0 - t
                 om3 = om * om * om
-                k4 = J[v, 12]
+                k4 = J[v, 16]
                 w = k4 * om3 * om * (4.0 * t + 1.0)
                 # grad w = k4 psi'(t)/rv * (x - v)/|x - v| = -20 k4 (1 - t)^3 (x - v) / rv^2
                 a = -20.0 * k4 * om3 / (rv * rv)
@@ -136,10 +136,19 @@ def _blend(margs, x, y, z, r, g, stack):
                 cc = J[v, 8]
                 cd = J[v, 9]
                 ce = J[v, 10]
-                s = (dx * nx + dy * ny + dz * nz
-                     - (ca * x1 + cb * x2 + 0.5 * cc * x1 * x1 + cd * x1 * x2 + 0.5 * ce * x2 * x2))
-                h1 = ca + cc * x1 + cd * x2
-                h2 = cb + cd * x1 + ce * x2
+                cf = J[v, 11]
+                cg = J[v, 12]
+                ck = J[v, 13]
+                cl = J[v, 14]
+                q11 = x1 * x1
+                q12 = x1 * x2
+                q22 = x2 * x2
+                hv = (ca * x1 + cb * x2 + 0.5 * cc * q11 + cd * q12 + 0.5 * ce * q22
+                      + cf * q11 * x1 / 6.0 + 0.5 * cg * q11 * x2 + 0.5 * ck * x1 * q22
+                      + cl * q22 * x2 / 6.0)
+                s = dx * nx + dy * ny + dz * nz - hv
+                h1 = ca + cc * x1 + cd * x2 + 0.5 * cf * q11 + cg * q12 + 0.5 * ck * q22
+                h2 = cb + cd * x1 + ce * x2 + 0.5 * cg * q11 + ck * q12 + 0.5 * cl * q22
                 sx = nx - h1 * J[v, 0] - h2 * J[v, 3]
                 sy = ny - h1 * J[v, 1] - h2 * J[v, 4]
                 sz = nz - h1 * J[v, 2] - h2 * J[v, 5]
