@@ -363,3 +363,26 @@ def test_sheet_on_smooth_icosphere_matches_the_analytic_sphere(tmp_path):
     print("sphere peak/p95 [Pa]: analytic", pa, qa, "smooth", pb, qb, "faceted", pf)
     assert abs(pb / pa - 1) < 0.03 and abs(qb / qa - 1) < 0.03, (pa, pb, qa, qb)
     assert abs(pb / pa - 1) <= abs(pf / pa - 1), (pa, pb, pf)
+
+
+def test_flat_mesh_with_big_and_small_triangles_stays_flat():
+    """A flat open mesh, fine (5 mm) in its middle and a handful of big triangles (up to 0.7 m)
+    round it, as CAD exports are: the smooth surface is the plane everywhere (jets fitted to
+    coplanar neighbours are flat; the inside of big triangles beyond the vertices' reach is
+    answered by the faceted query, the same plane), with normal +z."""
+    from scipy.spatial import Delaunay
+
+    g = np.linspace(0.4, 0.6, 41)
+    X, Y = np.meshgrid(g, g)
+    pts = np.r_[np.c_[X.ravel(), Y.ravel()], [[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0], [0, 0.5]]]
+    tri = Delaunay(pts).simplices
+    mold = mold_from_arrays(np.c_[pts, np.zeros(len(pts))], tri, surface="smooth")
+    ma = mold.kernel_args()
+    out = np.empty(8)
+    rng = np.random.default_rng(6)
+    for _ in range(300):
+        x, y = rng.uniform(0.02, 0.98, 2)
+        z = rng.uniform(-1, 1) * 10.0 ** -rng.uniform(2, 9)
+        sd = mold_query(ma, np.array([x, y, z]), out)
+        assert abs(sd - z) < 1e-13, (x, y, z, sd)
+        np.testing.assert_allclose(out[3:6], [0, 0, 1], atol=1e-12)
