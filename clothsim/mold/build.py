@@ -239,11 +239,12 @@ _COVER_EDGES = 1.25
 _MAX_REACH = 3.0
 
 
-def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.ndarray:
+def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float | None) -> np.ndarray:
     """Per-vertex osculating jets (float64 (V, 20), the layout of :attr:`Mold.vertex_jets`): a
     cubic height function over the vertex's tangent plane (normal: its pseudo-normal), through
     the vertex, fitted by weighted least squares to its 2-ring of neighbours (weights
     1 / (1 + (rho / h)^2), h the mean 1-ring edge length; a small ridge keeps the fit well posed;
+    r [m]: the smoothing radius, None for the adaptive 1.5 h per vertex;
     vertices with fewer than 12 neighbours, e.g. on an open rim, get a quadratic jet). A cubic
     jet's curvature is exact to second order in the edge length (a quadratic one's to first
     only, which measured on the thermoform mold leaves a +-25 % curvature ripple at the mesh's
@@ -295,8 +296,10 @@ def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.n
     jets[:, 0:3] = t1
     jets[:, 3:6] = t2
     jets[:, 6:15] = coef
-    jets[:, 15] = np.clip(_COVER_EDGES * longest, r, _MAX_REACH * r)
-    jets[:, 16] = (r / jets[:, 15]) ** 4
+    base = SMOOTHING_EDGES * h if r is None else np.full(nV, r)
+    jets[:, 15] = np.clip(_COVER_EDGES * longest, base, _MAX_REACH * base)
+    jets[:, 16] = (base / jets[:, 15]) ** 4
+    jets[:, 17] = base
     return jets
 
 
@@ -318,7 +321,9 @@ def _bvh_reach(mold: Mold, rv: np.ndarray) -> np.ndarray:
 def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
     """The same mesh mold with contact on its ``'faceted'`` polyhedron (``MOLD_MESH``) or on its
     ``'smooth'`` blended surface (``MOLD_SMOOTH``, see :mod:`clothsim.mold.smooth`) of smoothing
-    radius ``smoothing`` [m] (default: ``SMOOTHING_EDGES`` = 1.5 median edge lengths). The mesh
+    radius ``smoothing`` [m] (default: adaptive, ``SMOOTHING_EDGES`` = 1.5 times each vertex's
+    mean edge length, so dense parts of a scan, such as hands and face, are not blended over
+    the body's coarse scale). The mesh
     arrays are shared; the smooth surface adds the vertices' fitted jets."""
     import dataclasses
 
@@ -335,14 +340,15 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
                                    vertex_jets=None, bvh_reach=None)
     if surface != "smooth":
         raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
-    r = SMOOTHING_EDGES * median_edge_length(mold) if smoothing is None else float(smoothing)
-    if not (np.isfinite(r) and r > 0):
+    r = None if smoothing is None else float(smoothing)
+    if r is not None and not (np.isfinite(r) and r > 0):
         raise MoldError(f"{mold.source}: 'smoothing' must be a positive length [m], got {smoothing!r}")
-    if mold.kind == MOLD_SMOOTH and mold.params[14] == r:
+    if mold.kind == MOLD_SMOOTH and mold.params[12] == (0.0 if r is None else r):
         return mold
     jets = _vertex_jets(mold.vertices, mold.edges, mold.vertex_normals, r)
     prm = np.array(mold.params)
-    prm[14] = r
+    prm[12] = 0.0 if r is None else r
+    prm[14] = float(np.median(jets[:, 17]))
     prm[13] = float(jets[:, 15].max())
     return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
                                vertex_jets=_ro(jets, np.float64),

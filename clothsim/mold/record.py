@@ -116,8 +116,10 @@ class Mold:
     sphere: center[0:3], radius[3]; cylinder: center[0:3], unit axis[3:6], radius[6], length[7]
     (the cylinder spans center +- axis*length/2); plane: point[0:3], unit outward normal[3:6]
     (the mold is the half-space below); box: min corner[0:3], max corner[3:6];
-    mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the smoothing
-    radius r [m] (see :mod:`clothsim.mold.smooth`)."""
+    mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the median
+    smoothing radius [m], params[13] = the largest blending radius [m] (points farther from the
+    mesh get the faceted answer), params[12] = the smoothing asked for (0: adaptive)
+    (see :mod:`clothsim.mold.smooth`)."""
     vertices: np.ndarray
     """float64 (V, 3) [m]: mesh vertices (exact duplicates merged, unreferenced removed)."""
     faces: np.ndarray
@@ -161,8 +163,8 @@ class Mold:
     local frame t1[0:3], t2[3:6] (with the vertex normal, a right-handed frame), the fitted
     osculating jet's coefficients a, b, c, d, e, f, g, k, l [6:15] (height over the tangent plane
     h = a x1 + b x2 + c x1^2/2 + d x1 x2 + e x2^2/2 + f x1^3/6 + g x1^2 x2/2 + k x1 x2^2/2
-    + l x2^3/6, x in m), its blending radius r_v [m] at [15] and its weight factor (r / r_v)^4 at
-    [16] (see :mod:`clothsim.mold.smooth`)."""
+    + l x2^3/6, x in m), its blending radius r_v [m] at [15], its weight factor (r / r_v)^4 at
+    [16] and its base smoothing radius r [m] at [17] (see :mod:`clothsim.mold.smooth`)."""
     bvh_reach: np.ndarray = None  # type: ignore[assignment]
     """float64 (N,) on a smooth mesh, (0,) otherwise: per BVH node the largest blending radius
     [m] of the vertices owned by its faces (a vertex is owned by the first face of its ring), so
@@ -186,7 +188,7 @@ class Mold:
 
     @property
     def smoothing(self) -> float | None:
-        """The smoothing radius r [m] of a smooth mesh mold, else None."""
+        """The (median) smoothing radius r [m] of a smooth mesh mold, else None."""
         return float(self.params[14]) if self.kind == MOLD_SMOOTH else None
 
     @property

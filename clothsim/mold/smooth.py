@@ -16,8 +16,9 @@ and of Ohtake et al. 2003, "Multi-level partition of unity implicits", SIGGRAPH)
 n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the cubic
 height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
 ``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
-= 0), r_v [m] the vertex's blending radius: the smoothing radius r (``params[14]``; default 1.5
-median edge lengths) or 1.25 x its longest edge if larger, up to 3 r (so every point of every
+= 0), r_v [m] the vertex's blending radius: the smoothing radius r (default adaptive: 1.5 times
+the vertex's mean edge length, so a scan's dense hands and face are not blended over the body's
+coarse scale; ``smoothing`` sets one r for all) or 1.25 x its longest edge if larger, up to 3 r (so every point of every
 face but the inside of triangles larger than about 2 r lies inside some vertex's support; the
 inside of such a big triangle, always flat, is answered by the faceted query), and such a wide vertex's weight scaled by (r / r_v)^4 (stored in
 the jet) so that it decides the surface only inside big triangles (flat CAD bases) and not where
@@ -35,7 +36,7 @@ Newton step onto phi = 0 and a tangential fixed-point correction in one) until t
 1e-13 m, so that phi(c) = 0 and p - c is parallel to grad phi(c);
 the signed distance is (p - c) . n(c), n = grad phi / |grad phi|, and the feature is code 0 (a
 face, as on the analytic sphere) with the point-dependent normal n(c); ``out[7]`` is the nearest
-mesh face. Points farther than r from the mesh (far outside or deep inside: never in contact),
+mesh face. Points farther than the largest r_v from the mesh (far outside or deep inside: never in contact),
 points whose foot iteration does not converge, and, on an open mesh, points the faceted open-mesh
 rule puts outside beyond the rim get the faceted answer (still code 0, ``out[3:6]`` the faceted
 pseudo-normal).
@@ -54,7 +55,7 @@ from numba import njit
 from .queries import _box_d2, _mesh_query
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
-_FOOT_ITERS = 60
+_FOOT_ITERS = 30
 
 
 @njit(cache=True)
@@ -195,7 +196,7 @@ def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
     (phi(c) = 0, p - c parallel to g); it converges quadratically onto the surface and, along it,
     linearly with the factor |sd| x curvature (fast for the near-surface points of contact).
     Stops when the step is below 1e-13 m (then |phi(c)| / |g| and the tangential residual are
-    too); a growing step is halved; no convergence in 60 steps: ok False."""
+    too); a growing step is halved; no convergence in 30 steps: ok False."""
     prev = np.inf
     damp = 1.0
     for _ in range(_FOOT_ITERS):
@@ -250,7 +251,7 @@ def _smooth_query_flag(margs, px, py, pz, out):
     idx = int(out[7])
     out[6] = 0.0
     out[7] = _nearest_face(margs, code, idx)
-    if not (abs(sdf) < margs.params[14]):
+    if not (abs(sdf) < margs.params[13]):
         return sdf, False
     if margs.info[1] == 0 and sdf > 0.0:
         # open mesh: a point whose foot is on the rim and which is not directly behind a face is
