@@ -298,7 +298,10 @@ def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float | None) 
     jets[:, 6:15] = coef
     base = SMOOTHING_EDGES * h if r is None else np.full(nV, r)
     jets[:, 15] = np.clip(_COVER_EDGES * longest, base, _MAX_REACH * base)
-    jets[:, 16] = (base / jets[:, 15]) ** 4
+    # a vertex's weight factor (r_ref / r_v)^4, r_ref the median base radius: where fine and
+    # coarse vertices overlap (a scan's face next to its cheek, a fine dome next to a coarse
+    # plate fitted across a crease) the fine ones decide the surface
+    jets[:, 16] = (np.median(base) / jets[:, 15]) ** 4
     jets[:, 17] = base
     return jets
 
