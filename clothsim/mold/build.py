@@ -234,8 +234,9 @@ SMOOTHING_EDGES = 1.5
 #: every vertex's blending radius is at least this many times its longest edge (so every point of
 #: every face lies well inside some vertex's support, also on big flat CAD triangles)
 _COVER_EDGES = 1.25
-#: ... but at most this many smoothing radii (a wide vertex is visited by every query within its
-#: reach; the inside of a triangle larger than that is answered by the faceted query: its plane)
+#: ... but at most this many smoothing radii, and this many median smoothing radii (a wide vertex
+#: is visited by every query within its reach; the inside of a triangle larger than that is
+#: answered by the faceted query: its plane)
 _MAX_REACH = 3.0
 
 
@@ -297,11 +298,13 @@ def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float | None) 
     jets[:, 3:6] = t2
     jets[:, 6:15] = coef
     base = SMOOTHING_EDGES * h if r is None else np.full(nV, r)
-    jets[:, 15] = np.clip(_COVER_EDGES * longest, base, _MAX_REACH * base)
+    ref = float(np.median(base))
+    base = np.minimum(base, _MAX_REACH * ref)
+    jets[:, 15] = np.clip(_COVER_EDGES * longest, base, _MAX_REACH * np.minimum(base, ref))
     # a vertex's weight factor (r_ref / r_v)^4, r_ref the median base radius: where fine and
     # coarse vertices overlap (a scan's face next to its cheek, a fine dome next to a coarse
     # plate fitted across a crease) the fine ones decide the surface
-    jets[:, 16] = (np.median(base) / jets[:, 15]) ** 4
+    jets[:, 16] = (ref / jets[:, 15]) ** 4
     jets[:, 17] = base
     return jets
 
