@@ -441,3 +441,19 @@ def test_thermoform_dome_curvature_matches_its_formula():
     P = V[rng.integers(0, len(V), 300)] + rng.normal(scale=3e-4, size=(300, 3))
     frac = np.mean([_smooth_query_flag(ma, p[0], p[1], p[2], out)[1] for p in P])
     assert frac >= 0.97, frac
+
+
+def test_sliver_mesh_warns_and_scan_like_mesh_does_not():
+    """The bundled leg cone is 0.2 m long slivers 0.6 mm wide (a CAD export): its smooth surface
+    cannot follow it, and loading it smooth says so (use faceted); a refined sphere loads
+    silently."""
+    import warnings
+
+    from conftest import ROOT
+
+    with pytest.warns(UserWarning, match=r"leg_cone.stl: the smooth surface departs from 7\d % .*surface: faceted"):
+        load_mold({"path": "static/molds/leg_cone.stl", "surface": "smooth"}, ROOT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _ico(3)
+        load_mold({"path": "static/molds/leg_cone.stl"}, ROOT)  # faceted: no smooth surface to check

@@ -356,9 +356,40 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
     prm[12] = 0.0 if r is None else r
     prm[14] = float(np.median(jets[:, 17]))
     prm[13] = float(jets[:, 15].max())
-    return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
-                               vertex_jets=_ro(jets, np.float64),
-                               bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64))
+    out = dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
+                              vertex_jets=_ro(jets, np.float64),
+                              bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64))
+    frac, dev = smooth_departure(out)
+    if frac > SMOOTH_WARN_FRACTION:
+        warnings.warn(f"{mold.source}: the smooth surface departs from {100 * frac:.0f} % of the "
+                      f"mesh's face centres by more than a tenth of the face's longest edge (up to "
+                      f"{dev * 1000:.3g} mm): the triangles are long slivers or too coarse for the "
+                      f"shape (a CAD export?); use surface: faceted, or a finer, more even mesh",
+                      stacklevel=3)
+    return out
+
+
+#: with_surface warns when more than this fraction of the faces' centres lie farther than a
+#: tenth of the face's longest edge from the smooth surface (scans: 2 to 6 %, at their fine
+#: thin features; a cone of long slivers: 75 %)
+SMOOTH_WARN_FRACTION = 0.2
+
+
+def smooth_departure(mold: Mold):
+    """How far a smooth mold's surface departs from its mesh: the fraction of faces whose centre
+    lies farther than a tenth of the face's longest edge from it (first order: |phi| / |grad
+    phi|), and the largest such distance [m]. Faces beyond every vertex's reach (answered by the
+    facets) count as on it."""
+    from .smooth import smooth_phi
+
+    T = mold.vertices[mold.faces]
+    C = np.ascontiguousarray(T.mean(axis=1))
+    L = np.linalg.norm(T - np.roll(T, 1, axis=1), axis=2).max(axis=1)
+    phi, g, W = np.empty(len(C)), np.empty((len(C), 3)), np.empty(len(C))
+    smooth_phi(mold.kernel_args(), C, phi, g, W)
+    gl = np.linalg.norm(g, axis=1)
+    d = np.where((W > 0) & (gl > 0), np.abs(phi) / np.where(gl > 0, gl, 1.0), 0.0)
+    return float(np.mean(d > 0.1 * L)), float(d.max())
 
 
 def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "",
