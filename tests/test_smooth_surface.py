@@ -457,3 +457,19 @@ def test_sliver_mesh_warns_and_scan_like_mesh_does_not():
         warnings.simplefilter("error")
         _ico(3)
         load_mold({"path": "static/molds/leg_cone.stl"}, ROOT)  # faceted: no smooth surface to check
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["mold.surface=round"], "mold.surface: Input should be 'faceted' or 'smooth'"),
+    (["mold.smoothing=0.01"], "mold.smoothing: applies to surface: smooth only"),
+    (["mold.surface=smooth", "mold.smoothing=-1"], "mold.smoothing: must be positive and finite (got -1.0)"),
+])
+def test_scene_errors_name_the_field(overrides, message):
+    from conftest import ROOT
+    from clothsim.config import SceneError
+
+    with pytest.raises(SceneError) as e:
+        clothsim.load_scene(ROOT / "configs" / "thermoform.yaml", overrides)
+    assert message in str(e.value)
+    s = clothsim.load_scene(ROOT / "configs" / "thermoform.yaml", ["mold.surface=smooth", "mold.smoothing=0.002"])
+    assert s.mold.surface == "smooth" and s.mold.smoothing == 0.002
