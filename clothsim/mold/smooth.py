@@ -14,21 +14,25 @@ and of Ohtake et al. 2003, "Multi-level partition of unity implicits", SIGGRAPH)
     h_v = a x1 + b x2 + c x1^2/2 + d x1 x2 + e x2^2/2 + f x1^3/6 + g x1^2 x2/2 + k x1 x2^2/2 + l x2^3/6
 
 n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the cubic
-height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
-``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
-= 0), r_v [m] the vertex's blending radius: the smoothing radius r (default adaptive: 1.5 times
-the vertex's mean edge length, so a scan's dense hands and face are not blended over the body's
-coarse scale; ``smoothing`` sets one r for all) or 1.25 x its longest edge if larger, up to 3 r (so every point of every
-face but the inside of triangles larger than about 2 r lies inside some vertex's support; the
-inside of such a big triangle, always flat, is answered by the faceted query), and such a wide vertex's weight scaled by (r / r_v)^4 (stored in
-the jet) so that it decides the surface only inside big triangles (flat CAD bases) and not where
-fine vertices are. Each BVH node is pruned by the largest r_v of the vertices its faces own
-(``bvh_reach``). phi is C1 with an analytic gradient; each jet is exact to second
-order, so the surface converges to the sampled smooth body at about fourth order in the edge
-length (second for the facets), its normal and curvature converge too (no facet stripes in the
-pressure), and coplanar neighbourhoods give their plane exactly. (The lead's first design blended
-the faces' planes instead; measured on icospheres it undulates with an amplitude of about half
-the facets' sagitta at the mesh's own wavelength, i.e. an O(1) curvature error: see docs.)
+height function through v fitted to its 2-ring of neighbours (quadratic for vertices with fewer
+than 12 neighbours; ``Mold.vertex_jets``, built by ``build._vertex_jets``), psi(t) = (1 - t)^4
+(4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0) = 0). r_v [m] is the vertex's blending
+radius: its base radius b_v (default 1.5 times its mean edge length, so a scan's dense hands and
+face are not blended over the body's coarse scale; ``smoothing`` sets one for all; at most 3
+median bases) raised to 1.25 x its longest edge, at most 3 b_v and 3 median bases (every point
+of a face but the inside of triangles larger than about twice that lies in some vertex's
+support; the inside of such a big triangle, flat on CAD molds, is answered by the faceted
+query). Each weight carries the factor (median base / r_v)^4 (stored in the jet), so fine
+vertices decide the surface wherever they overlap wide ones. Each BVH node is pruned by the
+largest r_v of the vertices its faces own (``bvh_reach``).
+
+phi is C1 with an analytic gradient. A cubic jet's height is exact to third order and its
+curvature to second, so the surface converges to the sampled smooth body at about fourth order in
+the edge length (the facets at second), and so do its normal and curvature: no facet stripes in
+the pressure. Coplanar neighbourhoods give their plane exactly. (The lead's first design blended
+the faces' planes instead. Measured on icospheres it undulates at the mesh's own wavelength with
+about half the facets' sagitta, an O(1) curvature error; quadratic jets left a +-25 % curvature
+ripple on the thermoform mold: see docs/smooth_surface.md.)
 
 Queries (the conventions of :mod:`clothsim.mold`): the closest point c on {phi = 0} is found from
 the faceted closest point by repeated projection of p onto the linearisation of phi at c (a
@@ -36,10 +40,10 @@ Newton step onto phi = 0 and a tangential fixed-point correction in one) until t
 1e-13 m, so that phi(c) = 0 and p - c is parallel to grad phi(c);
 the signed distance is (p - c) . n(c), n = grad phi / |grad phi|, and the feature is code 0 (a
 face, as on the analytic sphere) with the point-dependent normal n(c); ``out[7]`` is the nearest
-mesh face. Points farther than the largest r_v from the mesh (far outside or deep inside: never in contact),
-points whose foot iteration does not converge, and, on an open mesh, points the faceted open-mesh
-rule puts outside beyond the rim get the faceted answer (still code 0, ``out[3:6]`` the faceted
-pseudo-normal).
+mesh face. The faceted answer (still code 0, ``out[3:6]`` the faceted pseudo-normal) goes to
+points farther than the largest r_v from the mesh (far outside or deep inside: never in contact),
+to points whose foot iteration does not converge in 30 steps, and, on an open mesh, to points the
+faceted open-mesh rule puts outside beyond the rim.
 
 Thin parts thinner than about r (both sides' vertices within each other's supports) are blended
 into one another: use a smaller ``smoothing`` or ``surface: faceted`` there.
