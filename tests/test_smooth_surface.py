@@ -41,7 +41,7 @@ def _phi_brute(mold, P):
     """phi and grad phi over all vertices (no BVH), numpy, from the formula of
     clothsim.mold.smooth: the vertices' jets blended with Wendland weights."""
     V, N, J = mold.vertices, mold.vertex_normals, mold.vertex_jets
-    t1, t2, (a, b, c, d, e), rv, k4 = J[:, 0:3], J[:, 3:6], J[:, 6:11].T, J[:, 11], J[:, 12]
+    t1, t2, (a, b, c, d, e, f, g, k, l), rv, k4 = J[:, 0:3], J[:, 3:6], J[:, 6:15].T, J[:, 15], J[:, 16]
     phi = np.empty(len(P))
     grad = np.empty((len(P), 3))
     for i, p in enumerate(P):
@@ -52,10 +52,12 @@ def _phi_brute(mold, P):
         gw = (-20 * k4[m] * (1 - t[m]) ** 3 / rv[m] ** 2)[:, None] * D[m]
         x1 = np.einsum("ij,ij->i", D[m], t1[m])
         x2 = np.einsum("ij,ij->i", D[m], t2[m])
-        s = (np.einsum("ij,ij->i", D[m], N[m])
-             - (a[m] * x1 + b[m] * x2 + c[m] * x1 ** 2 / 2 + d[m] * x1 * x2 + e[m] * x2 ** 2 / 2))
-        gs = (N[m] - (a[m] + c[m] * x1 + d[m] * x2)[:, None] * t1[m]
-              - (b[m] + d[m] * x1 + e[m] * x2)[:, None] * t2[m])
+        hv = (a[m] * x1 + b[m] * x2 + c[m] * x1 ** 2 / 2 + d[m] * x1 * x2 + e[m] * x2 ** 2 / 2
+              + f[m] * x1 ** 3 / 6 + g[m] * x1 ** 2 * x2 / 2 + k[m] * x1 * x2 ** 2 / 2 + l[m] * x2 ** 3 / 6)
+        h1 = a[m] + c[m] * x1 + d[m] * x2 + f[m] * x1 ** 2 / 2 + g[m] * x1 * x2 + k[m] * x2 ** 2 / 2
+        h2 = b[m] + d[m] * x1 + e[m] * x2 + g[m] * x1 ** 2 / 2 + k[m] * x1 * x2 + l[m] * x2 ** 2 / 2
+        s = np.einsum("ij,ij->i", D[m], N[m]) - hv
+        gs = N[m] - h1[:, None] * t1[m] - h2[:, None] * t2[m]
         W = w.sum()
         phi[i] = (w * s).sum() / W
         grad[i] = ((w[:, None] * gs).sum(0) + (s[:, None] * gw).sum(0) - phi[i] * gw.sum(0)) / W
@@ -297,7 +299,7 @@ def test_open_hemisphere_rim_stays_free():
 def test_defaults_and_config(tmp_path):
     mold = _ico(2)
     assert mold.kind == MOLD_SMOOTH and mold.surface == "smooth"
-    assert mold.smoothing == pytest.approx(SMOOTHING_EDGES * median_edge_length(mold))
+    assert mold.smoothing == pytest.approx(SMOOTHING_EDGES * median_edge_length(mold), rel=0.1)
     assert _ico(2, "faceted").kind == MOLD_MESH
     trimesh.creation.icosphere(subdivisions=2, radius=R0).export(tmp_path / "s.stl")
     a = load_mold({"path": "s.stl"}, tmp_path)
@@ -361,3 +363,113 @@ def test_sheet_on_smooth_icosphere_matches_the_analytic_sphere(tmp_path):
     print("sphere peak/p95 [Pa]: analytic", pa, qa, "smooth", pb, qb, "faceted", pf)
     assert abs(pb / pa - 1) < 0.03 and abs(qb / qa - 1) < 0.03, (pa, pb, qa, qb)
     assert abs(pb / pa - 1) <= abs(pf / pa - 1), (pa, pb, pf)
+
+
+def test_flat_mesh_with_big_and_small_triangles_stays_flat():
+    """A flat open mesh, fine (5 mm) in its middle and a handful of big triangles (up to 0.7 m)
+    round it, as CAD exports are: the smooth surface is the plane everywhere (jets fitted to
+    coplanar neighbours are flat; the inside of big triangles beyond the vertices' reach is
+    answered by the faceted query, the same plane), with normal +z."""
+    from scipy.spatial import Delaunay
+
+    g = np.linspace(0.4, 0.6, 41)
+    X, Y = np.meshgrid(g, g)
+    pts = np.r_[np.c_[X.ravel(), Y.ravel()], [[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0], [0, 0.5]]]
+    tri = Delaunay(pts).simplices
+    mold = mold_from_arrays(np.c_[pts, np.zeros(len(pts))], tri, surface="smooth")
+    ma = mold.kernel_args()
+    out = np.empty(8)
+    rng = np.random.default_rng(6)
+    for _ in range(300):
+        x, y = rng.uniform(0.02, 0.98, 2)
+        z = rng.uniform(-1, 1) * 10.0 ** -rng.uniform(2, 9)
+        sd = mold_query(ma, np.array([x, y, z]), out)
+        assert abs(sd - z) < 1e-13, (x, y, z, sd)
+        np.testing.assert_allclose(out[3:6], [0, 0, 1], atol=1e-12)
+
+
+def test_thermoform_dome_curvature_matches_its_formula():
+    """The bundled thermoform mold (scripts/make_molds.py: a super-elliptic dome with a Gaussian
+    groove, sampled by a polar mesh with long thin triangles): along the groove's shoulder, where
+    the fabric's pressure peaks, the smooth surface's Laplacian of height (twice its mean
+    curvature, finite differences over 0.25 mm) is within 5 % of the formula's, while the
+    facets' swings through zero; near-surface points on the dome are answered by the smooth
+    surface (not the faceted fallback)."""
+    import importlib.util
+
+    from conftest import ROOT
+    from clothsim.mold.smooth import _smooth_query_flag
+
+    spec = importlib.util.spec_from_file_location("make_molds", ROOT / "scripts" / "make_molds.py")
+    mm = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mm)
+
+    def z_formula(x, y):
+        cx, cy = mm.SHEET_CENTER
+        th = np.arctan2(y - cy, x - cx)
+        s = np.hypot(x - cx, y - cy) / (mm.DOME_HALF * mm._super_radius(th))
+        return float(mm._dome_height(np.array(x), np.array(y), np.array(s)))
+
+    out = np.empty(8)
+    res = {}
+    for surface in ("smooth", "faceted"):
+        ma = load_mold({"path": "static/molds/thermoform_mold.stl", "surface": surface}, ROOT).kernel_args()
+
+        def z_mold(x, y):
+            lo, hi = 0.0, 0.03
+            for _ in range(55):
+                m = 0.5 * (lo + hi)
+                if mold_query(ma, np.array([x, y, m]), out) > 0:
+                    hi = m
+                else:
+                    lo = m
+            return 0.5 * (lo + hi)
+
+        h = 0.25e-3
+        errs = []
+        for y in np.linspace(0.0385, 0.0455, 9):
+            x = 0.05886
+            lap = [(f(x + h, y) + f(x - h, y) + f(x, y + h) + f(x, y - h) - 4 * f(x, y)) / h ** 2
+                   for f in (z_mold, z_formula)]
+            errs.append(abs(lap[0] / lap[1] - 1))
+        res[surface] = max(errs)
+    assert res["smooth"] < 0.05 and res["faceted"] > 0.5, res
+    mold = load_mold({"path": "static/molds/thermoform_mold.stl", "surface": "smooth"}, ROOT)
+    ma = mold.kernel_args()
+    V = mold.vertices[mold.vertices[:, 2] > 0.0]  # the dome
+    rng = np.random.default_rng(7)
+    P = V[rng.integers(0, len(V), 300)] + rng.normal(scale=3e-4, size=(300, 3))
+    frac = np.mean([_smooth_query_flag(ma, p[0], p[1], p[2], out)[1] for p in P])
+    assert frac >= 0.97, frac
+
+
+def test_sliver_mesh_warns_and_scan_like_mesh_does_not():
+    """The bundled leg cone is 0.2 m long slivers 0.6 mm wide (a CAD export): its smooth surface
+    cannot follow it, and loading it smooth says so (use faceted); a refined sphere loads
+    silently."""
+    import warnings
+
+    from conftest import ROOT
+
+    with pytest.warns(UserWarning, match=r"leg_cone.stl: the smooth surface departs from 7\d % .*surface: faceted"):
+        load_mold({"path": "static/molds/leg_cone.stl", "surface": "smooth"}, ROOT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _ico(3)
+        load_mold({"path": "static/molds/leg_cone.stl"}, ROOT)  # faceted: no smooth surface to check
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["mold.surface=round"], "mold.surface: Input should be 'faceted' or 'smooth'"),
+    (["mold.smoothing=0.01"], "mold.smoothing: applies to surface: smooth only"),
+    (["mold.surface=smooth", "mold.smoothing=-1"], "mold.smoothing: must be positive and finite (got -1.0)"),
+])
+def test_scene_errors_name_the_field(overrides, message):
+    from conftest import ROOT
+    from clothsim.config import SceneError
+
+    with pytest.raises(SceneError) as e:
+        clothsim.load_scene(ROOT / "configs" / "thermoform.yaml", overrides)
+    assert message in str(e.value)
+    s = clothsim.load_scene(ROOT / "configs" / "thermoform.yaml", ["mold.surface=smooth", "mold.smoothing=0.002"])
+    assert s.mold.surface == "smooth" and s.mold.smoothing == 0.002

@@ -262,18 +262,23 @@ SMOOTHING_EDGES = 1.5
 #: every vertex's blending radius is at least this many times its longest edge (so every point of
 #: every face lies well inside some vertex's support, also on big flat CAD triangles)
 _COVER_EDGES = 1.25
-#: ... but at most this many smoothing radii (a wide vertex is visited by every query within its
-#: reach; the inside of a triangle larger than that is answered by the faceted query: its plane)
+#: ... but at most this many smoothing radii, and this many median smoothing radii (a wide vertex
+#: is visited by every query within its reach; the inside of a triangle larger than that is
+#: answered by the faceted query: its plane)
 _MAX_REACH = 3.0
 
 
-def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.ndarray:
-    """Per-vertex osculating jets (float64 (V, 16), the layout of :attr:`Mold.vertex_jets`): a
-    quadratic height function over the vertex's tangent plane (normal: its pseudo-normal),
-    through the vertex, fitted by weighted least squares to its 2-ring of neighbours (weights
-    1 / (1 + (rho / h)^2), h the mean 1-ring edge length; a small ridge keeps vertices with few
-    neighbours well posed). After F. Cazals & M. Pouget (2003), "Estimating differential
-    quantities using polynomial fitting of osculating jets", SGP."""
+def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float | None) -> np.ndarray:
+    """Per-vertex osculating jets (float64 (V, 20), the layout of :attr:`Mold.vertex_jets`): a
+    cubic height function over the vertex's tangent plane (normal: its pseudo-normal), through
+    the vertex, fitted by weighted least squares to its 2-ring of neighbours (weights
+    1 / (1 + (rho / h)^2), h the mean 1-ring edge length; a small ridge keeps the fit well posed;
+    r [m]: the smoothing radius, None for the adaptive 1.5 h per vertex;
+    vertices with fewer than 12 neighbours, e.g. on an open rim, get a quadratic jet). A cubic
+    jet's curvature is exact to second order in the edge length (a quadratic one's to first
+    only, which measured on the thermoform mold leaves a +-25 % curvature ripple at the mesh's
+    wavelength). After F. Cazals & M. Pouget (2003), "Estimating differential quantities using
+    polynomial fitting of osculating jets", SGP."""
     import scipy.sparse as sp
 
     nV = len(V)
@@ -299,21 +304,36 @@ def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.n
     x2 = np.einsum("ij,ij->i", d, t2[i]) / h[i]
     z = np.einsum("ij,ij->i", d, n[i]) / h[i]
     w = 1.0 / (1.0 + x1 * x1 + x2 * x2)
-    B = np.stack([x1, x2, 0.5 * x1 * x1, x1 * x2, 0.5 * x2 * x2], axis=1)
-    M = np.zeros((nV, 5, 5))
-    np.add.at(M, i, w[:, None, None] * B[:, :, None] * B[:, None, :])
-    rhs = np.zeros((nV, 5))
-    np.add.at(rhs, i, (w * z)[:, None] * B)
+    B = np.stack([x1, x2, 0.5 * x1 * x1, x1 * x2, 0.5 * x2 * x2, x1 ** 3 / 6, 0.5 * x1 * x1 * x2,
+                  0.5 * x1 * x2 * x2, x2 ** 3 / 6], axis=1)
+    count = np.bincount(i, minlength=nV)
     wsum = np.bincount(i, weights=w, minlength=nV)
-    M += (1e-6 * np.maximum(wsum, 1.0))[:, None, None] * np.eye(5)[None]
-    coef = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
-    coef[:, 2:] /= h[:, None]
-    jets = np.zeros((nV, 16))
+    coef = np.zeros((nV, 9))
+    for m, sel in ((5, count < 12), (9, count >= 12)):
+        if not sel.any():
+            continue
+        Bm = B[:, :m]
+        M = np.zeros((nV, m, m))
+        np.add.at(M, i, w[:, None, None] * Bm[:, :, None] * Bm[:, None, :])
+        rhs = np.zeros((nV, m))
+        np.add.at(rhs, i, (w * z)[:, None] * Bm)
+        M += (1e-6 * np.maximum(wsum, 1.0))[:, None, None] * np.eye(m)[None]
+        coef[sel, :m] = np.linalg.solve(M[sel], rhs[sel][:, :, None])[:, :, 0]
+    coef[:, 2:5] /= h[:, None]
+    coef[:, 5:9] /= (h * h)[:, None]
+    jets = np.zeros((nV, 20))
     jets[:, 0:3] = t1
     jets[:, 3:6] = t2
-    jets[:, 6:11] = coef
-    jets[:, 11] = np.clip(_COVER_EDGES * longest, r, _MAX_REACH * r)
-    jets[:, 12] = (r / jets[:, 11]) ** 4
+    jets[:, 6:15] = coef
+    base = SMOOTHING_EDGES * h if r is None else np.full(nV, r)
+    ref = float(np.median(base))
+    base = np.minimum(base, _MAX_REACH * ref)
+    jets[:, 15] = np.clip(_COVER_EDGES * longest, base, _MAX_REACH * np.minimum(base, ref))
+    # a vertex's weight factor (r_ref / r_v)^4, r_ref the median base radius: where fine and
+    # coarse vertices overlap (a scan's face next to its cheek, a fine dome next to a coarse
+    # plate fitted across a crease) the fine ones decide the surface
+    jets[:, 16] = (ref / jets[:, 15]) ** 4
+    jets[:, 17] = base
     return jets
 
 
@@ -335,7 +355,9 @@ def _bvh_reach(mold: Mold, rv: np.ndarray) -> np.ndarray:
 def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
     """The same mesh mold with contact on its ``'faceted'`` polyhedron (``MOLD_MESH``) or on its
     ``'smooth'`` blended surface (``MOLD_SMOOTH``, see :mod:`clothsim.mold.smooth`) of smoothing
-    radius ``smoothing`` [m] (default: ``SMOOTHING_EDGES`` = 1.5 median edge lengths). The mesh
+    radius ``smoothing`` [m] (default: adaptive, ``SMOOTHING_EDGES`` = 1.5 times each vertex's
+    mean edge length, so dense parts of a scan, such as hands and face, are not blended over
+    the body's coarse scale). The mesh
     arrays are shared; the smooth surface adds the vertices' fitted jets."""
     import dataclasses
 
@@ -352,18 +374,50 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
                                    vertex_jets=None, bvh_reach=None)
     if surface != "smooth":
         raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
-    r = SMOOTHING_EDGES * median_edge_length(mold) if smoothing is None else float(smoothing)
-    if not (np.isfinite(r) and r > 0):
+    r = None if smoothing is None else float(smoothing)
+    if r is not None and not (np.isfinite(r) and r > 0):
         raise MoldError(f"{mold.source}: 'smoothing' must be a positive length [m], got {smoothing!r}")
-    if mold.kind == MOLD_SMOOTH and mold.params[14] == r:
+    if mold.kind == MOLD_SMOOTH and mold.params[12] == (0.0 if r is None else r):
         return mold
     jets = _vertex_jets(mold.vertices, mold.edges, mold.vertex_normals, r)
     prm = np.array(mold.params)
-    prm[14] = r
-    prm[13] = float(jets[:, 11].max())
-    return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
-                               vertex_jets=_ro(jets, np.float64),
-                               bvh_reach=_ro(_bvh_reach(mold, jets[:, 11]), np.float64))
+    prm[12] = 0.0 if r is None else r
+    prm[14] = float(np.median(jets[:, 17]))
+    prm[13] = float(jets[:, 15].max())
+    out = dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
+                              vertex_jets=_ro(jets, np.float64),
+                              bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64))
+    frac, dev = smooth_departure(out)
+    if frac > SMOOTH_WARN_FRACTION:
+        warnings.warn(f"{mold.source}: the smooth surface departs from {100 * frac:.0f} % of the "
+                      f"mesh's face centres by more than a tenth of the face's longest edge (up to "
+                      f"{dev * 1000:.3g} mm): the triangles are long slivers or too coarse for the "
+                      f"shape (a CAD export?); use surface: faceted, or a finer, more even mesh",
+                      stacklevel=3)
+    return out
+
+
+#: with_surface warns when more than this fraction of the faces' centres lie farther than a
+#: tenth of the face's longest edge from the smooth surface (scans: 2 to 6 %, at their fine
+#: thin features; a cone of long slivers: 75 %)
+SMOOTH_WARN_FRACTION = 0.2
+
+
+def smooth_departure(mold: Mold):
+    """How far a smooth mold's surface departs from its mesh: the fraction of faces whose centre
+    lies farther than a tenth of the face's longest edge from it (first order: |phi| / |grad
+    phi|), and the largest such distance [m]. Faces beyond every vertex's reach (answered by the
+    facets) count as on it."""
+    from .smooth import smooth_phi
+
+    T = mold.vertices[mold.faces]
+    C = np.ascontiguousarray(T.mean(axis=1))
+    L = np.linalg.norm(T - np.roll(T, 1, axis=1), axis=2).max(axis=1)
+    phi, g, W = np.empty(len(C)), np.empty((len(C), 3)), np.empty(len(C))
+    smooth_phi(mold.kernel_args(), C, phi, g, W)
+    gl = np.linalg.norm(g, axis=1)
+    d = np.where((W > 0) & (gl > 0), np.abs(phi) / np.where(gl > 0, gl, 1.0), 0.0)
+    return float(np.mean(d > 0.1 * L)), float(d.max())
 
 
 def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "",

@@ -31,7 +31,7 @@ _KIND_NAMES = {MOLD_MESH: "mesh", MOLD_SPHERE: "sphere", MOLD_CYLINDER: "cylinde
 MESH_KINDS = (MOLD_MESH, MOLD_SMOOTH)
 
 
-_NO_JETS = np.zeros((0, 16))
+_NO_JETS = np.zeros((0, 20))
 _NO_JETS.setflags(write=False)
 _NO_REACH = np.zeros(0)
 _NO_REACH.setflags(write=False)
@@ -89,7 +89,7 @@ class MoldArgs(NamedTuple):
     bvh_faces: np.ndarray
     """int64 (F,)."""
     vertex_jets: np.ndarray
-    """float64 (V, 16) on a smooth mesh, else (0, 16): see :attr:`Mold.vertex_jets`."""
+    """float64 (V, 20) on a smooth mesh, else (0, 20): see :attr:`Mold.vertex_jets`."""
     bvh_reach: np.ndarray
     """float64 (N,) on a smooth mesh, else (0,): see :attr:`Mold.bvh_reach`."""
 
@@ -116,8 +116,10 @@ class Mold:
     sphere: center[0:3], radius[3]; cylinder: center[0:3], unit axis[3:6], radius[6], length[7]
     (the cylinder spans center +- axis*length/2); plane: point[0:3], unit outward normal[3:6]
     (the mold is the half-space below); box: min corner[0:3], max corner[3:6];
-    mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the smoothing
-    radius r [m] (see :mod:`clothsim.mold.smooth`)."""
+    mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the median
+    smoothing radius [m], params[13] = the largest blending radius [m] (points farther from the
+    mesh get the faceted answer), params[12] = the smoothing asked for (0: adaptive)
+    (see :mod:`clothsim.mold.smooth`)."""
     vertices: np.ndarray
     """float64 (V, 3) [m]: mesh vertices (exact duplicates merged, unreferenced removed)."""
     faces: np.ndarray
@@ -157,13 +159,12 @@ class Mold:
     max_feature_normals: int
     """Rows ``normals_out`` of :func:`mold_feature_normals` needs (max vertex valence, >= 3)."""
     vertex_jets: np.ndarray = None  # type: ignore[assignment]
-    """float64 (V, 16) on a smooth mesh (``MOLD_SMOOTH``), (0, 16) otherwise: per vertex its
+    """float64 (V, 20) on a smooth mesh (``MOLD_SMOOTH``), (0, 20) otherwise: per vertex its
     local frame t1[0:3], t2[3:6] (with the vertex normal, a right-handed frame), the fitted
-    osculating jet's coefficients a, b, c, d, e [6:11] (height over the tangent plane
-    h = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2, x in m, c d e in 1/m) and the vertex's
-    blending radius r_v [m] at [11] and its weight factor (r / r_v)^4 at [12] (see
-    :mod:`clothsim.mold.smooth`)."""
-
+    osculating jet's coefficients a, b, c, d, e, f, g, k, l [6:15] (height over the tangent plane
+    h = a x1 + b x2 + c x1^2/2 + d x1 x2 + e x2^2/2 + f x1^3/6 + g x1^2 x2/2 + k x1 x2^2/2
+    + l x2^3/6, x in m), its blending radius r_v [m] at [15], its weight factor (r / r_v)^4 at
+    [16] and its base smoothing radius r [m] at [17] (see :mod:`clothsim.mold.smooth`)."""
     bvh_reach: np.ndarray = None  # type: ignore[assignment]
     """float64 (N,) on a smooth mesh, (0,) otherwise: per BVH node the largest blending radius
     [m] of the vertices owned by its faces (a vertex is owned by the first face of its ring), so
@@ -187,7 +188,7 @@ class Mold:
 
     @property
     def smoothing(self) -> float | None:
-        """The smoothing radius r [m] of a smooth mesh mold, else None."""
+        """The (median) smoothing radius r [m] of a smooth mesh mold, else None."""
         return float(self.params[14]) if self.kind == MOLD_SMOOTH else None
 
     @property

@@ -162,13 +162,15 @@ _TRACE_STEPS = 64
 
 @njit(cache=True)
 def _smooth_sd(margs, p0, dx, dy, dz, t, out):
-    """Signed distance [m] to the smooth surface at p0 + t d and a lower bound [m] on the
-    distance to it (the faceted fallback far from the mesh may overestimate it by the blend's
-    offset, well below half the smoothing radius); out[3:6] the normal."""
+    """Signed distance [m] to the smooth surface at p0 + t d and a step [m] along the segment
+    that does not reach it: the distance itself, or where the query fell back to the facets
+    (far from the mesh, where the offset between the two surfaces is well below a tenth of the
+    smoothing radius; thin features, where the facets are the surface) the faceted distance less
+    that margin, at least half of it; out[3:6] the normal."""
     sd, smooth = _smooth_query_flag(margs, p0[0] + t * dx, p0[1] + t * dy, p0[2] + t * dz, out)
     safe = abs(sd)
     if not smooth:
-        safe = max(safe - 0.5 * margs.params[14], 0.0)
+        safe = max(safe - 0.1 * margs.params[14], 0.5 * safe)
     return sd, safe
 
 
@@ -225,6 +227,18 @@ def _smooth_segment_hit(margs, p0, p1):
             return 0.0
         steps = 0  # starts on the surface moving off it: straight to the search for a re-entry
     was_outside = f > _HIT_TOL
+    if steps > 0 and f > _HIT_TOL:
+        # both ends outside and farther from the surface, together, than the segment is long:
+        # no point of it can reach the surface (the distance is 1-Lipschitz)
+        n0 = out[3]
+        n1 = out[4]
+        n2 = out[5]
+        f1, safe1 = _smooth_sd(margs, p0, dx, dy, dz, 1.0, out)
+        if f1 > _HIT_TOL and safe + safe1 > L:
+            return -1.0
+        out[3] = n0
+        out[4] = n1
+        out[5] = n2
     for _ in range(steps):
         if abs(f) <= _HIT_TOL and was_outside and t > 0.0:
             return t

@@ -11,23 +11,28 @@ and of Ohtake et al. 2003, "Multi-level partition of unity implicits", SIGGRAPH)
 
     phi(x) = sum_v w_v(x) s_v(x) / sum_v w_v(x),     w_v(x) = psi(|x - v| / r_v)
     s_v(x) = (x - v) . n_v - h_v(x1, x2),             x1 = (x - v) . t1_v,  x2 = (x - v) . t2_v
-    h_v = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2
+    h_v = a x1 + b x2 + c x1^2/2 + d x1 x2 + e x2^2/2 + f x1^3/6 + g x1^2 x2/2 + k x1 x2^2/2 + l x2^3/6
 
-n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the quadratic
-height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
-``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
-= 0), r_v [m] the vertex's blending radius: the smoothing radius r (``params[14]``; default 1.5
-median edge lengths) or 1.25 x its longest edge if larger, up to 3 r (so every point of every
-face but the inside of triangles larger than about 2 r lies inside some vertex's support; the
-inside of such a big triangle, always flat, is answered by the faceted query), and such a wide vertex's weight scaled by (r / r_v)^4 (stored in
-the jet) so that it decides the surface only inside big triangles (flat CAD bases) and not where
-fine vertices are. Each BVH node is pruned by the largest r_v of the vertices its faces own
-(``bvh_reach``). phi is C1 with an analytic gradient; each jet is exact to second
-order, so the surface converges to the sampled smooth body at about fourth order in the edge
-length (second for the facets), its normal and curvature converge too (no facet stripes in the
-pressure), and coplanar neighbourhoods give their plane exactly. (The lead's first design blended
-the faces' planes instead; measured on icospheres it undulates with an amplitude of about half
-the facets' sagitta at the mesh's own wavelength, i.e. an O(1) curvature error: see docs.)
+n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the cubic
+height function through v fitted to its 2-ring of neighbours (quadratic for vertices with fewer
+than 12 neighbours; ``Mold.vertex_jets``, built by ``build._vertex_jets``), psi(t) = (1 - t)^4
+(4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0) = 0). r_v [m] is the vertex's blending
+radius: its base radius b_v (default 1.5 times its mean edge length, so a scan's dense hands and
+face are not blended over the body's coarse scale; ``smoothing`` sets one for all; at most 3
+median bases) raised to 1.25 x its longest edge, at most 3 b_v and 3 median bases (every point
+of a face but the inside of triangles larger than about twice that lies in some vertex's
+support; the inside of such a big triangle, flat on CAD molds, is answered by the faceted
+query). Each weight carries the factor (median base / r_v)^4 (stored in the jet), so fine
+vertices decide the surface wherever they overlap wide ones. Each BVH node is pruned by the
+largest r_v of the vertices its faces own (``bvh_reach``).
+
+phi is C1 with an analytic gradient. A cubic jet's height is exact to third order and its
+curvature to second, so the surface converges to the sampled smooth body at about fourth order in
+the edge length (the facets at second), and so do its normal and curvature: no facet stripes in
+the pressure. Coplanar neighbourhoods give their plane exactly. (The lead's first design blended
+the faces' planes instead. Measured on icospheres it undulates at the mesh's own wavelength with
+about half the facets' sagitta, an O(1) curvature error; quadratic jets left a +-25 % curvature
+ripple on the thermoform mold: see docs/smooth_surface.md.)
 
 Queries (the conventions of :mod:`clothsim.mold`): the closest point c on {phi = 0} is found from
 the faceted closest point by repeated projection of p onto the linearisation of phi at c (a
@@ -35,10 +40,10 @@ Newton step onto phi = 0 and a tangential fixed-point correction in one) until t
 1e-13 m, so that phi(c) = 0 and p - c is parallel to grad phi(c);
 the signed distance is (p - c) . n(c), n = grad phi / |grad phi|, and the feature is code 0 (a
 face, as on the analytic sphere) with the point-dependent normal n(c); ``out[7]`` is the nearest
-mesh face. Points farther than r from the mesh (far outside or deep inside: never in contact),
-points whose foot iteration does not converge, and, on an open mesh, points the faceted open-mesh
-rule puts outside beyond the rim get the faceted answer (still code 0, ``out[3:6]`` the faceted
-pseudo-normal).
+mesh face. The faceted answer (still code 0, ``out[3:6]`` the faceted pseudo-normal) goes to
+points farther than the largest r_v from the mesh (far outside or deep inside: never in contact),
+to points whose foot iteration does not converge in 30 steps, and, on an open mesh, to points the
+faceted open-mesh rule puts outside beyond the rim.
 
 Thin parts thinner than about r (both sides' vertices within each other's supports) are blended
 into one another: use a smaller ``smoothing`` or ``surface: faceted`` there.
@@ -54,7 +59,7 @@ from numba import njit
 from .queries import _box_d2, _mesh_query
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
-_FOOT_ITERS = 60
+_FOOT_ITERS = 30
 
 
 @njit(cache=True)
@@ -112,13 +117,13 @@ def _blend(margs, x, y, z, r, g, stack):
                 dy = y - V[v, 1]
                 dz = z - V[v, 2]
                 d2 = dx * dx + dy * dy + dz * dz
-                rv = J[v, 11]
+                rv = J[v, 15]
                 if d2 >= rv * rv:
                     continue
                 t = math.sqrt(d2) / rv
                 om = 1.0 - t
                 om3 = om * om * om
-                k4 = J[v, 12]
+                k4 = J[v, 16]
                 w = k4 * om3 * om * (4.0 * t + 1.0)
                 # grad w = k4 psi'(t)/rv * (x - v)/|x - v| = -20 k4 (1 - t)^3 (x - v) / rv^2
                 a = -20.0 * k4 * om3 / (rv * rv)
@@ -136,10 +141,19 @@ def _blend(margs, x, y, z, r, g, stack):
                 cc = J[v, 8]
                 cd = J[v, 9]
                 ce = J[v, 10]
-                s = (dx * nx + dy * ny + dz * nz
-                     - (ca * x1 + cb * x2 + 0.5 * cc * x1 * x1 + cd * x1 * x2 + 0.5 * ce * x2 * x2))
-                h1 = ca + cc * x1 + cd * x2
-                h2 = cb + cd * x1 + ce * x2
+                cf = J[v, 11]
+                cg = J[v, 12]
+                ck = J[v, 13]
+                cl = J[v, 14]
+                q11 = x1 * x1
+                q12 = x1 * x2
+                q22 = x2 * x2
+                hv = (ca * x1 + cb * x2 + 0.5 * cc * q11 + cd * q12 + 0.5 * ce * q22
+                      + cf * q11 * x1 / 6.0 + 0.5 * cg * q11 * x2 + 0.5 * ck * x1 * q22
+                      + cl * q22 * x2 / 6.0)
+                s = dx * nx + dy * ny + dz * nz - hv
+                h1 = ca + cc * x1 + cd * x2 + 0.5 * cf * q11 + cg * q12 + 0.5 * ck * q22
+                h2 = cb + cd * x1 + ce * x2 + 0.5 * cg * q11 + ck * q12 + 0.5 * cl * q22
                 sx = nx - h1 * J[v, 0] - h2 * J[v, 3]
                 sy = ny - h1 * J[v, 1] - h2 * J[v, 4]
                 sz = nz - h1 * J[v, 2] - h2 * J[v, 5]
@@ -186,7 +200,7 @@ def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
     (phi(c) = 0, p - c parallel to g); it converges quadratically onto the surface and, along it,
     linearly with the factor |sd| x curvature (fast for the near-surface points of contact).
     Stops when the step is below 1e-13 m (then |phi(c)| / |g| and the tangential residual are
-    too); a growing step is halved; no convergence in 60 steps: ok False."""
+    too); a growing step is halved; no convergence in 30 steps: ok False."""
     prev = np.inf
     damp = 1.0
     for _ in range(_FOOT_ITERS):
@@ -241,7 +255,7 @@ def _smooth_query_flag(margs, px, py, pz, out):
     idx = int(out[7])
     out[6] = 0.0
     out[7] = _nearest_face(margs, code, idx)
-    if not (abs(sdf) < margs.params[14]):
+    if not (abs(sdf) < margs.params[13]):
         return sdf, False
     if margs.info[1] == 0 and sdf > 0.0:
         # open mesh: a point whose foot is on the rim and which is not directly behind a face is
