@@ -73,7 +73,7 @@ prolongation, ``grid_sequence``), ``solver`` (``NewtonSolver`` and the settings 
 """
 
 # the private kernels are re-exported for the tests that drive one step by hand
-from .active_set import PENETRATION_TOL, _apply_pi, _block_infeasible, _projectors, _trial_positions  # noqa: F401
+from .active_set import PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible, _projectors, _trial_positions  # noqa: F401
 from .iteration import DIRECT_DOFS, NewtonLevel
 from .linalg import COARSEST_NODES, Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system  # noqa: F401
 from .sequencing import coarsen_model, grid_sequence, prolong_state, sequencing_chain

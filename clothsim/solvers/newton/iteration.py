@@ -19,8 +19,8 @@ from ...kernels import first_slope, forces_and_energy
 from ...mold import MOLD_MESH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (PENETRATION_TOL, _apply_pi, _block_infeasible, _mold_distances, _projectors,
-                         _trial_positions)
+from .active_set import (PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible, _contact_faces,
+                         _free_distances, _projectors, _trial_positions)
 from .linalg import AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
@@ -32,6 +32,13 @@ ENERGY_RESOLUTION = 1e-13
 # quiet machine and a loaded one (a 1 s wall-clock budget made results depend on the load)
 ITERATE_BUDGET_CG = 400
 
+
+# released nodes on the surface whose step enters the mold are held on it (_block_entering);
+# False only to compare with the solver before it (tests, benchmarks)
+HOLD_ENTERING = True
+# ... when their moves carry more than this share of the step's predicted energy decrease (1: all
+# of it, i.e. without them the step would not lower the energy at first order)
+HOLD_SHARE = 1.0
 
 LM_ALPHA_LOW = 0.1
 LM_MAX = 1e4
@@ -83,6 +90,7 @@ class NewtonLevel:
         self.probe = 1e-6 * float(min(model.spacing))
         self._cache = None
         self.sd0 = np.full(n, np.inf)
+        self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
         self._mg_pi = None
         self._mg_mu = None
@@ -152,10 +160,11 @@ class NewtonLevel:
         else:
             E0 = self.energy_forces(pos, F)
         self._cache = None
-        _mold_distances(pos, self.has_mold, self.margs, self.sd0)
         contact = state.in_contact
         contact_before = contact.copy()
         _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe)
+        # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
+        _free_distances(pos, contact, self.has_mold, self.margs, self.sd0)
         v_base = self.residual(pos, contact, F) if not np.array_equal(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
@@ -186,7 +195,11 @@ class NewtonLevel:
             for _ in range(3):
                 if not (self.has_mold and np.all(np.isfinite(dx))):
                     break
-                if _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi) == 0:
+                blocked = _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi)
+                if HOLD_ENTERING:
+                    blocked += _block_entering(pos, dx, contact, self.sd0, self.has_mold, self.margs, self.Pi,
+                                               PENETRATION_TOL, rhs, HOLD_SHARE)
+                if blocked == 0:
                     break
                 _apply_pi(self.Pi, f, rhs)
                 dx, _ = self._solve_linear(rhs, mu_abs, tol)
@@ -221,13 +234,18 @@ class NewtonLevel:
             alpha = 0.5 * self.blowup / big
         Ft = np.empty_like(self.F)
         mesh = self.has_mold and self.margs[0][0] == MOLD_MESH and contact.any()
+        face0 = self._face0
+        faces_known = False
         for _ in range(40):
             self.ls_alpha = alpha
             # the straight step (contact nodes projected back onto the surface); on a mesh mold,
             # when it fails, the same step with contact nodes stopped at their face's border
             for clip in ((False, True) if mesh else (False,)):
+                if clip and not faces_known:
+                    _contact_faces(pos, contact, self.has_mold, self.margs, face0)
+                    faces_known = True
                 pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                       clip, self.F, self.trial, self.trial_contact)
+                                       clip, face0, self.F, self.trial, self.trial_contact)
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
