@@ -547,7 +547,11 @@ def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: 
         lines += ["## newton against paper", "",
                   "At the tightest level both reached (paper capped by its time limit):", "",
                   "| scene | level N | paper s | newton s | speed-up |", "|---|---|---|---|---|", *sp_lines, ""]
-    lines += scan_table(scan_rows or [])
+    if scan_rows:
+        lines += scan_table(scan_rows)
+    elif (out / "benchmarks_scans.md").exists():
+        lines += ["## Scan campaign", "", "Run apart (`python app.py bench --scans`): see "
+                  "[benchmarks_scans.md](benchmarks_scans.md).", ""]
     lines += ["## References", "", "| scene | reference status | reference residual N |", "|---|---|---|"]
     for case, ref in refs.items():
         lines.append(f"| {case} | {ref['status']} | {ref['residual']:.1e} |")
