@@ -80,9 +80,15 @@ def cmd_run(args) -> int:
               f"(it gathers: nothing holds its width)")
     if "max_seam_gap_m" in s:
         print(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
+        for n, r in enumerate(s.get("seams") or []):
+            if r["ease_pct"] > 0.01:  # an eased seam: say how much its longer side gathers
+                print(f"  seam {n}: sides {r['a_length_m']:.4g} m and {r['b_length_m']:.4g} m, ease "
+                      f"{r['ease_pct']:.1f} % (the longer side gathers), open by at most {r['max_gap_m']:.2e} m")
     if s.get("gathered_contact_nodes"):
         print(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
-              f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak")
+              f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
+              + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
+                 if s.get("contact_line_load_n_per_m") is not None else ""))
     if out is not None:
         print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
     if args.json:

@@ -22,19 +22,28 @@ from .selection import SelectionError
 _NO_MOLD = object()
 
 
-def scene_panels(scene: Scene) -> list[PanelBuild]:
+def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
     """The scene's panels as the builder takes them: the ``fabric`` rectangle (one panel named
-    ``fabric``), or each of ``panels`` cut to its outline (clothsim.panels)."""
+    ``fabric``), or each of ``panels`` cut to its outline (clothsim.panels). ``mold`` (a loaded
+    Mold or None) is what ``wrap_hull`` placements wrap round."""
+    from .hullwrap import hull_wrap
+
     fab = scene.fabric
     if not scene.panels:
         nx, ny = fab.divisions
         lx, ly = fab.size
         warp, weft = scene.tables()
         geom = rectangle_geometry("fabric", nx, ny, lx / nx, ly / ny, origin=fab.origin[:2])
-        return [PanelBuild(geom, warp, weft, Placement(tuple(fab.origin), tuple(fab.size), scene.initial.wrap),
+        hull = None
+        if scene.initial.wrap_hull is not None:
+            box = np.array([[0.0, 0.0], [lx, 0.0], [lx, ly], [0.0, ly]])
+            hull = hull_wrap(scene.initial.wrap_hull, mold, box, ly / ny, "initial.wrap_hull")
+        return [PanelBuild(geom, warp, weft, Placement(tuple(fab.origin), tuple(fab.size), scene.initial.wrap,
+                                                       hull=hull),
                            z=fab.origin[2])]
-    if scene.initial.wrap is not None:
-        raise SceneError("initial.wrap: with panels, give each panel its placement (panels.N.placement.wrap)")
+    for key in ("wrap", "wrap_hull"):
+        if getattr(scene.initial, key) is not None:
+            raise SceneError(f"initial.{key}: with panels, give each panel its placement (panels.N.placement.{key})")
     out = []
     default = {}
     for n, panel in enumerate(scene.panels):
@@ -65,7 +74,11 @@ def scene_panels(scene: Scene) -> list[PanelBuild]:
         size = tuple(float(x) for x in uv.max(axis=0) - uv.min(axis=0))
         origin = (float(geom.origin[0]), float(geom.origin[1]), 0.0)
         pl = panel.placement
-        if pl.wrap is not None:
+        if pl.wrap_hull is not None:
+            uv = (geom.outline - geom.origin) @ np.stack([g, [-g[1], g[0]]], 1)
+            hull = hull_wrap(pl.wrap_hull, mold, uv, geom.spacing[1], f"panels.{n}.placement.wrap_hull")
+            placement = Placement(origin, size, None, grain=tuple(g), hull=hull)
+        elif pl.wrap is not None:
             placement = Placement(origin, size, pl.wrap, grain=tuple(g))
         elif pl.transform is not None:
             placement = Placement(origin, size, None, grain=tuple(g), rotation=rotation_matrix(pl.transform.rotate),
@@ -153,22 +166,64 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     """The constant Model of a scene; ``mold`` (a loaded Mold or None) replaces the scene's own
     mold when given (tests and the viewer's mold preview use it)."""
     check_memory(scene)
-    panels = scene_panels(scene)
-    if mold is _NO_MOLD:
+    warn = mold is _NO_MOLD
+    if warn:
         mold = load_scene_mold(scene)
+    panels = scene_panels(scene, mold)
+    if warn:
         _warn_scale(mold, panels)
+    seams, constraints = _named_vertices(scene)
     try:
         return build_model(
             panels=panels,
-            constraints=scene.constraints,
+            constraints=constraints,
             shear_stiffness=None if scene.shear is None else scene.shear.stiffness,
             bending_stiffness=None if scene.bending is None else scene.bending.stiffness,
             gravity=scene.gravity,
-            seams=scene.seams,
+            seams=seams,
             mold=mold,
         )
     except SelectionError as exc:
         raise SceneError(str(exc)) from None
+
+
+def _named_vertices(scene: Scene):
+    """The scene's seams and constraints with every outline vertex given by name (a pattern
+    piece's notch, ``edge: [notch1, notch2]``) replaced by its index in the panel's outline
+    (clothsim.patterns.Piece.vertex_names). Nothing is read unless a selector names a vertex."""
+    sels = [(f"seams.{n}.{k}", s, k) for n, s in enumerate(scene.seams) for k in ("a", "b")]
+    sels += [(f"constraints.{n}.nodes", c, "nodes") for n, c in enumerate(scene.constraints)]
+    named = [(w, o, k) for w, o, k in sels
+             if getattr(getattr(o, k), "edge", None) is not None and any(isinstance(v, str) for v in getattr(o, k).edge)]
+    if not named:
+        return scene.seams, scene.constraints
+    by_panel = {p.name: n for n, p in enumerate(scene.panels)}
+    cache: dict = {}
+    fixed: dict = {}
+    for where, obj, key in named:
+        sel = getattr(obj, key)
+        n = by_panel.get(sel.panel)
+        if n is None:
+            continue  # the builder names the unknown panel
+        if n not in cache:
+            cache[n] = dict(_pattern_piece(scene, n).vertex_names) if scene.panels[n].pattern is not None else {}
+        names = cache[n]
+        edge = []
+        for v in sel.edge:
+            if isinstance(v, str):
+                if v not in names:
+                    known = (f"its named vertices: {', '.join(names)}" if names else
+                             "it has no named vertices (names come from a pattern file's notches)")
+                    raise SceneError(f"{where}.edge: no vertex '{v}' on panel '{sel.panel}'; {known}")
+                v = names[v]
+            edge.append(v)
+        fixed[id(obj), key] = sel.model_copy(update={"edge": tuple(edge)})
+
+    def resolved(obj, keys):
+        upd = {k: fixed[id(obj), k] for k in keys if (id(obj), k) in fixed}
+        return obj.model_copy(update=upd) if upd else obj
+
+    return ([resolved(s, ("a", "b")) for s in scene.seams], [resolved(c, ("nodes",)) for c in scene.constraints])
 
 
 def _warn_scale(mold, panels) -> None:
@@ -185,9 +240,31 @@ def _warn_scale(mold, panels) -> None:
 
 
 def compile_state(scene: Scene, model: Model) -> State:
-    """The initial State of a compiled scene (paper 3.1; see clothsim.initial)."""
+    """The initial State of a compiled scene (paper 3.1; see clothsim.initial). Warns
+    (``mold: no node of the sheet can reach the mold ...``) when the mold is out of the sheet's
+    reach (clothsim.mold.mold_reach_warning)."""
     ini = scene.initial
-    return initial_state(model, ini, None if ini.file is None else scene.resolve(ini.file))
+    state = initial_state(model, ini, None if ini.file is None else scene.resolve(ini.file))
+    _warn_reach(model, state)
+    return state
+
+
+def _warn_reach(model: Model, state: State) -> None:
+    """Warn when no node, where it starts or where the constraints take it, is within the
+    sheet's size of the mold."""
+    if model.mold is None:
+        return
+    import warnings
+
+    from .mold import mold_reach_warning
+
+    pts = np.concatenate([state.positions, model.prescribed_positions[model.fixed_axes.any(axis=1)]])
+    # a strided sample of at most 20,000 points (lattice neighbours are consecutive, so it misses
+    # the nearest point by a few spacings at most, far below the sheet's size)
+    pts = pts[::max(1, -(-len(pts) // 20000))]
+    msg = mold_reach_warning(model.mold, pts, max(model.placement.size))
+    if msg:
+        warnings.warn(f"mold: {msg}", UserWarning, stacklevel=3)
 
 
 def compile_scene(scene: Scene, mold=_NO_MOLD) -> tuple[Model, State]:

@@ -201,13 +201,14 @@ class NodeRange(_Strict):
     With ``panels``: ``panel`` names the panel the selector reads (omitted: every panel);
     ``side`` a named set of that panel's lattice (left, right, ... as in constraints); ``edge``
     ``[v0, v1]`` the lattice nodes along the panel's outline from vertex v0 to vertex v1
-    (counter-clockwise), ordered along it."""
+    (counter-clockwise), ordered along it; a vertex is its index in the outline, or for a panel
+    read from a pattern file the name of one of its notches (``notch1``, ``notch2``, ...)."""
 
     i: IndexRange | Int | None = None
     j: IndexRange | Int | None = None
     panel: str | None = None
     side: Literal[NODE_SETS] | None = None  # type: ignore[valid-type]
-    edge: tuple[Int, Int] | None = None
+    edge: tuple[Int | str, Int | str] | None = None
 
     @model_validator(mode="after")
     def _one_kind(self):
@@ -317,18 +318,100 @@ class Wrap(_Strict):
         return _finite(v)
 
 
+class Region(_Strict):
+    """An axis-aligned box [m]: ``min`` and ``max`` corners (min < max on every axis)."""
+
+    min: tuple[float, float, float]
+    max: tuple[float, float, float]
+
+    @field_validator("min", "max")
+    @classmethod
+    def _corner(cls, v):
+        return _coords(v)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if not all(a < b for a, b in zip(self.min, self.max)):
+            raise ValueError(f"min must be below max on every axis (got {list(self.min)}, {list(self.max)})")
+        return self
+
+
+class WrapHull(_Strict):
+    """The sheet (or a panel) wrapped round a body slab, clear of it (clothsim.hullwrap): each row
+    goes round the convex hull of the mold's cross-section at its height (the mold's part inside
+    ``region``, when given), grown by ``clearance`` [m], by arc length. axis: the body axis;
+    center [m]: a point on it, where the sheet's middle row sits; heights [m]: [lowest row,
+    highest row] along the axis measured from center (omitted: the sheet's own height, centred);
+    start_angle [deg]: the ray (in ``initial.wrap``'s frame) that marks the perimeter's start;
+    offset: where the sheet's left edge sits, as a fraction of the perimeter past that start;
+    fraction: the share of the perimeter each row's width covers (1: once round; 0.5 for each of
+    two panels)."""
+
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    clearance: float = 0.01
+    heights: tuple[float, float] | None = None
+    region: Region | None = None
+    start_angle: float = 0.0
+    offset: float = 0.0
+    fraction: float = 1.0
+
+    @field_validator("axis")
+    @classmethod
+    def _axis(cls, v):
+        return _direction(v)
+
+    @field_validator("center")
+    @classmethod
+    def _center(cls, v):
+        return _coords(v)
+
+    @field_validator("clearance")
+    @classmethod
+    def _clear(cls, v):
+        _finite(v)
+        if not 0 <= v <= COORD_MAX:
+            raise ValueError(f"must be between 0 and {COORD_MAX:g} m (got {v})")
+        return v
+
+    @field_validator("heights")
+    @classmethod
+    def _heights(cls, v):
+        if v is None:
+            return v
+        _coords(v)
+        if not v[0] < v[1]:
+            raise ValueError(f"must be [lowest, highest] with lowest < highest (got {list(v)})")
+        return v
+
+    @field_validator("start_angle", "offset")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v)
+
+    @field_validator("fraction")
+    @classmethod
+    def _fraction(cls, v):
+        _finite(v)
+        if not 0 < v <= 10:
+            raise ValueError(f"must be above 0 and at most 10 (got {v})")
+        return v
+
+
 class PanelPlacement(_Strict):
     """Where a panel starts in space: ``transform`` (rigid; the default is the identity: the panel
-    in z = 0) or ``wrap`` (rolled round an axis at a radius, warp round the axis, like
-    ``initial.wrap``)."""
+    in z = 0), ``wrap`` (rolled round an axis at a radius, warp round the axis, like
+    ``initial.wrap``) or ``wrap_hull`` (round a body: round the hull of the mold's slab, like
+    ``initial.wrap_hull``)."""
 
     transform: PanelTransform | None = None
     wrap: Wrap | None = None
+    wrap_hull: WrapHull | None = None
 
     @model_validator(mode="after")
     def _one(self):
-        if self.transform is not None and self.wrap is not None:
-            raise ValueError("give transform or wrap, not both")
+        if sum(x is not None for x in (self.transform, self.wrap, self.wrap_hull)) > 1:
+            raise ValueError("give one of transform, wrap and wrap_hull")
         return self
 
 
@@ -415,7 +498,8 @@ class Initial(_Strict):
 
     lift [m]: interior nodes raised along +z by a smooth dome of this height.
     file: an earlier result's positions (nx+1, ny+1, 3) provide the free coordinates.
-    wrap: the sheet rolled onto a cylinder. perturb [m] with seed: a random perturbation of the
+    wrap: the sheet rolled onto a cylinder. wrap_hull: the sheet laid round the hull of the mold's
+    slab at each row's height, clear of it (see :class:`WrapHull`). perturb [m] with seed: a random perturbation of the
     free coordinates (tests start from perturbed states). auto_clearance: lift the sheet just
     clear of the mold if it touches it, instead of refusing the scene. interpolate (default true):
     free nodes start with the in-plane stretch of the constrained ones spread smoothly over the
@@ -425,6 +509,7 @@ class Initial(_Strict):
     lift: float = 0.0
     file: str | None = None
     wrap: Wrap | None = None
+    wrap_hull: WrapHull | None = None
     perturb: float = 0.0
     seed: Int = 0
     auto_clearance: bool = False
@@ -434,6 +519,12 @@ class Initial(_Strict):
     @classmethod
     def _fin(cls, v):
         return _coords(v)
+
+    @model_validator(mode="after")
+    def _one_wrap(self):
+        if self.wrap is not None and self.wrap_hull is not None:
+            raise ValueError("give wrap or wrap_hull, not both")
+        return self
 
 
 class Gravity(_Strict):
@@ -476,10 +567,13 @@ class Seam(_Strict):
     """A sewn seam (eq. 1, F_seams): node line ``a`` is sewn to node line ``b`` of the same sheet,
     node by node in index order (``reverse: true`` pairs a's first node with b's last). Each pair
     is joined by a zero-length linear spring, the sewing force ``k * gap`` [N] pulling the two
-    nodes together, with ``k = stiffness x`` the pair's share of the seam length [m].
+    nodes together, with ``k = stiffness x`` the pair's share of the seam length [m]. Sides of
+    unequal node counts are sewn along arc length: each node of the denser side to the point of
+    the other side at the same fraction of its length (the same law, k |gap|^2 / 2); a longer
+    side gathers onto the shorter one (ease).
 
     a, b: node sets or index ranges as in constraints; each must select one line of nodes (a
-    single i or a single j) and both the same number of nodes. stiffness [N/m per metre of seam,
+    single i or a single j) or an outline edge. stiffness [N/m per metre of seam,
     N/m^2]: omitted = 1000 x the stiffest slope of the warp and weft tables / the smaller grid
     spacing, so that the seam opens by about a thousandth of a grid spacing times the strain
     across it (``summary.json: max_seam_gap_m`` says by how much)."""
@@ -574,7 +668,13 @@ class MeshMoldSpec(_Strict):
     number, or three (per axis), multiplying the file's coordinates into metres (0.001 for a file
     in millimetres); rotate [deg]: about x, then y, then z; translate [m]: applied last;
     closed: true = must be watertight (inside = the enclosed volume), false = an open skin even
-    if watertight, omitted = detected."""
+    if watertight, omitted = detected; up: the file's up axis, ``z`` (clothsim's own, the
+    default) or ``y`` (most scans and glTF): a Y-up file is turned +90 degrees about x before
+    everything else (its y becomes z, its front +z becomes -y); surface: 'faceted' (contact on the triangles themselves:
+    CAD molds with real sharp edges; the default) or 'smooth' (contact on a smooth surface
+    blended from the triangles' planes: scans, whose triangles only sample a smooth body; the
+    pressure then converges under refinement); smoothing [m]: the smooth surface's blending
+    radius (default: the mesh's median edge length; smooth only)."""
 
     kind: ClassVar[str] = "mesh"
     path: str
@@ -582,6 +682,20 @@ class MeshMoldSpec(_Strict):
     translate: tuple[float, float, float] | None = None
     rotate: tuple[float, float, float] | None = None
     closed: StrictBool | None = None
+    up: Literal["y", "z"] | None = None
+    surface: Literal["faceted", "smooth"] | None = None  # None: faceted
+    smoothing: float | None = None
+
+    @field_validator("smoothing")
+    @classmethod
+    def _smoothing(cls, v):
+        return v if v is None else _positive(v)
+
+    @model_validator(mode="after")
+    def _smoothing_needs_smooth(self):
+        if self.smoothing is not None and self.surface != "smooth":
+            raise ValueError("smoothing: applies to surface: smooth only")
+        return self
 
     @field_validator("path")
     @classmethod
@@ -816,17 +930,19 @@ class Scene(_Strict):
 
     @model_validator(mode="after")
     def _seams_fit(self):
-        """Each seam joins two node lines of equal length that do not overlap (checked here for
-        the ``fabric`` sheet; panel seams are checked when the panels' lattices are built)."""
+        """Each seam joins two node lines that are not the same (checked here for the ``fabric``
+        sheet; panel seams are checked when the panels' lattices are built)."""
         if not self.seams or self.panels:
             return self
-        from .selection import SelectionError, seam_pairs
+        from .selection import SelectionError, seam_pairs, seam_sides
         from .topology import Topology
 
         topology = Topology.rectangle(*self.fabric.divisions)
         for n, seam in enumerate(self.seams):
             try:
-                seam_pairs(seam, topology)
+                a, b, _ = seam_sides(seam, topology)
+                if a.size == b.size:
+                    seam_pairs(seam, topology)
             except SelectionError as exc:
                 raise ValueError(f"seams.{n}.{exc}") from None
         return self

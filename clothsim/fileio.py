@@ -1,9 +1,14 @@
 """Reading input files with bounds and writing output files safely.
 
-Reading: :func:`read_text` refuses what is not a regular file (``/dev/zero``, a FIFO), a file
-larger than a stated cap and text that is not UTF-8 (naming the line), each with one line
-``file[:line]: what`` in the caller's error class. :func:`load_yaml` also refuses YAML whose
-aliases expand past a budget (billion-laughs "YAML bombs") before anything is built from it.
+Reading: every input file (scenes, sweep files, CSV tables, molds, patterns, initial positions)
+passes :func:`check_input_file` before it is opened: a missing file, anything but a regular file
+(``/dev/zero``, a FIFO, a folder), a symbolic link leading out of the folder its path names and a
+file over a stated cap are refused, each with one line ``file: what`` in the caller's error class.
+:func:`read_input_bytes` then reads at most the cap (checked again on the open descriptor) and
+:func:`read_text` decodes UTF-8 (naming the line of a bad byte). :func:`load_yaml` also refuses
+YAML whose aliases expand past a budget (billion-laughs "YAML bombs") before anything is built
+from it. Messages about a file's content quote at most :func:`excerpt` of it: a short, printable
+piece (a file may not be what its name says: a link to ``/etc/shadow`` named ``.csv``).
 
 Writing: :func:`atomic_write_bytes` writes a temporary name beside the target and renames it, and
 removes the temporary file if anything fails (a full disk included); :func:`check_out_dir` makes
@@ -16,6 +21,7 @@ from __future__ import annotations
 import errno
 import os
 import shutil
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -38,28 +44,80 @@ class OutputError(OSError):
         return self.args[0] if self.args else ""
 
 
-def read_text(path: str | Path, error: type[Exception], *, limit: int = TEXT_LIMIT,
-              encoding: str = "utf-8") -> str:
-    """The text of a regular file of at most ``limit`` bytes, decoded as UTF-8 (``utf-8-sig`` also
-    strips a byte-order mark). Raises ``error("file[:line]: what")`` otherwise."""
+def excerpt(text, n: int = 24, quote: bool = True) -> str:
+    """A short, printable excerpt of file content for an error message: at most ``n``
+    characters, anything but printable ASCII shown as '?', '...' when cut; ``quote``: in quotes
+    (repr). Messages never echo more of a file than this."""
+    text = str(text)
+    cut = len(text) > n
+    text = "".join(c if " " <= c <= "~" else "?" for c in text[:n]) + ("..." if cut else "")
+    return repr(text) if quote else text
+
+
+def _mb(n: int) -> str:
+    if n < 2**20:
+        return f"{n:,} bytes"
+    return f"{n / 2**20:.1f} MB" if n < 10 * 2**20 else f"{n / 2**20:.0f} MB"
+
+
+def check_input_file(path: str | Path, error: type[Exception], *, limit: int, what: str = "file",
+                     allow_empty: bool = True) -> os.stat_result:
+    """``os.stat`` of an input file named by the user, refusing before anything is opened:
+    a missing or unreadable path; anything but a regular file (a device such as ``/dev/zero``, a
+    FIFO, a folder: ``not a regular file``); a symbolic link whose target lies outside the folder
+    the path names (``is a link to a file outside its folder``: the file is not read, so no
+    message can quote it); a file over ``limit`` bytes (``too large``); an empty file unless
+    ``allow_empty``. Raises ``error("path: why")``; ``what`` names the kind of file in messages
+    ("mold file", "pattern file")."""
     path = Path(path)
     try:
         st = os.stat(path)
     except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    import stat
-
+        raise error(f"{path}: cannot open ({exc.strerror or exc})") from None
     if not stat.S_ISREG(st.st_mode):
-        raise error(f"{path}: not a regular file")
+        raise error(f"{path}: not a regular file (a device, pipe or folder cannot be a {what})")
+    folder = Path(os.path.realpath(path.parent))
+    if not Path(os.path.realpath(path)).is_relative_to(folder):
+        raise error(f"{path}: is a link to a file outside its folder; refusing to follow it "
+                    f"(copy the file there instead)")
     if st.st_size > limit:
-        raise error(f"{path}: too large ({st.st_size / 2**20:.1f} MB; at most {limit / 2**20:.0f} MB)")
+        raise error(f"{path}: too large ({_mb(st.st_size)}; over the {what} limit of {_mb(limit)})")
+    if st.st_size == 0 and not allow_empty:
+        raise error(f"{path}: empty file")
+    return st
+
+
+def read_input_bytes(path: str | Path, error: type[Exception], *, limit: int, what: str = "file",
+                     allow_empty: bool = True) -> bytes:
+    """The bytes of an input file after :func:`check_input_file`; the open descriptor is checked
+    again (a regular file: a path swapped for a FIFO meanwhile cannot block the read) and at most
+    ``limit`` bytes are read (a file growing meanwhile cannot make the read unbounded)."""
+    path = Path(path)
+    check_input_file(path, error, limit=limit, what=what, allow_empty=allow_empty)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0)
     try:
-        with open(path, "rb") as fh:
+        fd = os.open(os.path.realpath(path), flags)
+    except OSError as exc:
+        raise error(f"{path}: cannot open ({exc.strerror or exc})") from None
+    try:
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise error(f"{path}: not a regular file (a device, pipe or folder cannot be a {what})")
             data = fh.read(limit + 1)
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
     if len(data) > limit:  # grew since the stat
-        raise error(f"{path}: too large (at most {limit / 2**20:.0f} MB)")
+        raise error(f"{path}: too large (over the {what} limit of {_mb(limit)})")
+    return data
+
+
+def read_text(path: str | Path, error: type[Exception], *, limit: int = TEXT_LIMIT,
+              encoding: str = "utf-8") -> str:
+    """The text of an input file (see :func:`check_input_file`) of at most ``limit`` bytes,
+    decoded as UTF-8 (``utf-8-sig`` also strips a byte-order mark). Raises
+    ``error("file[:line]: what")`` otherwise."""
+    path = Path(path)
+    data = read_input_bytes(path, error, limit=limit)
     try:
         return data.decode(encoding)
     except UnicodeDecodeError as exc:
@@ -120,7 +178,7 @@ def load_yaml(text: str, source: str, error: type[Exception], *,
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{source}:{mark.line + 1}" if mark is not None else str(source)
-        raise error(f"{where}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
+        raise error(f"{where}: not valid YAML ({excerpt(getattr(exc, 'problem', None) or exc, 80, quote=False)})") from None
     except RecursionError:
         raise error(f"{source}: YAML nested too deeply") from None
 

@@ -4,8 +4,10 @@ A :class:`~clothsim.topology.Topology` says which nodes exist and which warp and
 join them; this module gives them their rest lengths, tributary widths and tables, adds the
 optional shear, bending and seam families (built only when a scene asks for them: an unused term
 costs nothing), and the constraint masks. Springs are stored warp first, then weft (in the
-topology's order), then shear, bending and seams. Grid sequencing's coarse models come from the
-same builder on the stride-2 lattice (:func:`coarsen_model`).
+topology's order), then shear, bending and seams. A seam of unequal node counts is not a spring:
+it is a set of seam elements (``Model.seam_nodes``, built by
+:func:`clothsim.selection.arc_elements`; none when no seam needs them). Grid sequencing's coarse
+models come from the same builder on the stride-2 lattice (:func:`coarsen_model`).
 
 Tributary width (paper Fig. 3): a warp spring carries the band of width dy around its row: half
 of it (dy/2) on each side where the lattice has a cell, so half on the bottom and top rows of a
@@ -17,7 +19,7 @@ this module is :mod:`clothsim.compile`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -43,7 +45,8 @@ class Placement:
     plane (None: x); wrap: an object with ``center`` [m], ``axis``, ``radius`` [m] and
     ``start_angle`` [deg] (the panel rolled onto a cylinder, warp round the axis, weft along it,
     centred on ``center``), or None; rotation (3, 3) and translation (3,) [m]: a rigid placement
-    (used when wrap is None; None: the identity)."""
+    (used when wrap is None; None: the identity); hull: a clothsim.hullwrap.HullWrap (the panel
+    laid round the hull of a mold's slab), or None."""
 
     origin: tuple = (0.0, 0.0, 0.0)
     size: tuple = (0.0, 0.0)
@@ -51,9 +54,14 @@ class Placement:
     grain: tuple | None = None
     rotation: np.ndarray | None = None
     translation: np.ndarray | None = None
+    hull: object = None
 
     def apply(self, flat: np.ndarray) -> np.ndarray:
         """Points of the flat panel (N, 3) [m] -> their placement in space (N, 3) [m]."""
+        if self.hull is not None:
+            g = np.asarray(self.grain if self.grain is not None else (1.0, 0.0), float)
+            d = flat[:, :2] - np.asarray(self.origin[:2])
+            return self.hull.place(d @ g, d @ np.array([-g[1], g[0]]), flat[:, 2] - self.origin[2])
         w = self.wrap
         if w is None:
             if self.rotation is None:
@@ -98,7 +106,7 @@ class Placements:
     @property
     def identity(self) -> bool:
         """True when every panel stays where its flat lattice is (no wrap, no rigid motion)."""
-        return all(pl.wrap is None and pl.rotation is None for _, _, pl in self.parts)
+        return all(pl.wrap is None and pl.rotation is None and pl.hull is None for _, _, pl in self.parts)
 
     @property
     def size(self) -> tuple:
@@ -128,6 +136,29 @@ def rotation_matrix(degrees) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class SeamInfo:
+    """One seam of a model, for reports: a_length, b_length [m] the rest arc lengths of its two
+    sides; springs: indices of its zero-length springs (sides of equal node counts) into the
+    model's springs; elements: indices of its seam elements (unequal counts) into
+    ``Model.seam_nodes``."""
+
+    a_length: float
+    b_length: float
+    springs: np.ndarray
+    elements: np.ndarray
+
+    @property
+    def ease(self) -> float:
+        """How much longer the longer side is than the shorter [%]."""
+        lo, hi = sorted((self.a_length, self.b_length))
+        return 100.0 * (hi - lo) / lo if lo > 0 else math.inf
+
+
+def _empty(shape, dtype=float):
+    return field(default_factory=lambda: np.zeros(shape, dtype))
+
+
+@dataclass(frozen=True)
 class Model:
     """Constant arrays of a scene (MuJoCo's model/data split: the State changes, this does not).
 
@@ -142,7 +173,11 @@ class Model:
     (N,3) constant (gravity; zeros when off); node_area [m^2] (N,) tributary area of each node;
     node adjacency in CSR form: adj_ptr (N+1,), adj_node, adj_spring; mold: clothsim.mold.Mold or
     None; spacing [m] (dx, dy) of the lattice (the smallest over panels); panel_spacing (P, 2)
-    [m] each panel's; placement: where each panel's flat lattice starts in space."""
+    [m] each panel's; placement: where each panel's flat lattice starts in space.
+    Seam elements (seams of unequal node counts, clothsim.kernels.seam_forces_and_energy):
+    seam_nodes (Q,K) int64, seam_weight (Q,K) the gap's coefficients, seam_stiffness (Q,)
+    [N/m]; Q = 0 when the scene has none (each element's first node is the node it sews, with
+    weight 1). seams: one SeamInfo per scene seam."""
 
     node_count: int
     topology: Topology
@@ -166,6 +201,55 @@ class Model:
     prescribed_flat: np.ndarray | None = None
     placement: Placements = Placements()
     panel_spacing: np.ndarray | None = None
+    seam_nodes: np.ndarray = _empty((0, 1), np.int64)
+    seam_weight: np.ndarray = _empty((0, 1))
+    seam_stiffness: np.ndarray = _empty(0)
+    seams: tuple = ()
+
+    @property
+    def seam_count(self) -> int:
+        """Q: seam elements (0 unless a seam joins sides of unequal node counts)."""
+        return int(self.seam_nodes.shape[0])
+
+    def seam_args(self) -> tuple:
+        """The seam element arrays in the order the kernels take them."""
+        return self.seam_nodes, self.seam_weight, self.seam_stiffness
+
+    def add_seam_forces(self, pos: np.ndarray, out: np.ndarray) -> float:
+        """Adds the seam elements' forces [N] into out (N,3); returns their energy [J] (0 and
+        nothing done when there are none)."""
+        if not self.seam_nodes.shape[0]:
+            return 0.0
+        from .kernels import seam_forces_and_energy
+
+        return seam_forces_and_energy(pos, self.seam_nodes, self.seam_weight, self.seam_stiffness, out)
+
+    def seam_gaps(self, pos: np.ndarray) -> list:
+        """Per seam (in scene order) its gaps [m] at positions pos (N,3): the zero-length
+        springs' lengths, and for a seam of unequal counts each element's |g| (the distance from
+        its node to the point of the other side it is sewn to)."""
+        from .kernels import seam_gaps
+
+        g = np.empty(self.seam_count)
+        if g.size:
+            seam_gaps(pos, self.seam_nodes, self.seam_weight, g)
+        out = []
+        for info in self.seams:
+            ab = self.spring_nodes[info.springs]
+            out.append(np.concatenate([np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1), g[info.elements]]))
+        return out
+
+    def seam_points(self, pos: np.ndarray) -> np.ndarray:
+        """(P, 2, 3) [m]: the two ends of every seam spring, and every seam element's node and
+        the point of the other side it is sewn to (x - g), for drawing."""
+        ab = self.spring_nodes[self.spring_family == FAMILY_SEAM]
+        a = [pos[ab[:, 0]]]
+        b = [pos[ab[:, 1]]]
+        if self.seam_count:
+            x = pos[self.seam_nodes[:, 0]]
+            a.append(x)
+            b.append(x - (self.seam_weight[:, :, None] * pos[self.seam_nodes]).sum(axis=1))
+        return np.stack([np.concatenate(a), np.concatenate(b)], axis=1)
 
     @property
     def grid_shape(self) -> tuple[int, int]:
@@ -220,6 +304,17 @@ def _adjacency(n: int, spring_nodes: np.ndarray):
     ptr = np.zeros(n + 1, np.int64)
     np.cumsum(counts, out=ptr[1:])
     return ptr, others[order].astype(np.int64), sids[order].astype(np.int64)
+
+
+def seam_adjacency(n: int, seam_nodes: np.ndarray):
+    """Per node the seam elements touching it, in CSR form: (ptr (n+1,), elem) with node k's
+    elements elem[ptr[k]:ptr[k+1]] (each once, even where an element names k twice)."""
+    q = np.repeat(np.arange(seam_nodes.shape[0]), seam_nodes.shape[1])
+    k = seam_nodes.reshape(-1)
+    pairs = np.unique(np.stack([k, q], 1), axis=0) if k.size else np.zeros((0, 2), np.int64)
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(pairs[:, 0], minlength=n), out=ptr[1:])
+    return ptr, np.ascontiguousarray(pairs[:, 1], np.int64)
 
 
 class _Springs:
@@ -309,7 +404,7 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     ``a``, ``b``, ``reverse`` and ``stiffness`` [N/m^2] (None = the default); mold: a loaded Mold
     or None. A selector that selects nothing valid raises SelectionError naming its field
     (``constraints.N.nodes: ...``, ``seams.N.a: ...``)."""
-    from .selection import SelectionError, seam_pairs, select_nodes
+    from .selection import SelectionError, arc_elements, seam_pairs, seam_sides, select_nodes
 
     geoms = [p.geometry for p in panels]
     topology = Topology.from_masks([g.mask for g in geoms], [g.name for g in geoms],
@@ -341,6 +436,8 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         bend_tid = len(tables) - 1
     sp = lattice_springs(topology, geoms, table_ids, shear_table=shear_tid, bend_table=bend_tid)
 
+    seam_infos = []
+    el_nodes, el_weight, el_k = [], [], []
     if seams:
         tables.append(Table(np.array([0.0, 1.0]), np.array([1.0, 2.0]), compression=True))
         tid = len(tables) - 1
@@ -348,11 +445,29 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         l0 = SEAM_REST_RATIO * h_min
         slope = max(float(np.max(np.diff(t.tension) / np.diff(t.strain)))
                     for pb in panels for t in (pb.warp_table, pb.weft_table))
+        n_springs = sum(x.shape[0] for x in sp.nodes)
+        n_elements = 0
         for n_seam, seam in enumerate(seams):
+            k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / h_min
             try:
-                a, b, share, (sa, sb) = seam_pairs(seam, topology)
+                a_all, b_all, _ = seam_sides(seam, topology)
+                if a_all.size != b_all.size:
+                    dense_is_a, enodes, eweight, share, la, lb = arc_elements(rest[a_all], rest[b_all])
+                else:
+                    a, b, share, (sa, sb) = seam_pairs(seam, topology)
             except SelectionError as exc:
                 raise SelectionError(f"seams.{n_seam}.{exc}") from None
+            arc = [float(np.linalg.norm(np.diff(rest[x], axis=0), axis=1).sum()) for x in (a_all, b_all)]
+            if a_all.size != b_all.size:
+                # one element per node of the denser side (selection.arc_elements)
+                both = np.concatenate([a_all, b_all] if dense_is_a else [b_all, a_all])
+                el_nodes.append(both[enodes])
+                el_weight.append(eweight)
+                el_k.append(k_line * share * 0.5 * (la + lb))  # [N/m] per element
+                seam_infos.append(SeamInfo(arc[0], arc[1], np.zeros(0, np.int64),
+                                           np.arange(n_elements, n_elements + share.size)))
+                n_elements += share.size
+                continue
             side = [sa, sb]
             for k, (nodes, s) in enumerate(((a, sa), (b, sb))):
                 if isinstance(s, tuple):  # (panel, direction 0/1): the lattice spacing
@@ -362,9 +477,19 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
                     side[k] = float(d.mean()) if d.size else h_min
             # the pair's share of the seam length [m], averaged over the two sides
             length = share * 0.5 * (side[0] + side[1])
-            k_line = seam.stiffness if seam.stiffness is not None else 1000.0 * max(slope, 1e-300) / h_min
             k = k_line * length  # [N/m] per pair
             sp.add(a, b, l0, k * l0, tid, FAMILY_SEAM)
+            seam_infos.append(SeamInfo(arc[0], arc[1], np.arange(n_springs, n_springs + a.size), np.zeros(0, np.int64)))
+            n_springs += a.size
+    seam_extra = {}
+    if el_nodes:
+        # rows padded to the widest element (repeating the first node, weight 0)
+        K = max(x.shape[1] for x in el_nodes)
+        el_nodes = [np.concatenate([x, np.repeat(x[:, :1], K - x.shape[1], 1)], 1) for x in el_nodes]
+        el_weight = [np.concatenate([x, np.zeros((x.shape[0], K - x.shape[1]))], 1) for x in el_weight]
+        seam_extra = dict(seam_nodes=np.ascontiguousarray(np.concatenate(el_nodes), np.int64),
+                          seam_weight=np.ascontiguousarray(np.concatenate(el_weight)),
+                          seam_stiffness=np.ascontiguousarray(np.concatenate(el_k)))
 
     spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
@@ -435,6 +560,8 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
         spacing=(float(spacing[:, 0].min()), float(spacing[:, 1].min())),
         placement=placement,
         panel_spacing=spacing,
+        seams=tuple(seam_infos),
+        **seam_extra,
     )
 
 
@@ -444,7 +571,8 @@ def coarsen_model(model: Model):
     ``model`` the coarse lattice keeps; (None, None) unless the lattice is a full rectangle with
     even divisions of at least 4 (what grid sequencing interpolates between)."""
     topo = model.topology
-    if not topo.is_grid:
+    if not topo.is_grid or model.seam_count:
+        # (seam elements tie a node to a point between two fine nodes: not carried to a coarse grid)
         return None, None
     nx1, ny1 = topo.grid_shape
     nx, ny = nx1 - 1, ny1 - 1

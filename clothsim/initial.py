@@ -7,6 +7,7 @@ nodes at the flat sheet, then ``lift`` (a smooth dome), ``wrap`` (the sheet roll
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -66,15 +67,19 @@ def _read_positions(path, shape: tuple) -> np.ndarray:
     """The ``positions`` array [m] of an earlier result.npz; SceneError ``file: initial.file: why``
     for anything else (not a regular file, not an npz, a truncated or oversized member, a
     non-real dtype)."""
-    import stat
     import zipfile
     import zlib
 
+    from .fileio import check_input_file, excerpt
+
     where = f"{path}: initial.file"
     try:
-        if not stat.S_ISREG(path.stat().st_mode):
-            raise SceneError(f"{where}: not a regular file")
-        with np.load(path, allow_pickle=False) as data:
+        # a regular file, not a link out of its folder (np.load opens it by name)
+        try:
+            check_input_file(path, SceneError, limit=2**40, what="positions file")
+        except SceneError as exc:
+            raise SceneError(str(exc).replace(f"{path}: ", f"{where}: ", 1)) from None
+        with np.load(os.path.realpath(path), allow_pickle=False) as data:
             if not hasattr(data, "files"):
                 raise SceneError(f"{where}: not an .npz archive (an earlier run's result.npz)")
             if "positions" not in data.files:
@@ -86,7 +91,7 @@ def _read_positions(path, shape: tuple) -> np.ndarray:
     except SceneError:
         raise
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        raise SceneError(f"{where}: cannot read ({type(exc).__name__}: {str(exc)[:120]})") from None
+        raise SceneError(f"{where}: cannot read ({type(exc).__name__}: {excerpt(exc, 120, quote=False)})") from None
     if p.dtype.kind not in "fiu":
         raise SceneError(f"{where}: positions must be real numbers (got dtype {p.dtype})")
     return np.asarray(p, float)

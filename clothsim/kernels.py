@@ -235,3 +235,131 @@ def spring_hessian_block(pa, pb, l0, w, x, y, cum, start, comp, t, kink_stiffnes
         for j in range(3):
             out[i, j] = (ka - kt) * u[i] * u[j]
         out[i, i] += kt
+
+
+# -- seam elements: seams of unequal node counts --------------------------------------------------
+#
+# A seam element q is a gap g_q = sum_i weight[q, i] x_{nodes[q, i]} [m], a fixed linear
+# combination of K node positions whose weights sum to 0 (so a rigid translation leaves it
+# unchanged), with energy E_q = k_q |g_q|^2 / 2 [J] (the law of the zero-length seam springs).
+# The force on node nodes[q, i] is -k_q weight[q, i] g_q [N] and the Hessian block of the pair
+# (i, j) is k_q weight[q, i] weight[q, j] I [N/m] (constant, positive semi-definite): both exact
+# derivatives of E. clothsim.selection.arc_elements builds them (one per node of the denser
+# side: its hat-weighted gap to the other side along arc length); unused columns of a row
+# repeat its first node with weight 0.
+
+
+@njit(cache=True, error_model="numpy")
+def seam_forces_and_energy(pos, nodes, weight, k, out):
+    """Adds every seam element's force into out (N,3) [N]; returns their energy [J].
+
+    pos (N,3) [m]; nodes (Q,K) int64; weight (Q,K) the gap's coefficients; k (Q,) stiffness
+    [N/m]. E_q = k_q |g_q|^2 / 2, g_q = sum_i weight[q, i] pos[nodes[q, i]]."""
+    energy = 0.0
+    for q in range(nodes.shape[0]):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for i in range(nodes.shape[1]):
+            n = nodes[q, i]
+            w = weight[q, i]
+            g0 += w * pos[n, 0]
+            g1 += w * pos[n, 1]
+            g2 += w * pos[n, 2]
+        kq = k[q]
+        energy += 0.5 * kq * (g0 * g0 + g1 * g1 + g2 * g2)
+        for i in range(nodes.shape[1]):
+            n = nodes[q, i]
+            c = kq * weight[q, i]
+            out[n, 0] -= c * g0
+            out[n, 1] -= c * g1
+            out[n, 2] -= c * g2
+    return energy
+
+
+@njit(cache=True)
+def seam_gaps(pos, nodes, weight, out):
+    """|g_q| [m] of every seam element into out (Q,): how far its node is from the point of the
+    other side it is sewn to (arrays as in ``seam_forces_and_energy``)."""
+    for q in range(nodes.shape[0]):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for i in range(nodes.shape[1]):
+            n = nodes[q, i]
+            w = weight[q, i]
+            g0 += w * pos[n, 0]
+            g1 += w * pos[n, 1]
+            g2 += w * pos[n, 2]
+        out[q] = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+
+
+@njit(cache=True, error_model="numpy")
+def seam_node_force(k, pos, ptr, elem, nodes, weight, stiff, out):
+    """Adds the seam elements' force on node k into out (3,) [N] (the paper's per-node resultant);
+    ptr (N+1,), elem: the elements touching node k are elem[ptr[k]:ptr[k+1]] (see
+    ``clothsim.grid.seam_adjacency``). Returns the sum of |weight_k| |g| over them [m] (the
+    node's 'elongation' in the paper's step, eq. 4)."""
+    d = 0.0
+    for p in range(ptr[k], ptr[k + 1]):
+        q = elem[p]
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        wk = 0.0
+        for i in range(nodes.shape[1]):
+            n = nodes[q, i]
+            w = weight[q, i]
+            g0 += w * pos[n, 0]
+            g1 += w * pos[n, 1]
+            g2 += w * pos[n, 2]
+            if n == k:
+                wk += w
+        c = stiff[q] * wk
+        out[0] -= c * g0
+        out[1] -= c * g1
+        out[2] -= c * g2
+        d += abs(wk) * math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    return d
+
+
+@njit(cache=True)
+def seam_assemble(nodes, weight, k, slot, data):
+    """Adds the seam elements' Hessian blocks k_q w_i w_j I [N/m] into the BSR data (nb,3,3).
+
+    slot (Q,K*K): the block slot of node pair (nodes[q, i], nodes[q, j]) at slot[q, K i + j]."""
+    m = nodes.shape[1]
+    for q in range(nodes.shape[0]):
+        for i in range(m):
+            for j in range(m):
+                c = k[q] * weight[q, i] * weight[q, j]
+                s = slot[q, m * i + j]
+                data[s, 0, 0] += c
+                data[s, 1, 1] += c
+                data[s, 2, 2] += c
+
+
+@njit(cache=True)
+def seam_slots(indptr, indices, nodes):
+    """(Q,K*K) int64: the BSR block slot of node pair (nodes[q, i], nodes[q, j]) at [q, K i + j]
+    (for ``seam_assemble``); indptr (n+1,), indices (nb,) a pattern holding those pairs, with
+    sorted columns per row. A missing block raises."""
+    m = nodes.shape[1]
+    out = np.empty((nodes.shape[0], m * m), np.int64)
+    for q in range(nodes.shape[0]):
+        for i in range(m):
+            r = nodes[q, i]
+            for j in range(m):
+                c = nodes[q, j]
+                lo = indptr[r]
+                hi = indptr[r + 1]
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if indices[mid] < c:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo >= indptr[r + 1] or indices[lo] != c:
+                    raise ValueError("seam_slots: block missing from the pattern")
+                out[q, m * i + j] = lo
+    return out

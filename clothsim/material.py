@@ -107,6 +107,8 @@ def read_table_csv(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
 
 def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.ndarray, str]:
     """Parse CSV text as in :func:`read_table_csv` (used for browser uploads too)."""
+    from .fileio import excerpt
+
     rows = [r for r in csv.reader(io.StringIO(text))]
     numbered = [(n + 1, r) for n, r in enumerate(rows) if r and any(c.strip() for c in r)]
     numbered = [(n, r) for n, r in numbered if not r[0].lstrip().startswith("#")]
@@ -118,14 +120,14 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
     h0 = header[0].strip().lower()
     h1 = header[1].strip().lower()
     if not h0.startswith("strain"):
-        raise MaterialError(f"{source}:{line}: first column must be 'strain' (got '{header[0].strip()}')")
+        raise MaterialError(f"{source}:{line}: first column must be 'strain' (got {excerpt(header[0].strip())})")
     if h1.startswith("stress"):
         kind = "stress"
     elif h1.startswith("tension"):
         kind = "tension"
     else:
         raise MaterialError(
-            f"{source}:{line}: second column must be 'stress' [Pa] or 'tension' [N/m] (got '{header[1].strip()}')"
+            f"{source}:{line}: second column must be 'stress' [Pa] or 'tension' [N/m] (got {excerpt(header[1].strip())})"
         )
     percent = "%" in h0
     scale1 = 1.0
@@ -141,9 +143,9 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
             s = float(row[0])
             v = float(row[1])
         except ValueError:
-            raise MaterialError(f"{source}:{line}: not a number: {','.join(row)}") from None
+            raise MaterialError(f"{source}:{line}: not a number: {excerpt(','.join(row), 40, quote=False)}") from None
         if not (math.isfinite(s) and math.isfinite(v)):
-            raise MaterialError(f"{source}:{line}: must be finite: {','.join(row)}")
+            raise MaterialError(f"{source}:{line}: must be finite: {excerpt(','.join(row), 40, quote=False)}")
         strain.append(s / 100.0 if percent else s)
         value.append(v * scale1)
     try:

@@ -58,13 +58,14 @@ import logging
 import math
 import os
 import re
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Iterable, Mapping
 
 import numpy as np
+
+from .fileio import excerpt
 
 __all__ = ["Piece", "PatternError", "read_pattern", "DEFAULT_TOLERANCE", "MAX_PATTERN_BYTES", "UNITS"]
 
@@ -170,7 +171,8 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
     except PatternError:
         raise
     except Exception as exc:   # a file that parses but holds broken entities: one clear message
-        raise PatternError(f"{label}: cannot read the pattern ({type(exc).__name__}: {exc})") from exc
+        raise PatternError(f"{label}: cannot read the pattern ({type(exc).__name__}: "
+                           f"{excerpt(exc, 80, quote=False)})") from exc
     if not raw:
         raise PatternError(f"{label}: no pattern pieces found" + (f" ({notes[-1]})" if notes else ""))
     for note in notes:
@@ -186,26 +188,12 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
 
 
 def _read_bytes(label: str) -> bytes:
-    """The file's bytes, refusing missing, non-regular, empty and oversized files before reading."""
-    try:
-        st = os.stat(label)
-    except OSError as exc:
-        raise PatternError(f"{label}: cannot open ({exc.strerror or exc})") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise PatternError(f"{label}: not a regular file")
-    if st.st_size == 0:
-        raise PatternError(f"{label}: empty file")
-    if st.st_size > MAX_PATTERN_BYTES:
-        raise PatternError(f"{label}: file is {st.st_size / 2**20:.1f} MiB, over the "
-                           f"{MAX_PATTERN_BYTES / 2**20:.0f} MiB limit for pattern files")
-    try:
-        with open(label, "rb") as fh:
-            data = fh.read(MAX_PATTERN_BYTES + 1)
-    except OSError as exc:
-        raise PatternError(f"{label}: cannot read ({exc.strerror or exc})") from None
-    if len(data) > MAX_PATTERN_BYTES:
-        raise PatternError(f"{label}: file grew over the {MAX_PATTERN_BYTES / 2**20:.0f} MiB limit")
-    return data
+    """The file's bytes, refusing missing, non-regular, empty and oversized files and links out of
+    their folder before reading (:func:`clothsim.fileio.read_input_bytes`)."""
+    from .fileio import read_input_bytes
+
+    return read_input_bytes(label, PatternError, limit=MAX_PATTERN_BYTES, what="pattern file",
+                            allow_empty=False)
 
 
 @dataclass
@@ -466,7 +454,8 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
     try:
         doc = ezdxf.readfile(label)
     except Exception as exc:   # ezdxf raises many types on corrupt input; the user needs one message
-        raise PatternError(f"{label}: not a readable DXF file ({type(exc).__name__}: {exc})") from None
+        raise PatternError(f"{label}: not a readable DXF file ({type(exc).__name__}: "
+                           f"{excerpt(exc, 80, quote=False)})") from None
     msp = doc.modelspace()
     groups: list[tuple[str, str, list]] = []   # (name, source, [(layer, entity)])
     for ins in msp.query("INSERT"):
@@ -610,7 +599,8 @@ def _flatten_spline(label: str, name: str, e, scale: float, tol: float) -> np.nd
     try:
         bs = e.construction_tool()
     except Exception as exc:
-        raise PatternError(f"{label}: piece {name}: unusable SPLINE {e.dxf.handle} ({exc})") from None
+        raise PatternError(f"{label}: piece {name}: unusable SPLINE {e.dxf.handle} "
+                           f"({excerpt(exc, 80, quote=False)})") from None
     if not bs.is_clamped:
         return _flatten_unclamped(label, name, e, bs, scale, tol)
     if bs.is_rational:
@@ -779,7 +769,8 @@ def _svg_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
     try:
         svg = SVG.parse(io.BytesIO(data), reify=True, ppi=96.0)
     except Exception as exc:
-        raise PatternError(f"{label}: not a readable SVG file ({type(exc).__name__}: {exc})") from None
+        raise PatternError(f"{label}: not a readable SVG file ({type(exc).__name__}: "
+                           f"{excerpt(exc, 80, quote=False)})") from None
     if not isinstance(svg, SVG):
         raise PatternError(f"{label}: not a readable SVG file (no <svg> root)")
     attrs = svg.values.get("attributes", {}) or {}

@@ -72,6 +72,7 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
 
     F = np.empty((n, 3))
     forces_and_energy(positions, *model.spring_args(), model.external_force, F)
+    model.add_seam_forces(positions, F)
     k = np.nonzero(in_contact)[0]
     m = len(k)
     sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
@@ -90,6 +91,60 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     # is a line load: the pressure there is unbounded (inf), not a huge finite number
     pressure[(force > 0.0) & (area < GATHERED_AREA_RATIO * model.node_area)] = np.inf
     return force, pressure
+
+
+def gathered_line_load(model, positions: np.ndarray, force: np.ndarray, gathered: np.ndarray) -> dict:
+    """The line load [N/m] along a rope the sheet has gathered into (contact nodes with no area
+    left, see contact_reaction), where a pressure is meaningless.
+
+    positions (N, 3) [m]; force (N,) [N] each node's normal contact reaction; gathered (N,)
+    bool. The rope runs along warp or weft: the gathered nodes of one lattice line across it (one
+    station: same panel, same i for a rope along warp) sit together, so the stations' centroids
+    trace the rope. Both directions are tried and the longer trace is the rope. A station's line
+    load is its total reaction over its share of the rope's length (half of each segment to its
+    neighbouring stations). On a ring of total hoop tension T [N] round a cylinder of radius r
+    this is T / r at every station (tested). Returns {"gathered_contact_force_n",
+    "rope_length_m", "max_line_load_n_per_m", "mean_line_load_n_per_m"} (the last three None when
+    the gathered nodes make no rope: one station only)."""
+    k = np.nonzero(gathered)[0]
+    out = {"gathered_contact_force_n": float(force[k].sum()), "rope_length_m": None,
+           "max_line_load_n_per_m": None, "mean_line_load_n_per_m": None}
+    if k.size == 0:
+        return out
+    topo = model.topology
+    best = None
+    for d in (0, 1):
+        key = topo.node_panel[k].astype(np.int64) * (1 << 32) + topo.node_ij[k, d]
+        st, inv = np.unique(key, return_inverse=True)
+        cnt = np.bincount(inv)
+        cen = np.stack([np.bincount(inv, positions[k, c]) for c in range(3)], 1) / cnt[:, None]
+        f = np.bincount(inv, force[k])
+        # segments between consecutive stations of the same panel
+        nb = (np.diff(st) == 1)
+        seg = np.where(nb, np.linalg.norm(np.diff(cen, axis=0), axis=1), 0.0)
+        length = float(seg.sum())
+        trib = np.zeros(st.size)
+        trib[:-1] += 0.5 * seg
+        trib[1:] += 0.5 * seg
+        if best is None or length > best[0]:
+            best = (length, f, trib)
+    length, f, trib = best
+    if length > 0:
+        ok = trib > 0
+        out.update(rope_length_m=length, max_line_load_n_per_m=float((f[ok] / trib[ok]).max()),
+                   mean_line_load_n_per_m=float(f.sum() / length))
+    return out
+
+
+def seam_report(model, positions) -> dict:
+    """Per seam (scene order) its sides' rest arc lengths [m], its ease (how much longer the
+    longer side is [%]: the longer side gathers onto the shorter) and its widest gap [m] at
+    positions (N,3) (the longest seam spring, or the farthest sewn node from the point of the
+    other side it is sewn to): {"seams": [...], "max_seam_gap_m": the widest over all seams}."""
+    gaps = model.seam_gaps(positions)
+    rows = [{"a_length_m": info.a_length, "b_length_m": info.b_length, "ease_pct": info.ease,
+             "max_gap_m": float(g.max()) if g.size else 0.0} for info, g in zip(model.seams, gaps)]
+    return {"seams": rows, "max_seam_gap_m": max(r["max_gap_m"] for r in rows)}
 
 
 def node_fields(model, state):
@@ -236,22 +291,43 @@ class Result:
         strains and pressures, and the deepest penetration into the mold."""
         out = sheet_health(self.model, self.state.positions, self.state.in_contact,
                            force=self._f()[1])
-        p = self.contact_pressure
-        finite = p[np.isfinite(p)]
-        # the peak over nodes whose pressure is defined (gathered nodes are counted apart)
-        pmax = float(finite.max()) if finite.size else 0.0
+        cf, p = self._f()[2], self._f()[3]
+        gathered = np.isinf(p)
+        # the peak over nodes whose pressure is defined (gathered nodes are counted apart); when
+        # every loaded contact node has gathered there is no pressure to report: None (null)
+        # with the reason and the line load, never a 0 that would read as "no pressure"
+        defined = np.isfinite(p) & (cf > 0.0)
+        note = None
+        if defined.any():
+            pmax = float(p[defined].max())
+        elif gathered.any():
+            pmax = None
+            note = (f"no contact pressure: all {int(gathered.sum())} loaded contact nodes sit where the sheet "
+                    f"has gathered into a rope (no area under them); their load is a line load "
+                    f"(contact_line_load_n_per_m)")
+        else:
+            pmax = 0.0  # no loaded contact node: truly no pressure
         out.update({
             "max_strain_warp": float(self.strain_warp.max()) if self.strain_warp.size else 0.0,
             "max_strain_weft": float(self.strain_weft.max()) if self.strain_weft.size else 0.0,
             "max_contact_pressure_pa": pmax,
-            "max_contact_pressure_mmhg": pmax / MMHG,
-            "gathered_contact_nodes": int(np.isinf(p).sum()),
+            "max_contact_pressure_mmhg": None if pmax is None else pmax / MMHG,
+            "gathered_contact_nodes": int(gathered.sum()),
         })
+        if note is not None:
+            out["contact_pressure_note"] = note
+        if gathered.any():
+            rope = gathered_line_load(self.model, self.state.positions, cf, gathered)
+            out["gathered_contact_force_n"] = rope["gathered_contact_force_n"]
+            out["contact_line_load_n_per_m"] = rope["max_line_load_n_per_m"]
+            out["contact_line_load_mean_n_per_m"] = rope["mean_line_load_n_per_m"]
         seam = self.model.spring_family == FAMILY_SEAM
         if seam.any():
             ab = self.model.spring_nodes[seam]
             pos = self.state.positions
             out["max_seam_gap_m"] = float(np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1).max())
+        if self.model.seams:
+            out.update(seam_report(self.model, self.state.positions))
         if self.model.mold is not None:
             from .contact import max_penetration
 

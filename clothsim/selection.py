@@ -162,23 +162,36 @@ def seam_line(sel, topology: Topology, name: str):
     return nodes.astype(np.int64), (p, direction)
 
 
-def seam_pairs(seam, topology: Topology):
-    """The node pairs a seam (``a``, ``b``, ``reverse``) sews: (a (P,), b (P,), share (P,),
-    (how a runs, how b runs)) (see :func:`seam_line`), where the share of a pair is its part of
-    the seam in node spacings along each side (1 inside, 1/2 at the ends). Pairs of a node with
-    itself (the tip of a dart) are dropped. Raises SelectionError naming the side ("a: ..." or
-    "b: ..."). Both sides must select the same number of nodes."""
+def seam_sides(seam, topology: Topology):
+    """The two sides of a seam (``a``, ``b``, ``reverse``) in sewing order: (a (Na,), b (Nb,),
+    (how a runs, how b runs)) (see :func:`seam_line`), b reversed when ``reverse``. The counts
+    may differ (then the seam is sewn along arc length, :func:`arc_elements`). Raises
+    SelectionError naming the side ("a: ..." or "b: ...")."""
     a, da = seam_line(seam.a, topology, "a")
     b, db = seam_line(seam.b, topology, "b")
-    if a.size != b.size:
-        edges = not (isinstance(da, tuple) and isinstance(db, tuple))
-        raise SelectionError(f"b: selects {b.size} nodes but a selects {a.size}; a seam sews them one to one"
-                             + (" (outline edges of unequal node counts are not supported yet: choose spacings "
-                                "that give both edges the same count)" if edges else ""))
     if seam.reverse:
         b = b[::-1]
         if not isinstance(db, tuple):
             db = b
+    if a.size != b.size and min(a.size, b.size) < 2:
+        short, long_ = ("a", "b") if a.size < b.size else ("b", "a")
+        raise SelectionError(f"{short}: selects one node but {long_} selects {max(a.size, b.size)}; "
+                             "a seam of unequal node counts needs at least two nodes on each side")
+    if np.array_equal(np.sort(a), np.sort(b)):
+        raise SelectionError("b: selects the same nodes as a (nothing to sew)")
+    return a, b, (da, db)
+
+
+def seam_pairs(seam, topology: Topology):
+    """The node pairs a seam (``a``, ``b``, ``reverse``) of equal node counts sews: (a (P,),
+    b (P,), share (P,), (how a runs, how b runs)) (see :func:`seam_line`), where the share of a
+    pair is its part of the seam in node spacings along each side (1 inside, 1/2 at the ends).
+    Pairs of a node with itself (the tip of a dart) are dropped. Raises SelectionError naming
+    the side ("a: ..." or "b: ..."), also when the counts differ (see :func:`arc_elements`)."""
+    a, b, (da, db) = seam_sides(seam, topology)
+    if a.size != b.size:
+        raise SelectionError(f"b: selects {b.size} nodes but a selects {a.size}; sew them along arc length "
+                             "(clothsim.selection.arc_elements)")
     share = np.ones(a.size)
     if a.size > 1:
         share[0] = share[-1] = 0.5
@@ -186,3 +199,89 @@ def seam_pairs(seam, topology: Topology):
     if not keep.any():
         raise SelectionError("b: selects the same nodes as a (nothing to sew)")
     return a[keep], b[keep], share[keep], (da, db)
+
+
+def _arc_fractions(p: np.ndarray, name: str) -> tuple[np.ndarray, float]:
+    """Normalised arc length (N,) along the points p (N, d) [m] (0 at the first, exactly 1 at the
+    last) and the total length [m]."""
+    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    if not (seg > 0).all():
+        raise SelectionError(f"{name}: two consecutive nodes of the side coincide (no arc length between them)")
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    total = float(s[-1])
+    s /= total
+    s[-1] = 1.0
+    return s, total
+
+
+def _locate(s: np.ndarray, x: np.ndarray):
+    """Segment (k, k+1) of the increasing breakpoints s holding each x, and x's place t in [0, 1]
+    on it."""
+    k = np.clip(np.searchsorted(s, x, side="right") - 1, 0, s.size - 2)
+    return k, np.clip((x - s[k]) / (s[k + 1] - s[k]), 0.0, 1.0)
+
+
+def arc_elements(pa: np.ndarray, pb: np.ndarray):
+    """Sew two node lines of unequal counts along arc length (a dual mortar seam in penalty form).
+
+    pa (Na, d), pb (Nb, d): the rest positions [m] of the two sides' nodes in sewing order (each
+    side on its own panel's plane), Na != Nb, both >= 2. Both sides are parametrised by their
+    fraction of arc length sigma in [0, 1] (points at the same sigma are sewn together) and
+    interpolated linearly between their nodes. The denser side is the *slave*: each of its nodes
+    i is sewn to a point of the other (master) side, a weighted mean of the master's line
+    x_m(sigma) under node i's dual function psi_i (on each slave segment with hats N1, N2:
+    psi1 = 2 N1 - N2, psi2 = 2 N2 - N1; int psi_i N_k dsigma = delta_ik int N_i dsigma):
+
+        g_i = x_i - int psi_i x_m dsigma / int N_i dsigma,
+
+    integrated exactly over the merged breakpoints of both sides. Its energy is k L_i |g_i|^2 / 2
+    with L_i = int N_i dsigma times the seam length (the law of the zero-length seam springs).
+    Why this form (Wohlmuth's dual mortar): a straight master line is reproduced exactly (the
+    slave's nodes close on it, ends included); a uniform pull across the seam reaches every node
+    of both sides in proportion to its share of the seam (each master node j receives int N_j
+    lambda dsigma of the line load lambda), so a seam of unequal counts carries a uniform
+    membrane state exactly; and one gap per slave node, on that node, cannot lock a curved
+    seam. (Sewing each slave node to the master point at its own sigma passes neither test
+    exactly: it shifts load between rows.)
+
+    Returns (slave_is_a, nodes (Ns, K) indices into the concatenation [slave side, master side],
+    the slave node first, weight (Ns, K) the gap's coefficients (1 on the slave node, summing to
+    0 per element; padding has weight 0 and repeats the element's first node), share (Ns,)
+    int N_i dsigma (summing to 1), La, Lb [m] the sides' rest arc lengths). The point node i is
+    sewn to is x_i - g_i: sum over the master nodes of -weight x."""
+    sa, La = _arc_fractions(pa, "a")
+    sb, Lb = _arc_fractions(pb, "b")
+    slave_is_a = sa.size > sb.size
+    ss, sm = (sa, sb) if slave_is_a else (sb, sa)
+    ns = ss.size
+    # exact integrals of products of hat functions: both are linear between merged breakpoints,
+    # so two-point Gauss quadrature on each merged interval is exact
+    br = np.unique(np.concatenate([ss, sm]))
+    lo, hi = br[:-1], br[1:]
+    keep = hi - lo > 0
+    lo, hi = lo[keep], hi[keep]
+    g = np.array([0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)])
+    x = (lo[:, None] + (hi - lo)[:, None] * g[None, :]).ravel()
+    w = np.repeat((hi - lo) / 2, 2)
+    ks, ts = _locate(ss, x)
+    km, tm = _locate(sm, x)
+    # per quadrature point: the slave's dual functions on its segment ks (psi of node ks:
+    # 2 (1 - ts) - ts, of node ks + 1: 2 ts - (1 - ts)) against the master's hats
+    rows = {i: {i: 0.0} for i in range(ns)}  # the slave node itself: weight 1 (set below)
+    for q in range(x.size):
+        for i, psi in ((ks[q], 2.0 - 3.0 * ts[q]), (ks[q] + 1, 3.0 * ts[q] - 1.0)):
+            r = rows[int(i)]
+            for j, nj in ((km[q], 1.0 - tm[q]), (km[q] + 1, tm[q])):
+                if nj != 0.0:
+                    r[ns + int(j)] = r.get(ns + int(j), 0.0) - w[q] * psi * nj
+    share = np.diff(ss)
+    share = (np.concatenate([share, [0.0]]) + np.concatenate([[0.0], share])) / 2
+    K = max(len(r) for r in rows.values())
+    nodes = np.empty((ns, K), np.int64)
+    weight = np.zeros((ns, K))
+    for i in range(ns):
+        cols = sorted(rows[i])
+        nodes[i, :] = cols[0]
+        nodes[i, :len(cols)] = cols
+        weight[i, :len(cols)] = [1.0 if c == i else rows[i][c] / share[i] for c in cols]
+    return slave_is_a, nodes, weight, share, La, Lb

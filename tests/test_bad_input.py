@@ -306,3 +306,87 @@ def test_every_option_has_help_and_bench_writes_to_results():
             if a.default not in (None, False, [], "==SUPPRESS==") and a.option_strings:
                 assert "%(default)s" in a.help or str(a.default) in a.help, f"{name} {a.option_strings}: default not shown"
     assert sub.choices["bench"].parse_args([]).out == os.path.join("results", "bench")
+
+
+# ----------------------------------------------------------------------------- item 9: quoting files
+
+SECRET = "root:*:19000:0:99999:7:::secretsecretsecret\n"
+
+
+def _no_secret(msg: str, strict: bool = True) -> None:
+    """Nothing of SECRET in msg (strict) or at most a short excerpt of it; only printable text."""
+    assert "secretsecretsecret" not in msg and not (strict and "19000" in msg), msg
+    assert all(" " <= c <= "~" for c in msg.strip()), repr(msg)
+
+
+@pytest.mark.parametrize("kind", ["scene", "csv", "initial", "pattern"])
+def test_link_out_of_its_folder_not_followed(tmp_path, capsys, kind):
+    """Issue 15, item 9: an input file that is a symbolic link to a file outside the folder its
+    path names (a link to /etc/shadow named .csv) is refused before it is read: exit 2 naming the
+    link, and nothing of the target quoted. A link within the folder is read as before."""
+    secret = tmp_path / "secret"
+    secret.write_text(SECRET)
+    folder = tmp_path / "work"
+    folder.mkdir()
+    if kind == "pattern":
+        from clothsim.patterns import PatternError, read_pattern
+
+        (folder / "p.dxf").symlink_to(secret)
+        with pytest.raises(PatternError) as ei:
+            read_pattern(folder / "p.dxf")
+        assert "outside its folder" in str(ei.value)
+        _no_secret(str(ei.value))
+        (folder / "real.svg").write_text((ROOT / "static" / "patterns" / "circle_blank.svg").read_text())
+        (folder / "alias.svg").symlink_to(folder / "real.svg")
+        assert read_pattern(folder / "alias.svg")
+        return
+    if kind == "scene":
+        (folder / "s.yaml").symlink_to(secret)
+        rc, err = _main(capsys, "run", str(folder / "s.yaml"))
+    elif kind == "csv":
+        (folder / "t.csv").symlink_to(secret)
+        s = _write(folder, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}))
+        rc, err = _main(capsys, "run", str(s))
+    else:
+        (folder / "r.npz").symlink_to(secret)
+        s = _write(folder, scene_dict(**{"initial.file": "r.npz"}))
+        rc, err = _main(capsys, "run", str(s))
+    assert rc == 2 and "outside its folder" in err, err
+    _no_secret(err)
+
+
+def test_links_inside_the_folder_still_read(tmp_path, capsys):
+    """A scene and a CSV table reached through links that stay in their folder load as before."""
+    folder = tmp_path / "work"
+    folder.mkdir()
+    (folder / "real.csv").write_text("strain,tension\n0,0\n0.5,10\n")
+    (folder / "t.csv").symlink_to("real.csv")
+    real = _write(folder, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}), "real.yaml")
+    (folder / "s.yaml").symlink_to(real)
+    scene = load_scene(folder / "s.yaml")
+    assert scene.name == "strip" and scene.tables() is not None
+
+
+@pytest.mark.parametrize("content", [
+    "strain,root:*:19000:0:99999:7:::secretsecretsecret\n0,0\n",
+    SECRET + "0,0\n",
+    "strain,tension\n0,0\nroot:*:19000:0:99999:7:::secretsecretsecret,1\n",
+    "strain,tension\n0,0\n\x1b[31m1,\x07padding-padding-padding-padding-secretsecretsecret\n",
+])
+def test_csv_errors_quote_a_short_printable_excerpt(tmp_path, capsys, content):
+    """Issue 15, item 9: a CSV table that is not one (say /etc/shadow copied in as .csv) is
+    refused with file and line, quoting at most a short, printable excerpt of what it holds."""
+    (tmp_path / "t.csv").write_text(content)
+    s = _write(tmp_path, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}))
+    rc, err = _main(capsys, "run", str(s))
+    assert rc == 2 and "t.csv:" in err, err
+    _no_secret(err.replace(str(tmp_path), ""), strict=False)
+
+
+def test_yaml_error_quotes_a_short_excerpt(tmp_path, capsys):
+    """A YAML syntax error quotes at most a short excerpt of the offending text."""
+    p = tmp_path / "s.yaml"
+    p.write_text("name: x\nfabric: *" + "secretsecretsecret" * 20 + "\n")
+    rc, err = _main(capsys, "run", str(p))
+    assert rc == 2 and "s.yaml:2: not valid YAML" in err, err
+    assert err.count("secretsecretsecret") <= 5, err

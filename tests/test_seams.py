@@ -47,8 +47,10 @@ def _bad(tmp_path, seams_yaml):
 
 
 def test_seam_errors_name_file_line_and_field(tmp_path):
-    msg = _bad(tmp_path, "  - {a: left, b: top}\n")
-    assert msg == f"{tmp_path / 'scene.yaml'}:8: seams.0.b: selects 11 nodes but a selects 5; a seam sews them one to one"
+    # (sides of unequal node counts are sewn along arc length: tests/test_seam_elements.py)
+    msg = _bad(tmp_path, "  - {a: {i: 0, j: 0}, b: top}\n")
+    assert msg == (f"{tmp_path / 'scene.yaml'}:8: seams.0.a: selects one node but b selects 11; "
+                   "a seam of unequal node counts needs at least two nodes on each side")
     msg = _bad(tmp_path, "  - {a: left, b: right}\n  - {a: left, b: all}\n")
     assert msg.startswith(f"{tmp_path / 'scene.yaml'}:9: seams.1.b: must select one line of nodes")
     msg = _bad(tmp_path, "  - {a: right, b: right}\n")

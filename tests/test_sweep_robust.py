@@ -117,6 +117,45 @@ def test_killed_driver_takes_its_workers_along(tmp_path, sig):
         assert proc.returncode in (130, 143, -signal.SIGTERM)
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="process tree")
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_killed_dask_driver_takes_its_cluster_along(tmp_path, sig):
+    """Issue 15, item 11 with ``--dask local``: the LocalCluster's worker processes (and the
+    resource tracker) are gone within a few seconds of the driver's death, kill -9 included
+    (distributed's worker processes watch the pipe to their parent; the nannies live in the
+    driver). Checked with psutil on the driver's whole process tree."""
+    pytest.importorskip("distributed")
+    psutil = pytest.importorskip("psutil")
+    p = _strip_sweep(tmp_path, {"solver.C": [2, 3, 4, 5]},
+                     {"fabric.divisions": [80, 16], "solver.e": 1e-15, "solver.time_limit_s": 60,
+                      "solver.stall_iterations": 10**6, "solver.max_iterations": 10**8})
+    proc = subprocess.Popen([sys.executable, str(ROOT / "app.py"), "sweep", str(p), "--out", str(tmp_path / "out"),
+                             "--workers", "2", "--dask", "local"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True, cwd=ROOT)
+    try:
+        driver = psutil.Process(proc.pid)
+        t0 = time.monotonic()
+        kids: list = []
+        while time.monotonic() - t0 < 120:  # 2 workers and the resource tracker, runs under way
+            kids = driver.children(recursive=True)
+            if len(kids) >= 3 and time.monotonic() - t0 > 10:
+                break
+            time.sleep(0.5)
+        assert len(kids) >= 3, f"the cluster did not start: {kids}"
+        kids = driver.children(recursive=True)
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=30)
+        gone, alive = psutil.wait_procs(kids, timeout=5)
+        alive = [k for k in alive if k.is_running() and k.status() != psutil.STATUS_ZOMBIE]
+        assert not alive, f"orphans after {sig.name}: {[(k.pid, k.cmdline()[:3]) for k in alive]}"
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=30)
+
+
 # ----------------------------------------------------------------------------- 12: one sweep per folder
 
 

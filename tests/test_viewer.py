@@ -477,3 +477,32 @@ def test_pattern_panel_scene_opens_lists_its_panels_and_converges():
         assert a.sim.wait(120) == "converged"
     finally:
         a.close()
+
+
+def test_unequal_seam_threads_and_widest_gap_list():
+    """A seam of unequal node counts (configs/garments/eased_seam.yaml: 23 nodes sewn to an edge
+    of 21) draws one thread per sewn node, to the point of the other side it is sewn to; after the run
+    the threads end at the solver's positions and have closed, and the status lists the seam's
+    widest gap and its ease."""
+    from clothsim.config import load_scene
+
+    a = ViewerApp(load_scene(ROOT / "configs" / "garments" / "eased_seam.yaml"), port=free_port())
+    try:
+        a.wait_idle(20)
+        pts0 = np.array(a.renderer.h_seams.points)
+        assert pts0.shape == (23, 2, 3)
+        assert np.linalg.norm(pts0[:, 0] - pts0[:, 1], axis=1).max() > 1e-4  # the eased side starts longer
+        a.start(wait=True)
+        assert a.sim.wait(120) == "converged"
+        settle(a, 0.5)
+        pos = a.sim.state.positions
+        pts = np.array(a.renderer.h_seams.points)
+        m = a.sim.model
+        np.testing.assert_allclose(pts[:, 0], pos[m.seam_nodes[:, 0]], atol=1e-6)
+        assert np.linalg.norm(pts[:, 0] - pts[:, 1], axis=1).max() < 1e-5
+        text = a.gui["status"].content
+        found = re.search(r"seam 0: widest gap ([0-9.e+-]+) m \(ease 10\.0 %\)", text)
+        assert found, repr(text)
+        assert float(found.group(1)) < 1e-5
+    finally:
+        a.close()

@@ -52,9 +52,12 @@ def _fields(out: Path):
     topo = model.topology
     with np.load(out / "result.npz") as d:
         pg, cg = d["positions"], d["in_contact"]
-    ij = tuple(topo.node_ij.T)
-    pos = np.ascontiguousarray(pg.reshape(-1, 3) if topo.is_grid else pg[ij], dtype=float)
-    con = np.ascontiguousarray(cg.reshape(-1) if topo.is_grid else cg[ij], dtype=bool)
+    # result.npz keeps a full rectangle's arrays as (nx+1, ny+1, ...) and a panel scene's flat
+    # (N, ...) in node order
+    pos = np.ascontiguousarray(pg.reshape(-1, 3), dtype=float)
+    con = np.ascontiguousarray(cg.reshape(-1), dtype=bool)
+    if pos.shape[0] != topo.node_count:
+        raise ReportError(f"{out}: result.npz has {pos.shape[0]} nodes, the scene {topo.node_count}")
     strain, _, _, pressure = node_fields(model, State(pos, con, 0))
     wc, fc = topo.warp_count, topo.weft_count
     node_strain = np.maximum(topo.spread(strain[:wc], "warp"), topo.spread(strain[wc:wc + fc], "weft"))
@@ -177,8 +180,10 @@ def build_report(result_dir: str | Path) -> str:
         f"<p id='status'>{html.escape(str(s.get('status')))}: {s.get('iterations')} iterations, residual "
         f"<span id='residual'>{s.get('residual', 0):.3e}</span> N, solver {html.escape(str(s.get('solver')))}, "
         f"{s.get('contact_count')} contact nodes of {s.get('node_count')}; peak contact pressure "
-        f"<span id='peak'>{s.get('max_contact_pressure_mmhg', 0):.2f}</span> mmHg. clothsim "
-        f"<span id='version'>{html.escape(str(s.get('clothsim_version')))}</span>.</p>",
+        + (f"<span id='peak'>{s['max_contact_pressure_mmhg']:.2f}</span> mmHg. clothsim "
+           if s.get('max_contact_pressure_mmhg') is not None else
+           f"<span id='peak'>none</span> ({html.escape(str(s.get('contact_pressure_note', '')))}). clothsim ")
+        + f"<span id='version'>{html.escape(str(s.get('clothsim_version')))}</span>.</p>",
         "<h2>Contact pressure [mmHg]</h2>",
         _img(map_png(pos, faces, p_mmhg, "contact pressure [mmHg]", "viridis"), "pressure map"),
         "<h2>Strain (larger of warp and weft)</h2>",

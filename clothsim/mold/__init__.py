@@ -37,27 +37,38 @@ References: C. Ericson, *Real-Time Collision Detection* (2005), 5.1.5 (closest p
 6.2 (bounding volume hierarchies); T. Moller & B. Trumbore (1997), "Fast, minimum storage
 ray-triangle intersection"; J. A. Baerentzen & H. Aanaes (2005), see above.
 
+**Smooth mesh** (``MOLD_SMOOTH``, ``surface: smooth`` in a mesh spec): the same mesh, but contact
+is on a smooth (G1) surface blended from its face planes (:mod:`clothsim.mold.smooth`); every
+query answers code 0 (a face) with a point-dependent normal, as on the analytic sphere. Drawing,
+exports and sizes use the mesh itself.
+
 Modules, by job: ``record`` (the :class:`Mold` and its codes), ``queries`` (closest point, inside
 test, BVH traversal; numba), ``segment`` (segment hits; numba), ``build`` (mesh cleaning, BVH,
 pseudo-normals, primitives), ``readers`` (file formats, safe file reading), ``load`` (specs,
-transforms, loaders, the cache of loaded molds), ``checks`` (sanity warnings against the scene).
+transforms, loaders, the cache of loaded molds), ``checks`` (sanity warnings against the scene),
+``smooth`` (the smooth surface of a mesh; numba).
 Mold specs are typed in :mod:`clothsim.config` (``MoldSpec``).
 """
 
-from .build import mold_from_arrays, mold_primitive
-from .checks import SCALE_WARNING_RATIO, mold_scale_warning, mold_size
-from .load import MOLD_CACHE_SIZE, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info
+from .build import median_edge_length, mold_from_arrays, mold_primitive, with_surface
+from .checks import SCALE_WARNING_RATIO, mold_reach_warning, mold_scale_warning, mold_size
+from .load import (MOLD_CACHE_SIZE, cache_mold, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info,
+                   mold_cached)
 from .readers import MAX_MOLD_FILE_BYTES
 from .queries import mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
-from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MOLD_BOX, MOLD_CYLINDER, MOLD_MESH,
-                     MOLD_PLANE, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldArgs, MoldError)
+from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MESH_KINDS, MOLD_BOX, MOLD_CYLINDER,
+                     MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldArgs,
+                     MoldError)
 from .segment import mold_segment_hit
+from .smooth import smooth_phi
 
 __all__ = [
     "MoldError",
     "Mold",
     "MoldArgs",
     "MOLD_MESH",
+    "MOLD_SMOOTH",
+    "MESH_KINDS",
     "MOLD_SPHERE",
     "MOLD_CYLINDER",
     "MOLD_PLANE",
@@ -67,11 +78,14 @@ __all__ = [
     "FEATURE_VERTEX",
     "QUERY_OUT_SIZE",
     "load_mold",
+    "cache_mold",
+    "mold_cached",
     "load_mold_bytes",
     "clear_mold_cache",
     "mold_cache_info",
     "MOLD_CACHE_SIZE",
     "MAX_MOLD_FILE_BYTES",
+    "mold_reach_warning",
     "mold_scale_warning",
     "mold_size",
     "SCALE_WARNING_RATIO",
@@ -82,4 +96,7 @@ __all__ = [
     "mold_contact_normals",
     "mold_segment_hit",
     "mold_query_many",
+    "with_surface",
+    "median_edge_length",
+    "smooth_phi",
 ]

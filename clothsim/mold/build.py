@@ -8,8 +8,8 @@ from typing import Mapping
 
 import numpy as np
 
-from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE, Mold, MoldError,
-                     _ro)
+from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, Mold,
+                     MoldError, _ro)
 
 
 # --------------------------------------------------------------------------------------------
@@ -31,8 +31,10 @@ def _unit_rows(a: np.ndarray, fallback=(0.0, 0.0, 1.0)) -> np.ndarray:
     return out
 
 
-def _build_bvh(V: np.ndarray, F: np.ndarray, leaf_size: int = 4):
-    """Median-split AABB tree over triangle centroids (flat arrays, node 0 the root)."""
+def _build_bvh(V: np.ndarray, F: np.ndarray, leaf_size: int = 4, progress=None):
+    """Median-split AABB tree over triangle centroids (flat arrays, node 0 the root).
+    ``progress(fraction)`` (optional) is told the fraction of nodes built every few thousand
+    nodes; it may raise to abandon the build."""
     nF = len(F)
     tri = V[F]
     fmin = tri.min(axis=1)
@@ -46,8 +48,12 @@ def _build_bvh(V: np.ndarray, F: np.ndarray, leaf_size: int = 4):
     order = np.arange(nF, dtype=np.int64)
     count = 1
     stack = [(0, 0, nF)]
+    built, expected = 0, max(2 * nF // leaf_size, 1)
     while stack:
         node, s, e = stack.pop()
+        built += 1
+        if progress is not None and built % 4096 == 0:
+            progress(min(built / expected, 1.0))
         idx = order[s:e]
         bmin[node] = fmin[idx].min(axis=0)
         bmax[node] = fmax[idx].max(axis=0)
@@ -154,9 +160,27 @@ def _orient(V, F, closed: bool | None, source: str):
     return F2, bool(closed)
 
 
-def _build_mesh_mold(V, F, closed: bool | None, source: str) -> Mold:
+#: share of a mesh mold's build time per stage (measured on a 327k-triangle sphere): cleaning,
+#: orientation, edges and normals, the BVH
+_STAGES = {"cleaning the mesh": (0.0, 0.12), "orienting the triangles": (0.12, 0.35),
+           "edges and normals": (0.35, 0.5), "building the search tree": (0.5, 1.0)}
+
+
+def _build_mesh_mold(V, F, closed: bool | None, source: str, progress=None) -> Mold:
+    """A mesh Mold from vertices (V,3) [m] and triangles (F,3). ``progress(fraction, stage)``
+    (optional) is told how far the build is (0..1, a rough share of the time) between stages and
+    every few thousand BVH nodes; it may raise (a cancelled upload) to abandon the build."""
+
+    def tell(stage: str, within: float = 0.0) -> None:
+        if progress is not None:
+            a, b = _STAGES[stage]
+            progress(a + (b - a) * within, stage)
+
+    tell("cleaning the mesh")
     V, F = _clean_mesh(V, F, source)
+    tell("orienting the triangles")
     F, closed = _orient(V, F, closed, source)
+    tell("edges and normals")
     nV, nF = len(V), len(F)
     e0, e1, e2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     fn = _unit_rows(np.cross(e1 - e0, e2 - e0))
@@ -205,7 +229,11 @@ def _build_mesh_mold(V, F, closed: bool | None, source: str) -> Mold:
     np.cumsum(np.bincount(flat_v, minlength=nV), out=vf_ptr[1:])
     vb = np.zeros(nV, dtype=np.int64)
     vb[edges[edge_faces[:, 1] < 0].reshape(-1)] = 1
-    bmin, bmax, child, rng, order = _build_bvh(V, F)
+    tell("building the search tree")
+    if progress is None:
+        bmin, bmax, child, rng, order = _build_bvh(V, F)
+    else:
+        bmin, bmax, child, rng, order = _build_bvh(V, F, progress=lambda f: tell("building the search tree", f))
     params = np.zeros(16)
     params[15] = float(np.linalg.norm(V.max(0) - V.min(0)))
     maxval = int(np.diff(vf_ptr).max()) if nV else 3
@@ -223,15 +251,134 @@ def _build_mesh_mold(V, F, closed: bool | None, source: str) -> Mold:
     )
 
 
-def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "") -> Mold:
+def median_edge_length(mold: Mold) -> float:
+    """The median edge length [m] of a mesh mold (the default smoothing radius)."""
+    V, E = mold.vertices, mold.edges
+    return float(np.median(np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)))
+
+
+#: default smoothing radius of a smooth mesh, in median edge lengths
+SMOOTHING_EDGES = 1.5
+#: every vertex's blending radius is at least this many times its longest edge (so every point of
+#: every face lies well inside some vertex's support, also on big flat CAD triangles)
+_COVER_EDGES = 1.25
+#: ... but at most this many smoothing radii (a wide vertex is visited by every query within its
+#: reach; the inside of a triangle larger than that is answered by the faceted query: its plane)
+_MAX_REACH = 3.0
+
+
+def _vertex_jets(V: np.ndarray, E: np.ndarray, vn: np.ndarray, r: float) -> np.ndarray:
+    """Per-vertex osculating jets (float64 (V, 16), the layout of :attr:`Mold.vertex_jets`): a
+    quadratic height function over the vertex's tangent plane (normal: its pseudo-normal),
+    through the vertex, fitted by weighted least squares to its 2-ring of neighbours (weights
+    1 / (1 + (rho / h)^2), h the mean 1-ring edge length; a small ridge keeps vertices with few
+    neighbours well posed). After F. Cazals & M. Pouget (2003), "Estimating differential
+    quantities using polynomial fitting of osculating jets", SGP."""
+    import scipy.sparse as sp
+
+    nV = len(V)
+    ii = np.r_[E[:, 0], E[:, 1]]
+    jj = np.r_[E[:, 1], E[:, 0]]
+    elen = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
+    A = sp.csr_matrix((np.ones(len(ii)), (ii, jj)), shape=(nV, nV))
+    deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
+    h = np.bincount(ii, weights=np.r_[elen, elen], minlength=nV) / deg
+    h[h <= 0] = 1.0
+    longest = np.zeros(nV)
+    np.maximum.at(longest, ii, np.r_[elen, elen])
+    A2 = (A + A @ A).tocoo()
+    keep = A2.row != A2.col
+    i, j = A2.row[keep], A2.col[keep]
+    n = vn
+    helper = np.where(np.abs(n[:, 0:1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(n, t1)
+    d = V[j] - V[i]
+    x1 = np.einsum("ij,ij->i", d, t1[i]) / h[i]
+    x2 = np.einsum("ij,ij->i", d, t2[i]) / h[i]
+    z = np.einsum("ij,ij->i", d, n[i]) / h[i]
+    w = 1.0 / (1.0 + x1 * x1 + x2 * x2)
+    B = np.stack([x1, x2, 0.5 * x1 * x1, x1 * x2, 0.5 * x2 * x2], axis=1)
+    M = np.zeros((nV, 5, 5))
+    np.add.at(M, i, w[:, None, None] * B[:, :, None] * B[:, None, :])
+    rhs = np.zeros((nV, 5))
+    np.add.at(rhs, i, (w * z)[:, None] * B)
+    wsum = np.bincount(i, weights=w, minlength=nV)
+    M += (1e-6 * np.maximum(wsum, 1.0))[:, None, None] * np.eye(5)[None]
+    coef = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
+    coef[:, 2:] /= h[:, None]
+    jets = np.zeros((nV, 16))
+    jets[:, 0:3] = t1
+    jets[:, 3:6] = t2
+    jets[:, 6:11] = coef
+    jets[:, 11] = np.clip(_COVER_EDGES * longest, r, _MAX_REACH * r)
+    jets[:, 12] = (r / jets[:, 11]) ** 4
+    return jets
+
+
+def _bvh_reach(mold: Mold, rv: np.ndarray) -> np.ndarray:
+    """Per BVH node: the largest radius rv [m] of the vertices its faces own (see
+    :attr:`Mold.bvh_reach`)."""
+    owner = mold.vertex_face_idx[mold.vertex_face_ptr[:-1]]
+    face_r = np.zeros(len(mold.faces))
+    np.maximum.at(face_r, owner, rv)
+    fr = face_r[mold.bvh_faces]
+    rng = mold.bvh_range
+    reach = np.empty(len(rng))
+    for n in range(len(rng)):
+        s, c = rng[n]
+        reach[n] = fr[s:s + c].max() if c else 0.0
+    return reach
+
+
+def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
+    """The same mesh mold with contact on its ``'faceted'`` polyhedron (``MOLD_MESH``) or on its
+    ``'smooth'`` blended surface (``MOLD_SMOOTH``, see :mod:`clothsim.mold.smooth`) of smoothing
+    radius ``smoothing`` [m] (default: ``SMOOTHING_EDGES`` = 1.5 median edge lengths). The mesh
+    arrays are shared; the smooth surface adds the vertices' fitted jets."""
+    import dataclasses
+
+    if mold.kind not in (MOLD_MESH, MOLD_SMOOTH):
+        raise MoldError(f"{mold.source}: 'surface' applies to mesh molds only")
+    if surface == "faceted":
+        if smoothing is not None:
+            raise MoldError(f"{mold.source}: 'smoothing' applies to surface: smooth only")
+        if mold.kind == MOLD_MESH:
+            return mold
+        prm = np.array(mold.params)
+        prm[13:15] = 0.0
+        return dataclasses.replace(mold, kind=MOLD_MESH, params=_ro(prm, np.float64),
+                                   vertex_jets=None, bvh_reach=None)
+    if surface != "smooth":
+        raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
+    r = SMOOTHING_EDGES * median_edge_length(mold) if smoothing is None else float(smoothing)
+    if not (np.isfinite(r) and r > 0):
+        raise MoldError(f"{mold.source}: 'smoothing' must be a positive length [m], got {smoothing!r}")
+    if mold.kind == MOLD_SMOOTH and mold.params[14] == r:
+        return mold
+    jets = _vertex_jets(mold.vertices, mold.edges, mold.vertex_normals, r)
+    prm = np.array(mold.params)
+    prm[14] = r
+    prm[13] = float(jets[:, 11].max())
+    return dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
+                               vertex_jets=_ro(jets, np.float64),
+                               bvh_reach=_ro(_bvh_reach(mold, jets[:, 11]), np.float64))
+
+
+def mold_from_arrays(vertices, faces, closed: bool | None = None, source: str = "",
+                     surface: str = "faceted", smoothing: float | None = None) -> Mold:
     """Mesh mold from arrays: vertices (V,3) [m], faces (F,3) vertex ids.
 
     ``closed=None`` detects watertightness; ``closed=True`` on a mesh with boundary edges is an
     error; ``closed=False`` treats even a watertight mesh as an open skin (winding kept).
     Exact duplicate vertices are merged; degenerate and duplicate triangles are dropped with a
-    warning; inconsistent winding is repaired or reported.
+    warning; inconsistent winding is repaired or reported. ``surface``: ``'faceted'`` (contact on
+    the polyhedron) or ``'smooth'`` (on its smooth blended surface of radius ``smoothing`` [m],
+    default the median edge length; see :func:`with_surface`).
     """
-    return _build_mesh_mold(vertices, faces, closed, source or "<arrays>")
+    mold = _build_mesh_mold(vertices, faces, closed, source or "<arrays>")
+    return with_surface(mold, surface, smoothing)
 
 
 def _primitive(kind: int, params, source: str) -> Mold:

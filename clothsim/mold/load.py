@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MeshMoldSpec, validate_mold_spec
-from .build import _build_mesh_mold, _vec, mold_primitive
+from .build import _build_mesh_mold, _vec, mold_primitive, with_surface
 from .readers import _read_any, mold_file_status, read_mold_file
 from .record import Mold, MoldError
 
@@ -33,9 +33,20 @@ def _rotation_xyz(deg) -> np.ndarray:
     return Rz @ Ry @ Rx
 
 
-def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate=None):
-    """Scale (a positive number or three), then rotate (degrees about x, y, z), then translate."""
+#: the file's up axis -> the rotation that makes it clothsim's +z (a Y-up file turned +90 degrees
+#: about x: (x, y, z) -> (x, -z, y), the convention of Blender's glTF import)
+UP_ROTATIONS = {"z": np.eye(3), "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])}
+
+
+def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate=None, up=None):
+    """Up axis first (``up``: 'y' turns a Y-up file to Z-up; 'z' or None: unchanged), then scale
+    (a positive number or three), then rotate (degrees about x, y, z), then translate.
+    V (n, 3) [file units] -> (n, 3) [m]."""
     src = f"{name}: transform"
+    if up not in (None, "z", "y"):
+        raise MoldError(f"{src}: 'up' must be 'y' or 'z', got {str(up)[:20]!r}")
+    if up == "y":
+        V = V @ UP_ROTATIONS["y"].T
     s = np.asarray(1.0 if scale is None else scale, dtype=np.float64).reshape(-1)
     if s.size not in (1, 3) or not np.isfinite(s).all() or not (s > 0).all():
         raise MoldError(f"{src}: 'scale' must be a positive number (or three), got {scale!r}")
@@ -48,13 +59,54 @@ def _apply_transform(V: np.ndarray, name: str, scale=1.0, translate=None, rotate
 
 
 def load_mold_bytes(data: bytes, filename: str, *, scale=1.0, translate=None, rotate=None,
-                    closed: bool | None = None) -> Mold:
+                    closed: bool | None = None, up: str | None = None, max_triangles: int | None = None,
+                    progress=None) -> Mold:
     """Mold from file contents (an upload). ``filename`` only selects the format and names the
-    mold in messages; nothing is written to disk."""
+    mold in messages; nothing is written to disk. ``up``: the file's up axis ('y' or 'z', see
+    :func:`_apply_transform`).
+
+    ``max_triangles``: refuse (MoldError) a mesh with more triangles, once read and before the
+    costly build. ``progress(fraction, stage)``: told how far the parse is (0..1) between stages
+    and during the build; it may raise to abandon the parse (the exception propagates)."""
     name = str(filename)
-    V, F = _read_any(bytes(data), name)
-    V = _apply_transform(V, name, scale, translate, rotate)
-    return _build_mesh_mold(V, F, closed, name)
+    if progress is not None:
+        progress(0.0, "reading the file")
+    V, F = _read_any(bytes(data) if not isinstance(data, bytes) else data, name)
+    if max_triangles is not None and len(F) > max_triangles:
+        raise MoldError(f"{name}: {len(F):,} triangles, over the limit of {max_triangles:,} for an "
+                        f"upload (simplify the mesh, or name the file in the scene)")
+    V = _apply_transform(V, name, scale, translate, rotate, up)
+    return _build_mesh_mold(V, F, closed, name, progress)
+
+
+def _cache_key(spec: MeshMoldSpec, base_dir: Path | None):
+    """(resolved path, cache key) of a mesh mold spec (file checked by mold_file_status)."""
+    path = Path(spec.path).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    st = mold_file_status(path)
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev,
+           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed, spec.up)
+    return path, key
+
+
+def cache_mold(spec: Any, mold: Mold, base_dir: Path | None = None) -> None:
+    """Remember ``mold`` as what :func:`load_mold` of the mesh spec ``spec`` builds (the viewer
+    parses an upload once, off its update loop, and stores the file: loading the stored file's
+    spec then costs a cache look-up, not a second parse). The caller vouches that ``mold`` is
+    the file's content with the spec's transform."""
+    try:
+        typed = validate_mold_spec(spec)
+    except ValueError as e:
+        raise MoldError(str(e)) from None
+    if not isinstance(typed, MeshMoldSpec):
+        return
+    _path, key = _cache_key(typed, base_dir)
+    with _cache_lock:
+        _cache[key] = (mold, [])
+        _cache.move_to_end(key)
+        while len(_cache) > MOLD_CACHE_SIZE:
+            _cache.popitem(last=False)
 
 
 #: how many loaded mesh molds :func:`load_mold` keeps (least recently used dropped first)
@@ -84,17 +136,27 @@ def _freeze(v: Any):
     return tuple(float(x) for x in np.asarray(v, dtype=np.float64).reshape(-1))
 
 
-def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
+def mold_cached(spec: Any, base_dir: Path | None = None) -> bool:
+    """True if :func:`load_mold` of ``spec`` would cost nothing worth waiting for: a primitive, a
+    mesh file already in the cache, or a spec that is refused at once (its error is left to
+    :func:`load_mold`)."""
+    try:
+        typed = validate_mold_spec(spec)
+        if not isinstance(typed, MeshMoldSpec):
+            return True
+        _path, key = _cache_key(typed, base_dir)
+    except (ValueError, MoldError):
+        return True
+    with _cache_lock:
+        return key in _cache
+
+
+def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None, progress=None) -> Mold:
     """A mesh mold from its file, through the cache: the same resolved file (same size,
     modification time and inode) with the same scale/transform/closed returns the Mold built
     before, without reading the file or rebuilding the BVH. The warnings its build raised are
     raised again on every load."""
-    path = Path(spec.path).expanduser()
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    st = mold_file_status(path)
-    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev,
-           _freeze(spec.scale), _freeze(spec.translate), _freeze(spec.rotate), spec.closed)
+    path, key = _cache_key(spec, base_dir)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None:
@@ -105,7 +167,8 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             mold = load_mold_bytes(data, str(path), scale=1.0 if spec.scale is None else spec.scale,
-                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed)
+                                   translate=spec.translate, rotate=spec.rotate, closed=spec.closed,
+                                   up=spec.up, progress=progress)
         hit = (mold, [(w.message, w.category) for w in caught])
         with _cache_lock:
             _cache_stats["misses"] += 1
@@ -118,12 +181,15 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None) -> Mold:
     return hit[0]
 
 
-def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
+def load_mold(spec: Any, base_dir: Path | None = None, progress=None) -> Mold | None:
     """Mold from a spec: ``None``; a typed :data:`clothsim.config.MoldSpec`; or the same as a
     plain mapping (checked by the same model): ``{"path": ..., "scale": s, "translate": [..],
-    "rotate": [..], "closed": bool}`` (relative paths resolve against ``base_dir``), or one
+    "rotate": [..], "closed": bool, "up": "y" | "z", "surface": "faceted" | "smooth",
+    "smoothing": r}`` (relative paths resolve against ``base_dir``; the cached mesh is shared by
+    both surfaces), or one
     primitive ``{"sphere": {...}}``, ``{"cylinder": {...}}``, ``{"plane": {...}}``,
-    ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`). Raises MoldError."""
+    ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`); ``progress`` as in
+    :func:`load_mold_bytes` (told only when a mesh file is parsed). Raises MoldError."""
     if spec is None:
         return None
     try:
@@ -131,5 +197,6 @@ def load_mold(spec: Any, base_dir: Path | None = None) -> Mold | None:
     except ValueError as e:
         raise MoldError(str(e)) from None
     if isinstance(typed, MeshMoldSpec):
-        return _load_mesh_file(typed, base_dir)
+        return with_surface(_load_mesh_file(typed, base_dir, progress), typed.surface or "faceted",
+                            typed.smoothing)
     return mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())

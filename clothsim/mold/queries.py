@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE
+from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
 
 _BEHIND_REL = 1e-9    # open boundary: "directly behind a face" tolerance (relative lateral offset)
 
@@ -564,6 +564,8 @@ def mold_query(margs, p, out):
     pz = p[2]
     if kind == MOLD_MESH:
         return _mesh_query(margs, px, py, pz, out)
+    if kind == MOLD_SMOOTH:
+        return _smooth_query(margs, px, py, pz, out)
     prm = margs.params
     if kind == MOLD_SPHERE:
         return _sphere_query(prm, px, py, pz, out)
@@ -592,14 +594,16 @@ def mold_feature_normals(margs, feature_code, feature_index, normals_out):
     normals are dropped silently otherwise). Mesh: 1 for a face, 2 for an interior edge (1 for a
     boundary edge), the ring of faces around a vertex. A node in a groove can be in equilibrium
     with a reaction anywhere in the cone of these normals.
-    Primitives: plane 1; box 1 / 2 / 3 on a face / edge / corner; sphere and cylinder side or rim
-    return 0 because their normals depend on the point: use :func:`mold_contact_normals`
+    Primitives: plane 1; box 1 / 2 / 3 on a face / edge / corner; a smooth mesh, sphere and
+    cylinder side or rim return 0 because their normals depend on the point: use :func:`mold_contact_normals`
     (cylinder caps return their single normal).
     """
     kind = margs.info[0]
     code = int(feature_code)
     idx = int(feature_index)
     prm = margs.params
+    if kind == MOLD_SMOOTH:
+        return 0  # point-dependent normal, like the sphere
     if kind == MOLD_MESH:
         FN = margs.face_normals
         if code == 0:
@@ -703,3 +707,7 @@ def mold_query_many(margs, P, signed_dist_out, closest_out, normal_out, feature_
             normal_out[i, k] = out[3 + k]
         feature_out[i, 0] = int(out[6])
         feature_out[i, 1] = int(out[7])
+
+
+# the smooth surface's kernels build on the helpers above (imported last: smooth imports them)
+from .smooth import _smooth_query  # noqa: E402

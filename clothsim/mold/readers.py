@@ -9,11 +9,12 @@ import io
 import math
 import os
 import re
-import stat
 from pathlib import Path
 
 import numpy as np
 
+from ..fileio import check_input_file, read_input_bytes
+from ..fileio import excerpt as _excerpt
 from .record import MoldError
 
 _PAPER_EXTS = {".txt", ".pts", ".tri"}
@@ -34,57 +35,22 @@ _MAX_INT = 2**53
 MAX_MOLD_FILE_BYTES = 256 * 2**20
 
 
-def _excerpt(text: str, n: int = 24, quote: bool = True) -> str:
-    """A short, printable excerpt of file content for an error message: at most n characters,
-    anything but printable ASCII shown as '?', '...' when cut. Messages never echo more of a
-    file than this (the file may not be what its name says)."""
-    text = str(text)
-    cut = len(text) > n
-    text = "".join(c if " " <= c <= "~" else "?" for c in text[:n]) + ("..." if cut else "")
-    return repr(text) if quote else text
-
-
 def mold_file_status(path: Path) -> os.stat_result:
     """``os.stat`` of a mold file named by the user, refusing what cannot be a mold before
-    anything is read: a missing file, anything but a regular file (a device such as /dev/zero,
-    a pipe, a folder), a symbolic link to a file outside the folder the path names, and a file
-    over ``MAX_MOLD_FILE_BYTES``. Raises MoldError naming the path."""
-    name = str(path)
-    try:
-        st = os.stat(path)
-    except OSError as e:
-        raise MoldError(f"{name}: cannot read mold file: {e.strerror or e}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise MoldError(f"{name}: not a regular file (a device, pipe or folder cannot be a mold)")
-    folder = Path(os.path.realpath(path.parent))
-    real = Path(os.path.realpath(path))
-    if not real.is_relative_to(folder):
-        raise MoldError(f"{name}: is a link to a file outside its folder; refusing to follow it "
-                        f"(copy the file there instead)")
-    if st.st_size > MAX_MOLD_FILE_BYTES:
-        raise MoldError(f"{name}: {st.st_size / 2**20:.0f} MB is over the mold file limit of "
-                        f"{MAX_MOLD_FILE_BYTES / 2**20:.0f} MB")
-    return st
+    anything is read (:func:`clothsim.fileio.check_input_file`): a missing file, anything but a
+    regular file (a device such as /dev/zero, a pipe, a folder), a symbolic link to a file
+    outside the folder the path names, and a file over ``MAX_MOLD_FILE_BYTES``. Raises MoldError
+    naming the path."""
+    return check_input_file(path, MoldError, limit=MAX_MOLD_FILE_BYTES, what="mold file")
 
 
-def read_mold_file(path: Path, max_bytes: int = MAX_MOLD_FILE_BYTES) -> bytes:
+def read_mold_file(path: Path, max_bytes: int | None = None) -> bytes:
     """The bytes of a mold file, after :func:`mold_file_status`'s checks; the descriptor is
-    checked again once open (a regular file, not a link) and at most ``max_bytes`` are read, so
-    a file swapped or growing meanwhile cannot make the read unbounded."""
-    name = str(path)
-    mold_file_status(path)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0)
-    try:
-        fd = os.open(os.path.realpath(path), flags)
-    except OSError as e:
-        raise MoldError(f"{name}: cannot read mold file: {e.strerror or e}") from None
-    with os.fdopen(fd, "rb") as fh:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise MoldError(f"{name}: not a regular file (a device, pipe or folder cannot be a mold)")
-        data = fh.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise MoldError(f"{name}: over the mold file limit of {max_bytes / 2**20:.0f} MB")
-    return data
+    checked again once open (a regular file, not a link) and at most ``max_bytes`` (default
+    ``MAX_MOLD_FILE_BYTES``) are read, so a file swapped or growing meanwhile cannot make the
+    read unbounded."""
+    limit = MAX_MOLD_FILE_BYTES if max_bytes is None else max_bytes
+    return read_input_bytes(path, MoldError, limit=limit, what="mold file")
 
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?|[-+]?(?:nan|inf|infinity)"

@@ -15,6 +15,8 @@ MOLD_SPHERE = 2
 MOLD_CYLINDER = 3
 MOLD_PLANE = 4
 MOLD_BOX = 5
+#: a triangle mesh queried through its smooth (G1) blended surface (see :mod:`clothsim.mold.smooth`)
+MOLD_SMOOTH = 6
 
 FEATURE_FACE = 0
 FEATURE_EDGE = 1
@@ -24,7 +26,15 @@ FEATURE_VERTEX = 2
 QUERY_OUT_SIZE = 8
 
 _KIND_NAMES = {MOLD_MESH: "mesh", MOLD_SPHERE: "sphere", MOLD_CYLINDER: "cylinder",
-               MOLD_PLANE: "plane", MOLD_BOX: "box"}
+               MOLD_PLANE: "plane", MOLD_BOX: "box", MOLD_SMOOTH: "smooth mesh"}
+#: the kinds that carry a triangle mesh (drawn, exported and sized as that mesh)
+MESH_KINDS = (MOLD_MESH, MOLD_SMOOTH)
+
+
+_NO_JETS = np.zeros((0, 16))
+_NO_JETS.setflags(write=False)
+_NO_REACH = np.zeros(0)
+_NO_REACH.setflags(write=False)
 
 
 class MoldError(ValueError):
@@ -78,6 +88,10 @@ class MoldArgs(NamedTuple):
     """int64 (N, 2): (start, count) in ``bvh_faces``."""
     bvh_faces: np.ndarray
     """int64 (F,)."""
+    vertex_jets: np.ndarray
+    """float64 (V, 16) on a smooth mesh, else (0, 16): see :attr:`Mold.vertex_jets`."""
+    bvh_reach: np.ndarray
+    """float64 (N,) on a smooth mesh, else (0,): see :attr:`Mold.bvh_reach`."""
 
 
 def _ro(a: np.ndarray, dtype) -> np.ndarray:
@@ -95,13 +109,15 @@ class Mold:
     """
 
     kind: int
-    """``MOLD_MESH``, ``MOLD_SPHERE``, ``MOLD_CYLINDER``, ``MOLD_PLANE`` or ``MOLD_BOX``."""
+    """``MOLD_MESH``, ``MOLD_SMOOTH`` (the same mesh, contact on its smooth blended surface),
+    ``MOLD_SPHERE``, ``MOLD_CYLINDER``, ``MOLD_PLANE`` or ``MOLD_BOX``."""
     params: np.ndarray
     """float64 (16,): primitive parameters [m] (unit vectors dimensionless).
     sphere: center[0:3], radius[3]; cylinder: center[0:3], unit axis[3:6], radius[6], length[7]
     (the cylinder spans center +- axis*length/2); plane: point[0:3], unit outward normal[3:6]
     (the mold is the half-space below); box: min corner[0:3], max corner[3:6];
-    mesh: params[15] = bounding-box diagonal [m]."""
+    mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the smoothing
+    radius r [m] (see :mod:`clothsim.mold.smooth`)."""
     vertices: np.ndarray
     """float64 (V, 3) [m]: mesh vertices (exact duplicates merged, unreferenced removed)."""
     faces: np.ndarray
@@ -140,6 +156,24 @@ class Mold:
     """int64 (F,): face ids ordered so that every node's faces are contiguous."""
     max_feature_normals: int
     """Rows ``normals_out`` of :func:`mold_feature_normals` needs (max vertex valence, >= 3)."""
+    vertex_jets: np.ndarray = None  # type: ignore[assignment]
+    """float64 (V, 16) on a smooth mesh (``MOLD_SMOOTH``), (0, 16) otherwise: per vertex its
+    local frame t1[0:3], t2[3:6] (with the vertex normal, a right-handed frame), the fitted
+    osculating jet's coefficients a, b, c, d, e [6:11] (height over the tangent plane
+    h = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2, x in m, c d e in 1/m) and the vertex's
+    blending radius r_v [m] at [11] and its weight factor (r / r_v)^4 at [12] (see
+    :mod:`clothsim.mold.smooth`)."""
+
+    bvh_reach: np.ndarray = None  # type: ignore[assignment]
+    """float64 (N,) on a smooth mesh, (0,) otherwise: per BVH node the largest blending radius
+    [m] of the vertices owned by its faces (a vertex is owned by the first face of its ring), so
+    the smooth surface's vertex search prunes each node by its own reach."""
+
+    def __post_init__(self):
+        if self.vertex_jets is None:
+            object.__setattr__(self, "vertex_jets", _NO_JETS)
+        if self.bvh_reach is None:
+            object.__setattr__(self, "bvh_reach", _NO_REACH)
 
     # ---- API -----------------------------------------------------------------------------
     @property
@@ -147,11 +181,21 @@ class Mold:
         return _KIND_NAMES[self.kind]
 
     @property
+    def surface(self) -> str | None:
+        """'faceted' or 'smooth' for a mesh mold, None for a primitive."""
+        return {MOLD_MESH: "faceted", MOLD_SMOOTH: "smooth"}.get(self.kind)
+
+    @property
+    def smoothing(self) -> float | None:
+        """The smoothing radius r [m] of a smooth mesh mold, else None."""
+        return float(self.params[14]) if self.kind == MOLD_SMOOTH else None
+
+    @property
     def bounds(self) -> np.ndarray:
         """float64 (2, 3) [m]: [min corner, max corner]. A plane is unbounded: +-inf on every
         axis except, for an axis-aligned normal, the upper (or lower) bound along that axis."""
         p = self.params
-        if self.kind == MOLD_MESH:
+        if self.kind in MESH_KINDS:
             return np.array([self.vertices.min(0), self.vertices.max(0)])
         if self.kind == MOLD_SPHERE:
             c, r = p[0:3], p[3]
@@ -181,7 +225,8 @@ class Mold:
                         self.vertex_normals, self.edges, self.edge_normals, self.face_edges,
                         self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
                         self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
-                        self.bvh_range, self.bvh_faces)
+                        self.bvh_range, self.bvh_faces, self.vertex_jets,
+                        self.bvh_reach)
 
     def surface_mesh(self, resolution: int = 48, extent: float = 1.0):
         """A triangle mesh for display: ``(vertices float64 (V,3) [m], faces int64 (F,3))``.
@@ -194,7 +239,7 @@ class Mold:
 
         p = self.params
         res = max(int(resolution), 8)
-        if self.kind == MOLD_MESH:
+        if self.kind in MESH_KINDS:
             return self.vertices.copy(), self.faces.copy()
         if self.kind == MOLD_SPHERE:
             sub = int(np.clip(round(math.log2(max(res, 8) / 5.0)), 1, 6))
@@ -220,6 +265,9 @@ class Mold:
         if self.kind == MOLD_MESH:
             return (f"Mold(mesh, {len(self.faces)} triangles, closed={self.closed}, "
                     f"source={self.source!r})")
+        if self.kind == MOLD_SMOOTH:
+            return (f"Mold(smooth mesh, {len(self.faces)} triangles, closed={self.closed}, "
+                    f"smoothing={self.params[14]:.4g} m, source={self.source!r})")
         return f"Mold({self.kind_name}, params={self.params[:8].tolist()}, source={self.source!r})"
 
 

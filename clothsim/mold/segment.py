@@ -14,7 +14,8 @@ import numpy as np
 from numba import njit
 
 from .queries import _mesh_query
-from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SPHERE
+from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
+from .smooth import _smooth_query_flag
 
 _BARY_EPS = 1e-9      # barycentric slack of a ray hit; hits closer to an edge are confirmed by a probe
 _T_EPS = 1e-10        # segment-parameter slack at t = 0 and t = 1
@@ -155,6 +156,133 @@ def _mesh_segment_hit(margs, p0, p1):
     return best if best <= 1.0 else -1.0
 
 
+_HIT_TOL = 1e-12      # [m] a smooth-surface hit point lies within this of the surface
+_TRACE_STEPS = 64
+
+
+@njit(cache=True)
+def _smooth_sd(margs, p0, dx, dy, dz, t, out):
+    """Signed distance [m] to the smooth surface at p0 + t d and a lower bound [m] on the
+    distance to it (the faceted fallback far from the mesh may overestimate it by the blend's
+    offset, well below half the smoothing radius); out[3:6] the normal."""
+    sd, smooth = _smooth_query_flag(margs, p0[0] + t * dx, p0[1] + t * dy, p0[2] + t * dz, out)
+    safe = abs(sd)
+    if not smooth:
+        safe = max(safe - 0.5 * margs.params[14], 0.0)
+    return sd, safe
+
+
+@njit(cache=True)
+def _smooth_bracket(margs, p0, dx, dy, dz, ta, fa, tb, fb, out):
+    """First crossing in [ta, tb] (fa > 0 > fb): regula falsi (Illinois) safeguarded by
+    bisection, until the point is within _HIT_TOL of the surface; returns its parameter (on the
+    outer side when the bracket collapses first)."""
+    side = 0
+    for _ in range(200):
+        if tb - ta <= 1e-17:
+            break
+        t = (ta * fb - tb * fa) / (fb - fa)
+        if not (ta < t < tb):
+            t = 0.5 * (ta + tb)
+        f, _ = _smooth_sd(margs, p0, dx, dy, dz, t, out)
+        if abs(f) <= _HIT_TOL:
+            return t
+        if f > 0.0:
+            ta = t
+            fa = f
+            if side == 1:
+                fb *= 0.5
+            side = 1
+        else:
+            tb = t
+            fb = f
+            if side == -1:
+                fa *= 0.5
+            side = -1
+    return ta
+
+
+@njit(cache=True)
+def _smooth_segment_hit(margs, p0, p1):
+    """mold_segment_hit on the smooth surface: sphere tracing with the signed distance (a
+    distance never overshoots the first crossing) from t = 0, each step tried first with a Newton
+    step on the distance along the segment (a point inside brackets a crossing); if it stalls (a segment grazing the
+    surface), a point inside is sought at t = 1, at the faceted hit and at the minimum of the
+    distance along the segment (where its derivative n . d changes sign), and the first crossing
+    before it is bracketed and refined to 1e-12 m."""
+    dx = p1[0] - p0[0]
+    dy = p1[1] - p0[1]
+    dz = p1[2] - p0[2]
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if L == 0.0:
+        return -1.0
+    out = np.empty(8)
+    t = 0.0
+    f, safe = _smooth_sd(margs, p0, dx, dy, dz, 0.0, out)
+    steps = _TRACE_STEPS
+    if abs(f) <= _HIT_TOL:
+        if out[3] * dx + out[4] * dy + out[5] * dz < 0.0:
+            return 0.0
+        steps = 0  # starts on the surface moving off it: straight to the search for a re-entry
+    was_outside = f > _HIT_TOL
+    for _ in range(steps):
+        if abs(f) <= _HIT_TOL and was_outside and t > 0.0:
+            return t
+        if f > _HIT_TOL:
+            was_outside = True
+            # Newton on the distance along the segment (its derivative is n . d): a point found
+            # inside brackets the crossing; the distance is unchanged by the trial otherwise
+            fd = out[3] * dx + out[4] * dy + out[5] * dz
+            if fd < 0.0:
+                tn = t - f / fd
+                if tn <= 1.0:
+                    fn, _ = _smooth_sd(margs, p0, dx, dy, dz, tn, out)
+                    if abs(fn) <= _HIT_TOL:
+                        return tn
+                    if fn < 0.0:
+                        return _smooth_bracket(margs, p0, dx, dy, dz, t, f, tn, fn, out)
+        t += max(safe, _HIT_TOL) / L
+        if t >= 1.0:
+            return -1.0
+        fa = f
+        f, safe = _smooth_sd(margs, p0, dx, dy, dz, t, out)
+        if f < -_HIT_TOL and fa > _HIT_TOL:
+            # cannot happen for an exact distance (the step was at most the distance)
+            return _smooth_bracket(margs, p0, dx, dy, dz, t - max(fa, _HIT_TOL) / L, fa, t, f, out)
+    # stalled: look for a point inside beyond t
+    if not (f > -_HIT_TOL):
+        # stalled inside or on the surface (a long walk out of a deep start): no entry found
+        return -1.0
+    ta = t
+    fa = f
+    f1, _ = _smooth_sd(margs, p0, dx, dy, dz, 1.0, out)
+    if f1 < 0.0:
+        return _smooth_bracket(margs, p0, dx, dy, dz, ta, fa, 1.0, f1, out)
+    tf = _mesh_segment_hit(margs, p0, p1)
+    if tf > ta:
+        ff, _ = _smooth_sd(margs, p0, dx, dy, dz, tf, out)
+        if ff < 0.0:
+            return _smooth_bracket(margs, p0, dx, dy, dz, ta, fa, tf, ff, out)
+    # the minimum of the distance along [ta, 1]: bisection on the sign of its derivative n . d
+    f, _ = _smooth_sd(margs, p0, dx, dy, dz, ta, out)
+    if out[3] * dx + out[4] * dy + out[5] * dz >= 0.0:
+        return -1.0
+    lo = ta
+    hi = 1.0
+    for _ in range(60):
+        tm = 0.5 * (lo + hi)
+        fm, _ = _smooth_sd(margs, p0, dx, dy, dz, tm, out)
+        if fm < 0.0:
+            return _smooth_bracket(margs, p0, dx, dy, dz, ta, fa, tm, fm, out)
+        if out[3] * dx + out[4] * dy + out[5] * dz < 0.0:
+            lo = tm
+        else:
+            hi = tm
+        if (hi - lo) * L <= _HIT_TOL:
+            break
+    return -1.0
+
+
 @njit(cache=True)
 def mold_segment_hit(margs, p0, p1):
     """Smallest t in [0, 1] where p0 + t (p1 - p0) crosses the surface from outside to inside.
@@ -165,11 +293,15 @@ def mold_segment_hit(margs, p0, p1):
     crossing: a segment starting strictly inside reports only a later re-entry (callers should
     project penetrating nodes first). Mesh: BVH + Moller-Trumbore on faces whose normal opposes
     the motion; hits within 1e-9 (barycentric) of an edge or vertex are confirmed by probing the
-    signed distance 1e-8 x (bounding-box diagonal) beyond the hit. Primitives: analytic.
+    signed distance 1e-8 x (bounding-box diagonal) beyond the hit. Smooth mesh: the first
+    crossing of its smooth surface, within 1e-12 m of it (see ``_smooth_segment_hit``).
+    Primitives: analytic.
     """
     kind = margs.info[0]
     if kind == MOLD_MESH:
         return _mesh_segment_hit(margs, p0, p1)
+    if kind == MOLD_SMOOTH:
+        return _smooth_segment_hit(margs, p0, p1)
     prm = margs.params
     dx = p1[0] - p0[0]
     dy = p1[1] - p0[1]

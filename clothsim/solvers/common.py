@@ -85,6 +85,7 @@ def residual(model, state, V: Optional[np.ndarray] = None) -> tuple[float, np.nd
         V = np.empty(model.node_count)
     F = np.empty_like(state.positions)
     forces_and_energy(state.positions, *model.spring_args(), model.external_force, F)
+    model.add_seam_forces(state.positions, F)
     vinf = residual_from_forces(state.positions, F, model.fixed_axes, state.in_contact, has_mold, margs, V)
     return vinf, V
 
@@ -92,7 +93,8 @@ def residual(model, state, V: Optional[np.ndarray] = None) -> tuple[float, np.nd
 def energy(model, state) -> float:
     """Total potential energy [J] (springs minus external work)."""
     out = np.empty_like(state.positions)
-    return forces_and_energy(state.positions, *model.spring_args(), model.external_force, out)
+    e = forces_and_energy(state.positions, *model.spring_args(), model.external_force, out)
+    return e + model.add_seam_forces(state.positions, out)
 
 
 def force_scale(model, state) -> float:

@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_from_forces, stop_at_surface
-from ..kernels import forces_and_energy, node_force
+from ..kernels import forces_and_energy, node_force, seam_forces_and_energy, seam_node_force
 from ..mold import mold_query
 from .base import Solver, StepReport, StepStatus
 from .common import model_mold_args
@@ -52,10 +52,17 @@ PENETRATION_TOL = 1e-12
 
 @njit(cache=True)
 def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, width, table,
-                x, y, cum, start, comp, ext, C, max_retries, has_mold, margs, R, Rn, qbuf, nbuf, trial):
-    """Relax node k (paper 3.2). Returns 1 if it moved."""
+                x, y, cum, start, comp, ext, C, max_retries, has_mold, margs, R, Rn, qbuf, nbuf, trial,
+                sptr, selem, snodes, sweight, sk):
+    """Relax node k (paper 3.2). Returns 1 if it moved. sptr, selem: the seam elements at each
+    node (clothsim.grid.seam_adjacency); snodes, sweight, sk: the seam element arrays (empty
+    when the scene has none)."""
     dpos, dabs = node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum,
                             start, comp, ext, R)
+    if sptr[k + 1] > sptr[k]:
+        d = seam_node_force(k, pos, sptr, selem, snodes, sweight, sk, R)
+        dpos += d
+        dabs += d
     p0 = pos[k, 0]
     p1 = pos[k, 1]
     p2 = pos[k, 2]
@@ -131,6 +138,8 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
             in_contact[k] = contact1
             node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum, start,
                        comp, ext, Rn)
+            if sptr[k + 1] > sptr[k]:
+                seam_node_force(k, pos, sptr, selem, snodes, sweight, sk, Rn)
             v1 = node_residual(Rn, fixed[k], contact1, pos[k], has_mold, margs, qbuf, nbuf)
             if v1 < v0:
                 return 1
@@ -145,9 +154,10 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
 @njit(cache=True, nogil=True)
 def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, rest, width, table,
                  x, y, cum, start, comp, spring_nodes, ext, C, max_retries, has_mold, margs,
-                 n_sweeps, e, blowup, res_out, en_out, prev):
+                 n_sweeps, e, blowup, res_out, en_out, prev, sptr, selem, snodes, sweight, sk):
     """Run up to n_sweeps sweeps. Returns (sweeps done, flag): flag 0 ok, 1 converged, 2 diverged
-    (positions restored to the last finite sweep), 3 no node could move."""
+    (positions restored to the last finite sweep), 3 no node could move. The seam elements
+    (sptr, selem, snodes, sweight, sk; see ``_relax_node``) add to every force."""
     R = np.empty(3)
     Rn = np.empty(3)
     qbuf = np.empty(8)
@@ -163,9 +173,11 @@ def paper_sweeps(pos, fixed, in_contact, order, adj_ptr, adj_node, adj_spring, r
         for kk in range(order.shape[0]):
             moved += _relax_node(order[kk], pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest,
                                  width, table, x, y, cum, start, comp, ext, C, max_retries, has_mold,
-                                 margs, R, Rn, qbuf, nbuf, trial)
+                                 margs, R, Rn, qbuf, nbuf, trial, sptr, selem, snodes, sweight, sk)
         # one force pass gives both the sweep's energy and its residual (eq. 6)
         en = forces_and_energy(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, ext, F)
+        if snodes.shape[0]:
+            en += seam_forces_and_energy(pos, snodes, sweight, sk, F)
         vinf = residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V)
         big = 0.0
         for k in range(pos.shape[0]):
@@ -214,6 +226,9 @@ class PaperSolver(Solver):
         self.has_mold, self.margs = model_mold_args(model)
         self.order = paper_order(model)
         self.adj = model.adjacency_args()
+        from ..grid import seam_adjacency
+
+        self.seam = (*seam_adjacency(model.node_count, model.seam_nodes), *model.seam_args())
         self.limit = blowup_limit(model)
         self._prev = np.empty((model.node_count, 3))
 
@@ -224,7 +239,8 @@ class PaperSolver(Solver):
         o = self.options
         done, flag = paper_sweeps(state.positions, m.fixed_axes, state.in_contact, self.order, *self.adj,
                                   m.spring_nodes, m.external_force, float(o.C), int(o.max_retries),
-                                  self.has_mold, self.margs, n, float(e), self.limit, res, en, self._prev)
+                                  self.has_mold, self.margs, n, float(e), self.limit, res, en, self._prev,
+                                  *self.seam)
         state.iteration += done
         return StepReport(done, res[:done], en[:done], _FLAG[flag])
 

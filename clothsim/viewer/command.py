@@ -46,10 +46,14 @@ def main(args) -> int:
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     app = None
     try:
-        app = ViewerApp(scene, host=host, port=args.port, upload_limit_mb=args.upload_limit_mb, verbose=True)
+        # the page is served at once; the model is built and the kernels compiled (about 30 s on
+        # a fresh install, from numba's cache afterwards) in the background, then the run starts
+        app = ViewerApp(scene, host=host, port=args.port, upload_limit_mb=args.upload_limit_mb, verbose=True,
+                        background=True, autostart=True)
         if app.port != args.port and args.port != 0:
             print(f"note: port {args.port} is busy; using {app.port}", file=sys.stderr)
         print(f"clothsim viewer: {app.url}  (scene {args.scene}; Ctrl+C stops)", flush=True)
+        print("compiling kernels (first run only)...", file=sys.stderr, flush=True)
         if not args.no_browser:
             try:
                 import webbrowser
@@ -57,8 +61,15 @@ def main(args) -> int:
                 webbrowser.open(app.url)
             except Exception:
                 pass
+        reported = False
         while True:
-            time.sleep(1.0)
+            time.sleep(0.2)
+            if app.ready.is_set() and not reported:
+                reported = True
+                if app.startup_error is not None:
+                    print(f"error: {app.startup_error}", file=sys.stderr)
+                    return 2
+                print(f"ready in {app.startup_s:.1f} s; relaxing", file=sys.stderr, flush=True)
     except (SceneError, MoldError, MaterialError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..config import Scene, SceneError, scene_from_dict
 from ..material import MaterialError, check_table, parse_table_csv
-from ..mold import MoldError, load_mold, load_mold_bytes
+from ..mold import MoldError, cache_mold, load_mold, load_mold_bytes
 from ..presets import PRESETS
 
 ROOT = Path(__file__).resolve().parent.parent.parent
@@ -39,6 +39,11 @@ STRETCH_MAX = 100.0
 C_MAX = 1e6
 THICKNESS_MM_MAX = 1e3  # [mm]
 MOLD_SCALE_MAX = 1e6
+#: most triangles an uploaded mold may have: parsing and building its search tree takes about
+#: 2-5 s per 100,000 triangles on a shared 2-core machine (docs/benchmarks.md, "Mold uploads")
+#: and about 2.4 kB of memory per triangle at its peak, so the limit keeps an upload under
+#: about half a minute and 1.2 GB; a larger mesh can still be named in a scene file
+MOLD_UPLOAD_MAX_TRIANGLES = 500_000
 
 
 def parse_table_text(text: str) -> tuple[list[float], list[float]]:
@@ -308,8 +313,9 @@ class SceneDraft:
         opts.update(self.uploads)
         return opts
 
-    def mold_spec(self, label: str, scale, offset) -> dict | None:
-        """The spec of mold choice ``label`` with a scale (mesh files) and an offset [m] applied."""
+    def mold_spec(self, label: str, scale, offset, up: str | None = None) -> dict | None:
+        """The spec of mold choice ``label`` with a scale (mesh files) and an offset [m] applied;
+        ``up`` ('y' or 'z', mesh files): the file's up axis (None: the choice's own)."""
         opts = self.mold_options()
         if label not in opts:
             raise MoldError(f"unknown mold choice {label[:60]!r}")
@@ -328,6 +334,13 @@ class SceneDraft:
                 spec["translate"] = [a + b for a, b in zip(t0, off)]
             if spec["scale"] == 1.0:
                 spec.pop("scale")
+            if up is not None:
+                if up not in ("y", "z"):
+                    raise MoldError(f"up: must be 'y' or 'z' (got {str(up)[:20]!r})")
+                if up == "y":
+                    spec["up"] = "y"
+                else:
+                    spec.pop("up", None)
         elif any(off):
             _kind, prm = next(iter(spec.items()))
             for key in ("center", "point", "min", "max"):
@@ -347,17 +360,37 @@ class SceneDraft:
         """Parse an uploaded mold in memory (refused before anything is written if it is broken),
         store it in ``upload_dir`` under a name chosen here (never the browser's) and offer it as
         a mold choice; returns its label."""
+        mold = self.parse_upload(name, data, scale, offset)
+        return self.store_upload(name, data, mold, scale, offset)
+
+    def parse_upload(self, name: str, data: bytes, scale, offset, progress=None):
+        """The Mold of an uploaded file, parsed in memory with the panel's scale and offset (no
+        draft state is read or changed: safe in a worker thread). Refuses (MoldError) a mesh of
+        more than ``MOLD_UPLOAD_MAX_TRIANGLES`` triangles before the costly build;
+        ``progress(fraction, stage)`` as in :func:`clothsim.mold.load_mold_bytes`."""
         if self.upload_dir is None:
             raise MoldError("uploads are not accepted here")
         scale = as_float(scale, "mold scale", 0.0, MOLD_SCALE_MAX)
         off = [as_float(x, "mold offset", -ABS_LENGTH_MAX, ABS_LENGTH_MAX) for x in offset]
-        load_mold_bytes(data, name, scale=scale, translate=off)
+        if not scale > 0:
+            raise MoldError(f"scale: must be positive (got {scale})")
+        return load_mold_bytes(data, name, scale=scale, translate=off, max_triangles=MOLD_UPLOAD_MAX_TRIANGLES,
+                               progress=progress)
+
+    def store_upload(self, name: str, data: bytes, mold, scale, offset) -> str:
+        """Store an upload parsed by :meth:`parse_upload` (as ``mold``, with this scale and
+        offset) and offer it as a mold choice; loading its spec with the same scale and offset
+        then finds ``mold`` in the mold cache instead of parsing the file again. Returns its label."""
+        if self.upload_dir is None:
+            raise MoldError("uploads are not accepted here")
         self.upload_count += 1
         ext = Path(name).suffix.lower()
         stored = self.upload_dir / f"mold_upload_{self.upload_count}{ext if ext in MOLD_EXTS else ''}"
         stored.write_bytes(data)
         label = f"upload: {Path(name).name[:60]}"
         self.uploads[label] = {"path": str(stored)}
+        if mold is not None:
+            cache_mold(self.mold_spec(label, scale, offset), mold)
         return label
 
     # ------------------------------------------------------------------ files

@@ -171,20 +171,22 @@ class SceneRenderer:
             self.h_fixed = self.scene.add_point_cloud(
                 "/constrained", pos[self.fixed_idx].astype(np.float32), colors=(230, 40, 40),
                 point_size=size, point_shape="circle", precision="float32", visible=view.show_fixed)
-        # seams: one thread per sewn node pair (it shrinks to nothing as the seam closes)
+        # seams: one thread per sewn node pair, and per sewn node of a seam of unequal node counts
+        # to the point of the other side it is sewn to (they shrink to nothing as the seam closes)
         if self.h_seams is not None:
             self.h_seams.remove()
             self.h_seams = None
         self.seam_ab = model.spring_nodes[model.spring_family == FAMILY_SEAM]
-        if len(self.seam_ab):
+        self.seam_model = model
+        if len(self.seam_ab) or model.seam_count:
             self.h_seams = self.scene.add_line_segments(
                 "/seams", self.seam_points(pos), colors=(255, 140, 0), thickness=2.0,
                 thickness_units="screen")
         self.model = model
 
     def seam_points(self, pos: np.ndarray) -> np.ndarray:
-        """(P, 2, 3) float32 end points of the seam threads."""
-        return np.stack([pos[self.seam_ab[:, 0]], pos[self.seam_ab[:, 1]]], axis=1).astype(np.float32)
+        """(P, 2, 3) float32 end points of the seam threads (clothsim.grid.Model.seam_points)."""
+        return self.seam_model.seam_points(pos).astype(np.float32)
 
     def show_mold(self, mold, pending: bool, model, view: ViewSettings) -> None:
         """Show ``mold`` (None: none), orange while it is a draft not yet applied."""

@@ -62,6 +62,32 @@ from .plot import PLOT_POINTS, ResidualPlot
 from .render import Frame, SceneRenderer, frame_camera
 
 
+STARTUP_NOTE = "Compiling kernels (first run only)"
+
+
+def _startup_html(elapsed: float) -> str:
+    """The note a background start shows until the model and kernels are ready."""
+    return (f'<div style="padding:0.5em 0"><b>{STARTUP_NOTE}...</b> {elapsed:.0f} s<br>'
+            f'<span style="font-size:0.85em">Building the scene and compiling the solver\'s kernels '
+            f'(about 30 s on a fresh install; numba caches them, so later starts take a few seconds). '
+            f'The relaxation starts when they are ready.</span></div>')
+
+
+def warm_kernels(sim: Simulation) -> None:
+    """Compile (or load from numba's cache) every kernel the relaxation and the display will
+    call, so that a run started afterwards draws its first frame at once."""
+    from ..simulation import warm_up
+    from .fields import node_field
+
+    warm_up(sim.model, sim.state, sim.settings)
+    sim.current_residual()
+    for key in ("strain_warp", "pressure"):
+        try:
+            node_field(sim.model, sim.state.positions, sim.state.in_contact, key)
+        except Exception:  # noqa: BLE001 - best effort: the display compiles the rest on first use
+            pass
+
+
 class _Quiet(threading.local):
     """Per-thread depth of :meth:`ViewerApp.quiet` blocks."""
 
@@ -80,11 +106,20 @@ class ViewerApp:
 
     def __init__(self, scene: Scene, *, host: str = "127.0.0.1", port: int = 8080,
                  upload_limit_mb: float = 200.0, max_rate_hz: float = 25.0, duty: float = 0.02,
-                 verbose: bool = False, token: str | None = None):
+                 verbose: bool = False, token: str | None = None, background: bool = False,
+                 autostart: bool = False, warm: Callable[[Simulation], None] | None = None):
+        """``background``: serve the page at once, with a "compiling kernels" note, and in a
+        start-up thread build the model and the panels (the scene is drawn), then compile (or
+        load from numba's cache) the solver's kernels with ``warm(sim)`` (default
+        :func:`warm_kernels`); ``ready`` is set when done (``startup_error`` holds the message if
+        the scene could not be built). Otherwise the model and panels are built here, before the
+        constructor returns, and nothing is warmed. ``autostart``: start the relaxation once
+        ready."""
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ValueError(f"port must be a whole number from 0 to 65535 (got {port})")
         if not (math.isfinite(upload_limit_mb) and upload_limit_mb >= 0):
             raise ValueError(f"upload limit must be a finite number of MB >= 0 (got {upload_limit_mb})")
+        self._t_created = time.perf_counter()
         self.token = (None if is_loopback(host) else new_token()) if token is None else (token or None)
         self.upload_limit = int(upload_limit_mb * 1024 * 1024)
         self.min_period = 1.0 / max_rate_hz
@@ -119,9 +154,12 @@ class ViewerApp:
         self._valid: dict[int, object] = {}  # id(handle) -> its last valid value
         self._edit_group: dict[int, str | None] = {}  # id(handle) -> edit group
         self._edit_handles: list = []
-
-        self.sim = Simulation(scene, on_progress=self.on_progress)
-        self.scene_draft = SceneDraft(scene, upload_dir=self.upload_dir)
+        self.ready = threading.Event()  # the model, kernels and panels are built (or failed)
+        self.startup_error: str | None = None
+        self.startup_s: float | None = None  # [s] from construction to ready
+        self.gui: dict[str, object] = {}
+        self.panels: dict[str, object] = {}
+        self._thread: threading.Thread | None = None
 
         self.handshake = HandshakeCheck(loopback=is_loopback(host), token=self.token)
         self.server = guarded_server(host, port, self.handshake)
@@ -129,20 +167,80 @@ class ViewerApp:
         self.port = self.server.get_port()
         self.server.gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
         self.server.scene.set_up_direction("+z")
-        self.server.on_client_connect(lambda client: frame_camera(client, self.sim.model))
         self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused)
 
+        if background:
+            self._startup_note = self.server.gui.add_html(_startup_html(0.0))
+            threading.Thread(target=self._start_up, args=(scene, warm or warm_kernels, autostart),
+                             name="clothsim-startup", daemon=True).start()
+        else:
+            self._startup_note = None
+            self._build(scene, warm)
+            self.startup_s = time.perf_counter() - self._t_created
+            self.ready.set()
+            if autostart:
+                self.start()
+
+    def _build(self, scene: Scene, warm: Callable[[Simulation], None] | None) -> None:
+        """The model (mold), ``warm(sim)`` if given, the panels, the value guard and the update
+        loop."""
+        self.sim = Simulation(scene, on_progress=self.on_progress)
+        if warm is not None:
+            warm(self.sim)
+        if self._stop.is_set():
+            return
+        self.scene_draft = SceneDraft(scene, upload_dir=self.upload_dir)
+        self.server.on_client_connect(lambda client: frame_camera(client, self.sim.model))
         self.renderer = SceneRenderer(self.server.scene)
-        self.gui: dict[str, object] = {}
-        self.panels = {"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
-                       "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
-                       "fabric": FabricPanel(self), "files": FilesPanel(self)}
+        self.panels.update({"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
+                            "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
+                            "fabric": FabricPanel(self), "files": FilesPanel(self)})
         self.plot = self._build_gui()
         self.sync_widgets()
         self._mark_valid()
         self.value_guard = GuiValueGuard(self.server, self._input_handles(), self._value_refused)
         self._thread = threading.Thread(target=self._loop, name="clothsim-viewer", daemon=True)
         self._thread.start()
+
+    def _start_up(self, scene: Scene, warm: Callable[[Simulation], None], autostart: bool) -> None:
+        """The start-up thread of a background start, while the page shows a note (its elapsed
+        time ticking): build the model and the panels (the scene is drawn once they are), warm
+        the kernels, then remove the note and, if asked, start the run."""
+        ticking = threading.Event()
+
+        def tick() -> None:
+            while not ticking.wait(1.0):
+                note = self._startup_note
+                if note is not None:
+                    note.content = _startup_html(time.perf_counter() - self._t_created)
+
+        threading.Thread(target=tick, name="clothsim-startup-note", daemon=True).start()
+        try:
+            self._build(scene, None)  # the scene is drawn as soon as its model is built
+            if not self._stop.is_set():
+                warm(self.sim)  # then the solver's kernels: the note stays until they are ready
+        except Exception as exc:  # noqa: BLE001 - shown on the page and by `view` (exit 2)
+            known = (SceneError, MoldError, MaterialError, ValueError)
+            self.startup_error = str(exc) if isinstance(exc, known) else f"{type(exc).__name__}: {exc}"
+            ticking.set()
+            self._startup_note.content = (f'<div style="color:#c92a2a">&#9888; The scene could not be built: '
+                                          f'{html.escape(self.startup_error)}</div>')
+            self.ready.set()
+            return
+        ticking.set()
+        if self._stop.is_set():
+            return
+        for client in list(self.server.get_clients().values()):  # tabs opened while compiling
+            try:
+                frame_camera(client, self.sim.model)
+            except Exception:  # noqa: BLE001 - a tab that just closed
+                pass
+        self._startup_note.remove()
+        self._startup_note = None
+        self.startup_s = time.perf_counter() - self._t_created
+        if autostart:
+            self.start()
+        self.ready.set()
 
     # ------------------------------------------------------------------ public controls
     @property
@@ -204,8 +302,14 @@ class ViewerApp:
     def close(self) -> None:
         self._stop.set()
         self._wake.set()
-        self.sim.close()
-        self._thread.join(timeout=10)
+        fabric = self.panels.get("fabric")
+        if fabric is not None and fabric.job is not None:
+            fabric.job.cancel()
+        sim = getattr(self, "sim", None)
+        if sim is not None:
+            sim.close()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
         try:
             self.server.stop()
         finally:
@@ -362,6 +466,7 @@ class ViewerApp:
                 tasks, self._tasks = self._tasks, []
             for fn, group in tasks:
                 self._run_task(fn, group)
+            self._poll_upload()
             try:
                 self._push()
             except Exception as exc:  # never let the display kill the loop
@@ -371,7 +476,7 @@ class ViewerApp:
             cpu = time.thread_time() - c0
             self.loop_work_s += cpu
             with self._lock:
-                if not self._tasks:
+                if not self._tasks and not self.panels["fabric"].busy():
                     self._idle.set()
             # while the solver runs, keep the loop's own share of the time below `duty` (a smoothed
             # estimate, so that one slow frame, e.g. loading a kernel, does not stall the display)
@@ -381,6 +486,20 @@ class ViewerApp:
                 period = min(max(self.min_period, self._work_avg / self.duty), 1.0)
             self._wake.wait(timeout=max(0.002, period - work))
             self._wake.clear()
+
+    def _poll_upload(self) -> None:
+        """The mold upload being parsed off the loop: its progress, or its result once done."""
+        fabric = self.panels["fabric"]
+        job = fabric.job
+        if job is None:
+            return
+        if job.done.is_set():
+            self._run_task(fabric.poll_upload, "mold")
+        else:
+            try:
+                fabric.poll_upload()
+            except Exception:  # noqa: BLE001 - progress display only
+                pass
 
     def _run_task(self, fn, group) -> None:
         try:
@@ -438,10 +557,16 @@ class ViewerApp:
             self._after_model_change()
 
     def _do_apply(self, reset: bool) -> None:
+        import warnings
+
         scene = self.scene_draft.validate()
-        self.sim.replace_scene(scene, warm_start=not reset)
+        with warnings.catch_warnings(record=True) as caught:  # the mold's units and reach
+            warnings.simplefilter("always")
+            self.sim.replace_scene(scene, warm_start=not reset)
+        self.panels["fabric"].mold_warnings = [str(w.message) for w in caught if str(w.message).startswith("mold: ")]
         self.panels["fabric"].mold_preview = None
         self._after_model_change()
+        self.panels["fabric"].refresh_mold_info()
 
     def _after_model_change(self) -> None:
         with self._lock:
@@ -457,7 +582,9 @@ class ViewerApp:
     def _upload_refused(self, client_id, message, filename: str, reason: str) -> None:
         """From viser's event loop: the upload guard refused a transfer (its parts are freed)."""
         msg = f"{filename[:60]}: {reason}"
-        group = "mold" if message.source_component_uuid == self.gui["mold_upload"]._impl.uuid else "material"
+        mold_upload = self.gui.get("mold_upload")
+        group = "mold" if mold_upload is not None and message.source_component_uuid == mold_upload._impl.uuid \
+            else "material"
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
         client = self.server.get_clients().get(client_id)
         if client is not None:

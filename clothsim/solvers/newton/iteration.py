@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from ...contact import residual_from_forces as _residual_from_forces
-from ...kernels import first_slope, forces_and_energy
+from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH
 from ..common import model_mold_args
 from ..options import NewtonOptions
@@ -59,7 +59,11 @@ class NewtonLevel:
         self.sargs = model.spring_args()
         n = model.node_count
         self.n = n
-        self.indptr, self.indices, self.slot, self.diag = _bsr_pattern(n, model.spring_nodes)
+        self.indptr, self.indices, self.slot, self.diag = _bsr_pattern(n, _coupled_pairs(model))
+        if model.seam_count:
+            # the seam elements' node pairs follow the springs'
+            self.slot = np.ascontiguousarray(self.slot[:model.spring_count])
+            self.seam_slot = seam_slots(self.indptr, self.indices, model.seam_nodes)
         nb = self.indices.shape[0]
         self.K = np.zeros((nb, 3, 3))
         self.A = np.zeros((nb, 3, 3))
@@ -110,13 +114,16 @@ class NewtonLevel:
 
     # -- helpers ---------------------------------------------------------------------------
     def energy_forces(self, pos, F):
-        return forces_and_energy(pos, *self.sargs, self.model.external_force, F)
+        e = forces_and_energy(pos, *self.sargs, self.model.external_force, F)
+        if self.model.seam_count:
+            e += self.model.add_seam_forces(pos, F)
+        return e
 
     def residual(self, pos, contact, F=None):
         """||V||_inf (eq. 6) at pos; F: the forces at pos when already known."""
         if F is None:
             F = self._Fr
-            forces_and_energy(pos, *self.sargs, self.model.external_force, F)
+            self.energy_forces(pos, F)
         return _residual_from_forces(pos, F, self.model.fixed_axes, contact, self.has_mold, self.margs,
                                      self.V)
 
@@ -187,6 +194,8 @@ class NewtonLevel:
         _apply_pi(self.Pi, f, rhs)
         gnorm = np.linalg.norm(rhs)
         _assemble(pos, *self.sargs, self.kink, self.slot, self.K)
+        if m.seam_count:
+            seam_assemble(*m.seam_args(), self.seam_slot, self.K)
         dsum = 0.0
         dcount = 0
         dg = self.K[self.diag]
@@ -291,6 +300,17 @@ class NewtonLevel:
         if not math.isfinite(v1):
             return v1, E1, 2
         return v1, E1, 0
+
+
+def _coupled_pairs(model):
+    """(P,2) node pairs whose Hessian blocks couple: the springs', then every pair of nodes of
+    each seam element (only the springs' without seam elements)."""
+    if not model.seam_count:
+        return model.spring_nodes
+    q = model.seam_nodes
+    i, j = np.triu_indices(q.shape[1], 1)
+    pairs = np.stack([q[:, i].ravel(), q[:, j].ravel()], 1)
+    return np.ascontiguousarray(np.concatenate([model.spring_nodes, pairs]))
 
 
 def _forcing(v, e):

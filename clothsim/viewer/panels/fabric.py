@@ -1,18 +1,88 @@
 """The Fabric & mold tab: sheet size and divisions, initial lift; the mold (the scene's, a bundled
-file, a primitive or an upload) with a scale and an offset."""
+file, a primitive or an upload) with a scale and an offset.
+
+An uploaded mold is parsed once, in a worker thread (:class:`MoldUploadJob`), never on the update
+loop: every tab keeps its updates while a large mesh is read and its search tree built. The panel
+shows the parse's stage and progress and a **Cancel upload** button; the update loop polls the job
+(:meth:`FabricPanel.poll_upload`) and, when it is done, stores the file and makes it the draft's
+mold (the parsed mold is handed to the mold cache, so the stored file is not parsed again)."""
 
 from __future__ import annotations
 
+import html
+import threading
+import time
+from pathlib import Path
+
 import viser
 
-from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, SCENE_MOLD
+from ...mold import load_mold, mold_cached
+from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, MOLD_UPLOAD_MAX_TRIANGLES, SCENE_MOLD
 from . import Panel
+
+
+class UploadCancelled(Exception):
+    """Raised inside a parse when its upload was cancelled."""
+
+
+class MoldUploadJob:
+    """One uploaded mold parsed in a worker thread. ``fraction`` (0..1) and ``stage`` tell how
+    far it is; :meth:`cancel` makes the parse stop at its next progress report (between stages
+    and every few thousand search-tree nodes: within about a second); when ``done`` is set,
+    ``mold`` holds the result, or ``error`` the exception, or ``cancelled`` is true."""
+
+    def __init__(self, name: str, data: bytes, scale, offset, parse, *, size: int | None = None,
+                 spec: dict | None = None, restore: dict | None = None):
+        self.name, self.data, self.scale, self.offset = name, data, scale, tuple(offset)
+        self.size = len(data) if size is None else size  # [bytes]
+        # a mold file being loaded for a mold edit (not an upload): its spec, and the edit's
+        # widgets' last valid values (shown again if the load fails or is cancelled)
+        self.spec = spec
+        self.restore = restore or {}
+        self.fraction = 0.0
+        self.stage = "starting"
+        self.t0 = time.perf_counter()
+        self.mold = None
+        self.error: Exception | None = None
+        self.done = threading.Event()
+        self._cancel = threading.Event()
+        self.thread = threading.Thread(target=self._run, args=(parse,), name="clothsim-mold-upload", daemon=True)
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancel.is_set()
+
+    def cancel(self) -> None:
+        self._cancel.set()
+
+    def _progress(self, fraction: float, stage: str) -> None:
+        if self._cancel.is_set():
+            raise UploadCancelled
+        self.fraction = float(fraction)
+        self.stage = stage
+
+    def _run(self, parse) -> None:
+        try:
+            self.mold = parse(self.name, self.data, self.scale, self.offset, progress=self._progress)
+            if self._cancel.is_set():
+                self.mold = None
+        except UploadCancelled:
+            pass
+        except Exception as exc:  # noqa: BLE001 - reported on the panel's error line
+            self.error = exc
+        finally:
+            if self.mold is None:
+                self.data = b""  # free the upload at once
+            self.done.set()
 
 
 class FabricPanel(Panel):
     def __init__(self, app):
         super().__init__(app)
         self.mold_preview = None  # a validated Mold of the draft, shown until applied ("none": no mold)
+        self.mold_warnings: list[str] = []  # "mold: ..." warnings (units, reach) of the last preview or apply
+        self.job: MoldUploadJob | None = None  # the upload (or mold file) being parsed
+        self._job_shown = 0.0
 
     def build(self, gui) -> None:
         app, g = self.app, self.gui
@@ -35,10 +105,19 @@ class FabricPanel(Panel):
         g["mold_offset"] = app.on(gui.add_vector3("Mold offset [m]", (0.0, 0.0, 0.0), step=0.001,
                                                   min=(-big,) * 3, max=(big,) * 3),
                                   lambda v: self.set_mold(), "mold")
+        g["mold_up"] = app.on(gui.add_dropdown("Mold up axis (mesh files)", ("z", "y"), initial_value="z",
+                                               hint="y: a Y-up file (most scans) is turned to clothsim's Z-up"),
+                              lambda v: self.set_mold(), "mold")
         up = gui.add_upload_button("Upload mold", icon=viser.Icon.UPLOAD, mime_type="*/*",
-                                   hint="STL, OBJ, PLY, OFF, GLB, the paper's .txt, .vtk, .wrl")
+                                   hint=f"STL, OBJ, PLY, OFF, GLB, the paper's .txt, .vtk, .wrl; at most "
+                                        f"{MOLD_UPLOAD_MAX_TRIANGLES:,} triangles and "
+                                        f"{app.upload_limit / 2**20:.0f} MB")
         up.on_upload(app.upload_callback(up, self.mold_uploaded, "mold"))
         g["mold_upload"] = up
+        g["mold_progress_text"] = gui.add_html("", visible=False)
+        g["mold_progress"] = gui.add_progress_bar(0.0, visible=False, animated=True)
+        g["mold_cancel"] = gui.add_button("Cancel upload", icon=viser.Icon.X, color="red", visible=False)
+        g["mold_cancel"].on_click(lambda _e: self.cancel_upload())
         g["mold_info"] = gui.add_markdown("")
         app.err("mold")
 
@@ -57,6 +136,8 @@ class FabricPanel(Panel):
         else:
             g["panels"].content = self.panels_table()
         g["lift"].value = float(self.app.scene_draft.data.get("initial", {}).get("lift", 0.0))
+        with self.app.quiet():
+            g["mold_up"].value = (data.get("mold") or {}).get("up") or "z"
         self.refresh_mold_options()
 
     def panels_table(self) -> str:
@@ -99,18 +180,123 @@ class FabricPanel(Panel):
         # inside a markdown code span nothing is interpreted (an HTML escape would show as
         # "&#x27;"): only a backtick could end the span early
         self.gui["mold_info"].content = (f"Current: `{str(spec).replace('`', chr(39))}`" if spec is not None
-                                         else "Current: no mold")
+                                         else "Current: no mold") + "".join(
+            f"\n\n**warning**: `{w.replace('`', chr(39))}`" for w in self.mold_warnings)
 
     def set_mold(self) -> None:
-        g = self.gui
-        spec = self.app.scene_draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value)
+        """A mold edit (choice, scale, offset). A mesh file not yet in the mold cache (a bundled
+        file chosen, an upload rescaled) is parsed in a worker thread like an upload, so the edit
+        does not stall the loop; the draft changes when it is done."""
+        app, g = self.app, self.gui
+        draft = app.scene_draft
+        spec = draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value,
+                               g["mold_up"].value)
+        if spec is not None:
+            base = draft.validate({**draft.data, "mold": spec}).base_dir  # field-level check first
+            if not mold_cached(spec, base):
+                if self.job is not None and not self.job.done.is_set():
+                    self.job.cancel()
+                restore = {k: app._valid[id(g[k])] for k in ("mold", "mold_scale", "mold_offset", "mold_up")
+                           if id(g[k]) in app._valid}
+                path = Path(spec["path"])
+                try:
+                    size = (path if path.is_absolute() or base is None else Path(base) / path).stat().st_size
+                except OSError:
+                    size = 0
+                job = MoldUploadJob(path.name, b"", g["mold_scale"].value, g["mold_offset"].value,
+                                    lambda *_a, progress: load_mold(spec, base, progress=progress),
+                                    size=size, spec=spec, restore=restore)
+                self.job = job
+                self._job_shown = 0.0
+                self._show_progress(job)
+                job.thread.start()
+                return
+        self._mold_set(spec)
+
+    def _mold_set(self, spec) -> None:
         mold = self.app.scene_draft.set_mold(spec)
         self.mold_preview = mold if mold is not None else "none"
+        self.mold_warnings = []
+        if mold is not None:  # units at once; the reach is checked when the edit is applied
+            from ...mold import mold_scale_warning
+
+            msg = mold_scale_warning(mold, self.app.sim.model.placement.size)
+            self.mold_warnings = [f"mold: {msg}"] if msg else []
         self.app.draft_changed(mold=True)
         self.refresh_mold_info()
 
     def mold_uploaded(self, name: str, data: bytes) -> None:
+        """An upload arrived (on the update loop): parse it in a worker thread (an upload still
+        being parsed is cancelled); :meth:`poll_upload` takes it from there."""
+        if self.job is not None and not self.job.done.is_set():
+            self.job.cancel()
         g = self.gui
-        label = self.app.scene_draft.add_upload(name, data, g["mold_scale"].value, g["mold_offset"].value)
+        job = MoldUploadJob(name, data, g["mold_scale"].value, g["mold_offset"].value,
+                            self.app.scene_draft.parse_upload)
+        self.job = job
+        self._job_shown = 0.0
+        self._show_progress(job)
+        job.thread.start()
+
+    def cancel_upload(self) -> None:
+        """The Cancel button (any thread): the parse stops at its next progress report."""
+        job = self.job
+        if job is not None:
+            job.cancel()
+        self.app._wake.set()
+
+    def busy(self) -> bool:
+        """An upload is being parsed."""
+        return self.job is not None
+
+    def poll_upload(self) -> None:
+        """On the update loop: show the parse's progress; when it is done, store the upload and
+        make it the draft's mold, or show why not (raises: the error line of the mold group)."""
+        job = self.job
+        if job is None:
+            return
+        if not job.done.is_set():
+            now = time.perf_counter()
+            if now - self._job_shown >= 0.25:
+                self._job_shown = now
+                self._show_progress(job)
+            return
+        self.job = None
+        self._hide_progress()
+        name = job.name[:60]
+        if (job.cancelled or job.error is not None) and job.restore:
+            app = self.app
+            for k, v in job.restore.items():  # the edit did not happen: show the mold in use again
+                app._valid[id(self.gui[k])] = v
+                app._restore(self.gui[k])
+        if job.cancelled:
+            raise ValueError(f"{name}: {'loading' if job.spec is not None else 'upload'} cancelled; "
+                             f"the mold is unchanged")
+        if job.error is not None:
+            raise job.error
+        if job.spec is not None:  # a mold edit: the file is in the mold cache now
+            self._mold_set(job.spec)
+            self.app._mark_valid("mold")
+            return
+        label = self.app.scene_draft.store_upload(job.name, job.data, job.mold, job.scale, job.offset)
+        job.data = b""
         self.refresh_mold_options(select=label)
         self.set_mold()
+        self.app._mark_valid("mold")  # the mold widgets show the mold in use
+
+    def _show_progress(self, job: MoldUploadJob) -> None:
+        g = self.gui
+        pct = 100.0 * min(max(job.fraction, 0.0), 1.0)
+        what = "cancelling" if job.cancelled else job.stage
+        g["mold_progress_text"].content = (
+            f'<div style="font-size:0.85em">{"Loading" if job.spec is not None else "Parsing"} '
+            f'<b>{html.escape(job.name[:60])}</b> '
+            f'({job.size / 2**20:.1f} MB): {html.escape(what)}... {pct:.0f} % '
+            f'({time.perf_counter() - job.t0:.0f} s)</div>')
+        g["mold_progress"].value = pct
+        for k in ("mold_progress_text", "mold_progress", "mold_cancel"):
+            g[k].visible = True
+
+    def _hide_progress(self) -> None:
+        for k in ("mold_progress_text", "mold_progress", "mold_cancel"):
+            self.gui[k].visible = False

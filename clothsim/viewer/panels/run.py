@@ -6,7 +6,7 @@ import html
 
 import numpy as np
 
-from ...results import sheet_health
+from ...results import seam_report, sheet_health
 from ..render import Frame, fmt
 from . import Panel
 
@@ -89,6 +89,17 @@ class RunPanel(Panel):
                    f"{h['min_weft_extent_ratio']:.0%} of the rest width")
             if h["min_weft_extent_ratio"] < 0.5:
                 txt += " (the sheet gathers: nothing holds its width)"
-            self.health = f"<small>{'⚠ ' if warn else ''}{txt}</small>"
+            self.health = f"<small>{'⚠ ' if warn else ''}{txt}</small>" + seam_text(f.model, f.positions)
             self.health_key = key
         return self.health
+
+
+def seam_text(model, positions) -> str:
+    """One line per seam: its widest gap [m] and, for an eased seam, its ease [%] (empty
+    without seams)."""
+    if not model.seams:
+        return ""
+    rows = seam_report(model, positions)["seams"]
+    parts = [f"seam {n}: widest gap {fmt(r['max_gap_m'], 2)} m"
+             + (f" (ease {r['ease_pct']:.1f} %)" if r["ease_pct"] > 0.01 else "") for n, r in enumerate(rows)]
+    return "  \n<small>" + " · ".join(parts) + "</small>"

@@ -1,0 +1,270 @@
+"""The smooth contact surface of a triangle mesh (mold kind ``MOLD_SMOOTH``): ``@njit(cache=True)``
+pure functions of the mold's kernel arguments ``margs``.
+
+A membrane pressed onto a polyhedron carries line loads on its ridges, so the contact pressure on
+a faceted scan does not converge under lattice refinement. A scanned body is smooth and its
+triangles are only a sampling of it; this kind replaces the polyhedron, for contact, by a smooth
+(G1, continuous-normal) surface through the mesh's vertices: the zero set of a partition-of-unity
+blend of per-vertex osculating jets (an implicit surface in the family of Shen, O'Brien &
+Shewchuk 2004, "Interpolating and approximating implicit surfaces from polygon soup", SIGGRAPH,
+and of Ohtake et al. 2003, "Multi-level partition of unity implicits", SIGGRAPH)::
+
+    phi(x) = sum_v w_v(x) s_v(x) / sum_v w_v(x),     w_v(x) = psi(|x - v| / r_v)
+    s_v(x) = (x - v) . n_v - h_v(x1, x2),             x1 = (x - v) . t1_v,  x2 = (x - v) . t2_v
+    h_v = a x1 + b x2 + c x1^2 / 2 + d x1 x2 + e x2^2 / 2
+
+n_v the vertex's angle-weighted pseudo-normal, (t1_v, t2_v) its tangent frame, h_v the quadratic
+height function through v fitted to its 2-ring of neighbours (``Mold.vertex_jets``, built by
+``build._vertex_jets``), psi(t) = (1 - t)^4 (4 t + 1) for t < 1 (Wendland C2; 0 beyond; psi'(0)
+= 0), r_v [m] the vertex's blending radius: the smoothing radius r (``params[14]``; default 1.5
+median edge lengths) or 1.25 x its longest edge if larger, up to 3 r (so every point of every
+face but the inside of triangles larger than about 2 r lies inside some vertex's support; the
+inside of such a big triangle, always flat, is answered by the faceted query), and such a wide vertex's weight scaled by (r / r_v)^4 (stored in
+the jet) so that it decides the surface only inside big triangles (flat CAD bases) and not where
+fine vertices are. Each BVH node is pruned by the largest r_v of the vertices its faces own
+(``bvh_reach``). phi is C1 with an analytic gradient; each jet is exact to second
+order, so the surface converges to the sampled smooth body at about fourth order in the edge
+length (second for the facets), its normal and curvature converge too (no facet stripes in the
+pressure), and coplanar neighbourhoods give their plane exactly. (The lead's first design blended
+the faces' planes instead; measured on icospheres it undulates with an amplitude of about half
+the facets' sagitta at the mesh's own wavelength, i.e. an O(1) curvature error: see docs.)
+
+Queries (the conventions of :mod:`clothsim.mold`): the closest point c on {phi = 0} is found from
+the faceted closest point by repeated projection of p onto the linearisation of phi at c (a
+Newton step onto phi = 0 and a tangential fixed-point correction in one) until the step is below
+1e-13 m, so that phi(c) = 0 and p - c is parallel to grad phi(c);
+the signed distance is (p - c) . n(c), n = grad phi / |grad phi|, and the feature is code 0 (a
+face, as on the analytic sphere) with the point-dependent normal n(c); ``out[7]`` is the nearest
+mesh face. Points farther than r from the mesh (far outside or deep inside: never in contact),
+points whose foot iteration does not converge, and, on an open mesh, points the faceted open-mesh
+rule puts outside beyond the rim get the faceted answer (still code 0, ``out[3:6]`` the faceted
+pseudo-normal).
+
+Thin parts thinner than about r (both sides' vertices within each other's supports) are blended
+into one another: use a smaller ``smoothing`` or ``surface: faceted`` there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .queries import _box_d2, _mesh_query
+
+_FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
+_FOOT_ITERS = 60
+
+
+@njit(cache=True)
+def _blend(margs, x, y, z, r, g, stack):
+    """phi(x) [m] and its gradient g (3,) (filled); returns (phi, W), W = sum of the weights
+    (0: no vertex's support reaches x; then phi = 0 and g = 0). r: unused (the vertices' own
+    radii apply; kept for the call signature). stack: int64 scratch (>= 128)."""
+    V = margs.vertices
+    F = margs.faces
+    VN = margs.vertex_normals
+    J = margs.vertex_jets
+    owner_ptr = margs.vertex_face_ptr
+    owner_idx = margs.vertex_face_idx
+    bmin = margs.bvh_min
+    bmax = margs.bvh_max
+    child = margs.bvh_child
+    rng = margs.bvh_range
+    order = margs.bvh_faces
+    reach = margs.bvh_reach
+    W = 0.0
+    S = 0.0
+    gw0 = 0.0
+    gw1 = 0.0
+    gw2 = 0.0
+    gs0 = 0.0
+    gs1 = 0.0
+    gs2 = 0.0
+    g[0] = 0.0
+    g[1] = 0.0
+    g[2] = 0.0
+    if bmin.shape[0] == 0 or J.shape[0] != V.shape[0] or reach.shape[0] != bmin.shape[0]:
+        return 0.0, 0.0
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        n = stack[sp]
+        if _box_d2(bmin, bmax, n, x, y, z) >= reach[n] * reach[n]:
+            continue
+        if child[n, 0] >= 0:
+            if sp + 2 > stack.shape[0]:
+                return 0.0, -1.0  # cannot happen for the median-split trees built here
+            stack[sp] = child[n, 0]
+            stack[sp + 1] = child[n, 1]
+            sp += 2
+            continue
+        start = rng[n, 0]
+        for k in range(start, start + rng[n, 1]):
+            f = order[k]
+            for j in range(3):
+                v = F[f, j]
+                if owner_idx[owner_ptr[v]] != f:
+                    continue  # each vertex is visited once: from the first face of its ring
+                dx = x - V[v, 0]
+                dy = y - V[v, 1]
+                dz = z - V[v, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                rv = J[v, 11]
+                if d2 >= rv * rv:
+                    continue
+                t = math.sqrt(d2) / rv
+                om = 1.0 - t
+                om3 = om * om * om
+                k4 = J[v, 12]
+                w = k4 * om3 * om * (4.0 * t + 1.0)
+                # grad w = k4 psi'(t)/rv * (x - v)/|x - v| = -20 k4 (1 - t)^3 (x - v) / rv^2
+                a = -20.0 * k4 * om3 / (rv * rv)
+                wx = a * dx
+                wy = a * dy
+                wz = a * dz
+                # the vertex's jet: s = (x - v).n - h(x1, x2), x1, x2 its tangent coordinates
+                nx = VN[v, 0]
+                ny = VN[v, 1]
+                nz = VN[v, 2]
+                x1 = dx * J[v, 0] + dy * J[v, 1] + dz * J[v, 2]
+                x2 = dx * J[v, 3] + dy * J[v, 4] + dz * J[v, 5]
+                ca = J[v, 6]
+                cb = J[v, 7]
+                cc = J[v, 8]
+                cd = J[v, 9]
+                ce = J[v, 10]
+                s = (dx * nx + dy * ny + dz * nz
+                     - (ca * x1 + cb * x2 + 0.5 * cc * x1 * x1 + cd * x1 * x2 + 0.5 * ce * x2 * x2))
+                h1 = ca + cc * x1 + cd * x2
+                h2 = cb + cd * x1 + ce * x2
+                sx = nx - h1 * J[v, 0] - h2 * J[v, 3]
+                sy = ny - h1 * J[v, 1] - h2 * J[v, 4]
+                sz = nz - h1 * J[v, 2] - h2 * J[v, 5]
+                W += w
+                S += w * s
+                gw0 += wx
+                gw1 += wy
+                gw2 += wz
+                gs0 += w * sx + s * wx
+                gs1 += w * sy + s * wy
+                gs2 += w * sz + s * wz
+    if not (W > 0.0):
+        return 0.0, 0.0
+    phi = S / W
+    g[0] = (gs0 - phi * gw0) / W
+    g[1] = (gs1 - phi * gw1) / W
+    g[2] = (gs2 - phi * gw2) / W
+    return phi, W
+
+
+@njit(cache=True)
+def smooth_phi(margs, P, phi_out, grad_out, weight_out):
+    """phi [m], grad phi (N,3) and the weight sum W over the rows of P (float64 (N,3) [m]).
+    W = 0 marks points with no face within the smoothing radius (phi and grad 0 there)."""
+    g = np.empty(3)
+    stack = np.empty(128, dtype=np.int64)
+    r = margs.params[14]
+    for i in range(P.shape[0]):
+        phi, W = _blend(margs, P[i, 0], P[i, 1], P[i, 2], r, g, stack)
+        phi_out[i] = phi
+        weight_out[i] = W
+        grad_out[i, 0] = g[0]
+        grad_out[i, 1] = g[1]
+        grad_out[i, 2] = g[2]
+
+
+@njit(cache=True)
+def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
+    """Closest point c on {phi = 0} to p, started from c; returns (cx, cy, cz, nx, ny, nz, sd,
+    ok): the unit normal n(c) and sd = (p - c).n(c) [m].
+
+    Each step projects p onto the linearisation of phi at the current c (one evaluation of phi
+    and its gradient): c' = p - ((phi(c) + g.(p - c)) / |g|^2) g. Its fixed point is the foot
+    (phi(c) = 0, p - c parallel to g); it converges quadratically onto the surface and, along it,
+    linearly with the factor |sd| x curvature (fast for the near-surface points of contact).
+    Stops when the step is below 1e-13 m (then |phi(c)| / |g| and the tangential residual are
+    too); a growing step is halved; no convergence in 60 steps: ok False."""
+    prev = np.inf
+    damp = 1.0
+    for _ in range(_FOOT_ITERS):
+        phi, W = _blend(margs, cx, cy, cz, 0.0, g, stack)
+        if not (W > 0.0):
+            break
+        gg = g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
+        if not (gg > 0.0):
+            break
+        wx = px - cx
+        wy = py - cy
+        wz = pz - cz
+        lam = (phi + g[0] * wx + g[1] * wy + g[2] * wz) / gg
+        dx = wx - lam * g[0]
+        dy = wy - lam * g[1]
+        dz = wz - lam * g[2]
+        step = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if step <= _FOOT_TOL:
+            gl = math.sqrt(gg)
+            nx = g[0] / gl
+            ny = g[1] / gl
+            nz = g[2] / gl
+            return cx, cy, cz, nx, ny, nz, wx * nx + wy * ny + wz * nz, True
+        if step >= prev:
+            damp *= 0.5
+            if damp < 1e-3:
+                break
+        prev = step
+        cx += damp * dx
+        cy += damp * dy
+        cz += damp * dz
+    return cx, cy, cz, 0.0, 0.0, 1.0, 0.0, False
+
+
+@njit(cache=True)
+def _nearest_face(margs, code, idx):
+    if code == 0:
+        return idx
+    if code == 1:
+        return margs.edge_faces[idx, 0]
+    return margs.vertex_face_idx[margs.vertex_face_ptr[idx]]
+
+
+@njit(cache=True)
+def _smooth_query_flag(margs, px, py, pz, out):
+    """Signed distance [m] to the smooth surface; fills out[0:8] (see the module docstring).
+    Returns (sd, smooth): smooth False when the faceted answer was used."""
+    sdf = _mesh_query(margs, px, py, pz, out)
+    code = int(out[6])
+    if code < 0:
+        return sdf, False
+    idx = int(out[7])
+    out[6] = 0.0
+    out[7] = _nearest_face(margs, code, idx)
+    if not (abs(sdf) < margs.params[14]):
+        return sdf, False
+    if margs.info[1] == 0 and sdf > 0.0:
+        # open mesh: a point whose foot is on the rim and which is not directly behind a face is
+        # outside (the faceted open-mesh rule), so the region beyond the rim stays free
+        if (code == 1 and margs.edge_faces[idx, 1] < 0) or (code == 2 and margs.vertex_boundary[idx] != 0):
+            return sdf, False
+    g = np.empty(3)
+    stack = np.empty(128, dtype=np.int64)
+    cx, cy, cz, nx, ny, nz, sd, ok = _smooth_foot(margs, px, py, pz, out[0], out[1], out[2], g,
+                                                  stack)
+    if not ok:
+        return sdf, False
+    out[0] = cx
+    out[1] = cy
+    out[2] = cz
+    out[3] = nx
+    out[4] = ny
+    out[5] = nz
+    return sd, True
+
+
+@njit(cache=True)
+def _smooth_query(margs, px, py, pz, out):
+    """Signed distance [m] to the smooth surface of a ``MOLD_SMOOTH`` mold; fills out[0:8]."""
+    sd, _ = _smooth_query_flag(margs, px, py, pz, out)
+    return sd

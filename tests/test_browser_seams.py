@@ -1,0 +1,95 @@
+"""Seams in the viewer in a real headless Chromium (see tests/test_browser.py for the set-up):
+the orange threads of a seam of unequal node counts are drawn in the 3D view, and the status
+line lists the seam's widest gap and ease.
+
+Without /usr/bin/chromium these tests skip locally and fail in CI (``CI`` set)."""
+
+from __future__ import annotations
+
+import re
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("viser")
+pytest.importorskip("playwright")
+
+from browser_util import close_notifications, launch, require_chromium, status_text, wait_for_render  # noqa: E402
+
+from clothsim.config import load_scene  # noqa: E402
+from clothsim.viewer import ViewerApp  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# pixels of the seam threads' orange (255, 140, 0), lit or blended: any shade with r >> g >> b
+ORANGE_JS = """() => {
+  const c = [...document.querySelectorAll('canvas')].reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
+  const o = document.createElement('canvas'); o.width = c.width; o.height = c.height;
+  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
+  const d = ctx.getImageData(0, 0, c.width, c.height).data;
+  let n = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    const r = d[i], g = d[i+1], b = d[i+2];
+    if (r > 150 && g > 0.35 * r && g < 0.75 * r && b < 0.35 * g) n++;
+  }
+  return n;
+}"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _poll(fn, timeout=30.0, every=0.3):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        v = fn()
+        if v:
+            return v
+        time.sleep(every)
+    return fn()
+
+
+def test_unequal_seam_threads_and_gap_list_in_chromium():
+    """configs/garments/eased_seam.yaml started 3 cm open (its upper panel moved up): the 23
+    threads (one per sewn node) show as orange pixels in the page, which go when the threads
+    are hidden; after Start the status line in the page lists 'seam 0: widest gap ... m (ease
+    10.0 %)' with the gap closed below 1e-5 m."""
+    require_chromium()
+    from playwright.sync_api import sync_playwright
+
+    scene = load_scene(ROOT / "configs" / "garments" / "eased_seam.yaml",
+                       ["panels.1.placement.transform.translate=[-0.005,0.08,0]"])
+    app = ViewerApp(scene, port=_free_port())
+    try:
+        with sync_playwright() as p:
+            browser = launch(p)
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            try:
+                page.goto(app.url)
+                wait_for_render(page, min_pixels=2000, timeout=90)
+                close_notifications(page)
+                assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 23
+                shown = _poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
+                app.renderer.h_seams.visible = False
+                hidden = _poll(lambda: page.evaluate(ORANGE_JS) < (shown or 0) / 4 and page.evaluate(ORANGE_JS) + 1,
+                               timeout=30)
+                print(f"orange pixels: {shown} with the seam threads, {hidden and hidden - 1} without")
+                assert shown and hidden and hidden - 1 < shown / 4
+                app.renderer.h_seams.visible = True
+                page.get_by_role("button", name="Start").click()
+                text = _poll(lambda: "converged" in status_text(page) and "seam 0" in status_text(page)
+                             and status_text(page), timeout=90)
+                assert text, status_text(page)
+                m = re.search(r"seam 0: widest gap ([0-9.eE+-]+) m \(ease 10\.0 %\)", text)
+                assert m, text
+                assert float(m.group(1)) < 1e-5
+            finally:
+                page.close()
+                browser.close()
+    finally:
+        app.close()
