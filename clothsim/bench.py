@@ -600,7 +600,8 @@ def _plot(rows: list[dict], path: Path) -> None:
 
 
 def write_scan_report(scan_rows: list[dict], out: Path, elapsed: float, surface: str) -> None:
-    """``<out>/benchmarks_scans.md``: the scan campaign alone (``app.py bench --scans``)."""
+    """``<out>/benchmarks_scans.md`` (``benchmarks_scans_smooth.md`` on the smooth surface): the
+    scan campaign alone (``app.py bench --scans [--surface smooth]``)."""
     info = machine_info()
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Benchmarks: the scan campaign", "",
@@ -609,8 +610,9 @@ def write_scan_report(scan_rows: list[dict], out: Path, elapsed: float, surface:
              f"{info['numba']}, clothsim {info['clothsim']}.", ""] + scan_table(scan_rows)
     if not scan_rows:
         lines.append("No body file found (see `bench.SCAN_DIRS`): nothing run.")
-    (out / "benchmarks_scans.md").write_text("\n".join(lines) + "\n")
-    (out / "benchmarks_scans.json").write_text(json.dumps({"machine": info, "scans": scan_rows}, indent=1))
+    stem = "benchmarks_scans" + ("" if surface == "faceted" else f"_{surface}")
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    (out / f"{stem}.json").write_text(json.dumps({"machine": info, "scans": scan_rows}, indent=1))
 
 
 def run(quick: bool = False, out: str | Path = "docs", log=None, scans: str = "with",
@@ -661,7 +663,7 @@ def main(args) -> int:
     surface = getattr(args, "surface", None) or "faceted"
     run(quick, out, log=lambda s: print(s, flush=True), scans="only" if only else "with", surface=surface)
     if only:
-        print(f"wrote {Path(out) / 'benchmarks_scans.md'}")
+        print(f"wrote {Path(out) / ('benchmarks_scans' + ('' if surface == 'faceted' else '_' + surface) + '.md')}")
     else:
         print(f"wrote {Path(out) / 'benchmarks.md'} and {Path(out) / 'speed_vs_error.png'}")
     return 0
