@@ -114,6 +114,122 @@ def _optional_terms():
 
 
 # ------------------------------------------------------------------------------------------------
+# the scan campaign: the paper's torso band on two scanned bodies at many heights, newton alone
+# ------------------------------------------------------------------------------------------------
+
+#: the scanned bodies of the campaign (file stem, heights [m] of the band's centre line in the
+#: body's own Y-up frame: waist to lower chest, below the arms)
+SCAN_BODIES = (
+    ("smpl_man", tuple(round(1.02 + 0.02 * i, 2) for i in range(12))),
+    ("smpl_neutral", tuple(round(0.96 + 0.02 * i, 2) for i in range(12))),
+)
+#: where the campaign looks for the body files, first hit wins (repository copy, then the shared data)
+SCAN_DIRS = (ROOT / "static" / "bodies", Path("/work/shared/data/bodies"))
+SCAN_MAX_ITERATIONS = 400
+SCAN_TIME_LIMIT = 120.0
+
+
+def scan_body_path(stem: str) -> Path | None:
+    """The body file ``<stem>.stl`` in the first of ``SCAN_DIRS`` that has it, or None."""
+    for d in SCAN_DIRS:
+        if (d / f"{stem}.stl").exists():
+            return d / f"{stem}.stl"
+    return None
+
+
+def scan_band_overrides(path: Path, height: float, surface: str = "faceted") -> list[str]:
+    """Overrides that put configs/torso_band.yaml (the paper's 0.5 x 0.2 m band, 40 x 10
+    divisions, ends pulled round to the back with stretch 1.75 and held in x and y, free along
+    the body axis) onto a Y-up scan in metres at ``height`` [m]: the mold is rotated to Z-up with
+    the front towards +y (``rotate: [90, 0, 180]``); the band starts on a cylinder round the body
+    axis through the middle of the body's slab [height - 0.1, height + 0.1] (arms excluded:
+    |x| < 0.3 m), 2 cm clear of its farthest vertex, centred on the front. ``surface``: the mesh
+    mold's contact surface ("faceted", the default, adds nothing)."""
+    import trimesh
+
+    V = np.asarray(trimesh.load(str(path), force="mesh").vertices)
+    sel = (np.abs(V[:, 1] - height) < 0.1) & (np.abs(V[:, 0]) < 0.3)
+    z0 = 0.5 * float(V[sel, 2].min() + V[sel, 2].max())
+    r = float(np.hypot(V[sel, 0], V[sel, 2] - z0).max()) + 0.02
+    start = 90.0 - math.degrees(0.25 / r)
+    mold = f"path: {path}, rotate: [90, 0, 180]" + ("" if surface == "faceted" else f", surface: {surface}")
+    return [f"mold={{{mold}}}",
+            f"initial.wrap={{center: [0.0, {z0:.6f}, {height:.4f}], axis: [0, 0, 1], radius: {r:.6f}, "
+            f"start_angle: {start:.6f}}}"]
+
+
+def run_scan_body(stem: str, heights, surface: str = "faceted") -> list[dict]:
+    """The campaign's runs on one body (in one process: the kernels compile once): newton alone
+    to e = TARGET_E from each height's wrapped start; returns one JSON-able row per height."""
+    from .solvers import solve
+
+    path = scan_body_path(stem)
+    rows = []
+    for h in heights:
+        case = Case(f"{stem} y={h:.2f}", "configs/torso_band.yaml", scan_band_overrides(path, h, surface),
+                    ("newton",), {"newton": SCAN_TIME_LIMIT}, group="scans")
+        model, state, settings = _load(case, "newton", TARGET_E, SCAN_TIME_LIMIT, SCAN_MAX_ITERATIONS)
+        solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
+        ref_s = reference_pass_time(model, state.positions)
+        c0 = time.process_time()
+        res = solve(model, state, settings)
+        cpu = time.process_time() - c0
+        rows.append({"body": stem, "height": h, "surface": surface, "nodes": int(model.node_count),
+                     "status": res.status, "iterations": int(res.iterations), "residual": float(res.residual),
+                     "wall_s": float(res.wall_time_s), "cpu_s": cpu, "ref_pass_s": ref_s,
+                     "wu": cpu / ref_s, "contact": int(state.in_contact.sum()),
+                     "ms_per_iteration": 1e3 * cpu / max(res.iterations, 1)})
+    return rows
+
+
+def run_scans(surface: str = "faceted", log=None) -> list[dict]:
+    """The whole scan campaign (each body in a child process); bodies whose file is missing are
+    skipped with a message."""
+    rows = []
+    for stem, heights in SCAN_BODIES:
+        if scan_body_path(stem) is None:
+            if log:
+                log(f"scan campaign: {stem}.stl not found in {', '.join(str(d) for d in SCAN_DIRS)}: skipped")
+            continue
+        try:
+            got = _in_child(run_scan_body, stem, heights, surface)
+        except Exception as exc:
+            if log:
+                log(f"scan campaign: {stem}: failed: {exc}")
+            continue
+        for r in got:
+            if log:
+                log(f"{r['body']:13s} y={r['height']:.2f} {r['surface']:8s} {r['status']:10s} it {r['iterations']:4d} "
+                    f"res {r['residual']:.1e}  {r['wall_s']:.2f} s  {r['wu']:.0f} WU  "
+                    f"{r['ms_per_iteration']:.1f} ms/it")
+        rows += got
+    return rows
+
+
+def scan_table(rows: list[dict]) -> list[str]:
+    """The campaign's markdown section."""
+    if not rows:
+        return []
+    ok = [r for r in rows if r["status"] == "converged"]
+    its = [r["iterations"] for r in ok]
+    lines = ["## Scan campaign: the torso band on scanned bodies (newton alone)", "",
+             "configs/torso_band.yaml (0.5 x 0.2 m band, 40 x 10 divisions, ends pulled round to the back "
+             "with stretch 1.75, held in x and y, free along the body axis) on each body at each height "
+             "(`bench.scan_band_overrides`), newton to 1e-9 N, at most "
+             f"{SCAN_MAX_ITERATIONS} iterations. `WU` = process CPU time of the solve / one reference "
+             "pass; `ms/it` = CPU ms per iteration; `contact` = contact nodes at the end. "
+             f"Converged {len(ok)} of {len(rows)}"
+             + (f"; iterations {min(its)}-{max(its)} (median {int(np.median(its))})" if its else "") + ".", "",
+             "| body | surface | height m | nodes | status | iters | final residual N | s | WU | ms/it | contact |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['body']} | {r['surface']} | {r['height']:.2f} | {r['nodes']} | {r['status']} | "
+                     f"{r['iterations']} | {r['residual']:.1e} | {r['wall_s']:.2f} | {r['wu']:.0f} | "
+                     f"{r['ms_per_iteration']:.1f} | {r['contact']} |")
+    return lines + [""]
+
+
+# ------------------------------------------------------------------------------------------------
 # the work unit
 # ------------------------------------------------------------------------------------------------
 
@@ -369,7 +485,8 @@ def _fmt_e(v):
     return "-" if v is None else f"{v:.1e}"
 
 
-def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: float) -> None:
+def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: float,
+                 scan_rows: list[dict] | None = None) -> None:
     info = machine_info()
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Benchmarks: speed against error", "",
@@ -430,13 +547,19 @@ def write_report(rows: list[dict], refs: dict, out: Path, quick: bool, elapsed: 
         lines += ["## newton against paper", "",
                   "At the tightest level both reached (paper capped by its time limit):", "",
                   "| scene | level N | paper s | newton s | speed-up |", "|---|---|---|---|---|", *sp_lines, ""]
+    if scan_rows:
+        lines += scan_table(scan_rows)
+    elif (out / "benchmarks_scans.md").exists():
+        lines += ["## Scan campaign", "", "Run apart (`python app.py bench --scans`): see "
+                  "[benchmarks_scans.md](benchmarks_scans.md).", ""]
     lines += ["## References", "", "| scene | reference status | reference residual N |", "|---|---|---|"]
     for case, ref in refs.items():
         lines.append(f"| {case} | {ref['status']} | {ref['residual']:.1e} |")
     lines += ["", "![error against time](speed_vs_error.png)", ""]
     (out / "benchmarks.md").write_text("\n".join(lines))
     (out / "benchmarks.json").write_text(json.dumps({"machine": info, "rows": [
-        {k: v for k, v in r.items() if not k.startswith("curve")} for r in rows]}, indent=1))
+        {k: v for k, v in r.items() if not k.startswith("curve")} for r in rows], "scans": scan_rows or []},
+        indent=1))
     _plot(rows, out / "speed_vs_error.png")
 
 
@@ -476,9 +599,32 @@ def _plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def run(quick: bool = False, out: str | Path = "docs", log=None) -> list[dict]:
-    """Run the benchmark and write the report; returns the rows."""
+def write_scan_report(scan_rows: list[dict], out: Path, elapsed: float, surface: str) -> None:
+    """``<out>/benchmarks_scans.md`` (``benchmarks_scans_smooth.md`` on the smooth surface): the
+    scan campaign alone (``app.py bench --scans [--surface smooth]``)."""
+    info = machine_info()
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# Benchmarks: the scan campaign", "",
+             f"Generated by `python app.py bench --scans{'' if surface == 'faceted' else ' --surface ' + surface}` "
+             f"on {info['date']} ({elapsed:.0f} s in all); {info['cpu']}, {info['cores']} cores; numba "
+             f"{info['numba']}, clothsim {info['clothsim']}.", ""] + scan_table(scan_rows)
+    if not scan_rows:
+        lines.append("No body file found (see `bench.SCAN_DIRS`): nothing run.")
+    stem = "benchmarks_scans" + ("" if surface == "faceted" else f"_{surface}")
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    (out / f"{stem}.json").write_text(json.dumps({"machine": info, "scans": scan_rows}, indent=1))
+
+
+def run(quick: bool = False, out: str | Path = "docs", log=None, scans: str = "with",
+        surface: str = "faceted") -> list[dict]:
+    """Run the benchmark and write the report; returns the rows. scans: "with" (the scan campaign
+    too, in the full benchmark only), "without", or "only" (the campaign alone, written to
+    ``benchmarks_scans.md``); surface: the scans' contact surface ("faceted" or "smooth")."""
     t0 = time.perf_counter()
+    if scans == "only":
+        scan_rows = run_scans(surface, log)
+        write_scan_report(scan_rows, Path(out), time.perf_counter() - t0, surface)
+        return scan_rows
     rows, refs = [], {}
     for case in cases(quick):
         try:
@@ -503,16 +649,23 @@ def run(quick: bool = False, out: str | Path = "docs", log=None) -> list[dict]:
                 log(f"{case.name:32s} {solver:7s} {r['status']:15s} it {r['iterations']:7d} "
                     f"res {r['residual']:.1e}  t(1e-7) {_fmt_tw(r, 1e-7):>16s}  compile {r['compile_s']:.1f}s  "
                     f"RSS {r['peak_rss_mb']:.0f} MB  ref {_fmt_ms(r['ref_pass_s'])} ms")
-    write_report(rows, refs, Path(out), quick, time.perf_counter() - t0)
+    scan_rows = run_scans(surface, log) if scans == "with" and not quick else []
+    write_report(rows, refs, Path(out), quick, time.perf_counter() - t0, scan_rows)
     return rows
 
 
 def main(args) -> int:
-    """CLI entry (``python app.py bench``): args.quick, args.out."""
+    """CLI entry (``python app.py bench``): args.quick, args.out, args.scans (the scan campaign
+    alone), args.surface (the scans' contact surface)."""
     quick = bool(getattr(args, "quick", False))
     out = getattr(args, "out", "docs") or "docs"
-    run(quick, out, log=lambda s: print(s, flush=True))
-    print(f"wrote {Path(out) / 'benchmarks.md'} and {Path(out) / 'speed_vs_error.png'}")
+    only = bool(getattr(args, "scans", False))
+    surface = getattr(args, "surface", None) or "faceted"
+    run(quick, out, log=lambda s: print(s, flush=True), scans="only" if only else "with", surface=surface)
+    if only:
+        print(f"wrote {Path(out) / ('benchmarks_scans' + ('' if surface == 'faceted' else '_' + surface) + '.md')}")
+    else:
+        print(f"wrote {Path(out) / 'benchmarks.md'} and {Path(out) / 'speed_vs_error.png'}")
     return 0
 
 
@@ -520,4 +673,6 @@ if __name__ == "__main__":  # pragma: no cover
     p = argparse.ArgumentParser()
     p.add_argument("--quick", action="store_true")
     p.add_argument("--out", default="docs")
+    p.add_argument("--scans", action="store_true")
+    p.add_argument("--surface", default="faceted", choices=("faceted", "smooth"))
     sys.exit(main(p.parse_args()))

@@ -271,6 +271,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", default=str(Path("results") / "bench"),
                    help="folder for benchmarks.md and speed_vs_error.png (default: %(default)s; the "
                         "repository's copies are in docs/)")
+    b.add_argument("--scans", action="store_true",
+                   help="only the scan campaign (the torso band on the scanned bodies, newton alone): "
+                        "writes benchmarks_scans.md")
+    b.add_argument("--surface", choices=("faceted", "smooth"), default="faceted",
+                   help="the scanned bodies' contact surface in the scan campaign (default: %(default)s)")
     b.set_defaults(func=cmd_bench)
     add_compression_commands(sub)
     return p

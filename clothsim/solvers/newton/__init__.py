@@ -18,7 +18,9 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    tangent cone through an inactive face (into a groove's other face) gets that face's normal
    added and the system is solved again (``_block_infeasible``, blocking constraints): otherwise
    the projection back onto the surface bends the path at first order and no step length lowers
-   the energy (the stall on the torso mesh).
+   the energy (the stall on the torso mesh). Likewise a released node still on the surface whose
+   coupled step moves it into the mold is held on it (``_block_entering``) when, without its
+   move, the step would not lower the energy at first order (the stalls on scanned bodies).
 2. Linear system: (Pi K Pi + mu Pi + (I - Pi)) dx = Pi f, where K = d^2E/dx^2 is assembled from
    ``kernels.spring_hessian_block`` (transverse term clamped >= 0 so K is positive semi-definite;
    at and below strain 0 the first segment's slope times ``NewtonOptions.kink`` (default 1e-3)
@@ -27,7 +29,9 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    Solved by conjugate gradients preconditioned with a geometric multigrid V-cycle: bilinear
    prolongation on the structured node grid (projected by Pi on the finest level), Galerkin
    coarse operators, symmetric 3x3-block Gauss-Seidel smoothing, a sparse LU (scipy ``splu``) on
-   the coarsest grid. Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly.
+   the coarsest grid. Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly (on a
+   triangle-mesh mold a narrow band by a banded Cholesky in reverse Cuthill-McKee order,
+   ``linalg._band_cholesky_solve``; otherwise, or when a pivot is not positive, the sparse LU).
 3. Line search on the energy along x + a dx with the paper's contact rules applied to every
    trial: a free node's move is clipped where it would enter the mold (``contact.stop_at_surface``) and
    it becomes a contact node; contact nodes are projected back onto the surface
@@ -73,7 +77,7 @@ prolongation, ``grid_sequence``), ``solver`` (``NewtonSolver`` and the settings 
 """
 
 # the private kernels are re-exported for the tests that drive one step by hand
-from .active_set import PENETRATION_TOL, _apply_pi, _block_infeasible, _projectors, _trial_positions  # noqa: F401
+from .active_set import PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible, _projectors, _trial_positions  # noqa: F401
 from .iteration import DIRECT_DOFS, NewtonLevel
 from .linalg import COARSEST_NODES, Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system  # noqa: F401
 from .sequencing import coarsen_model, grid_sequence, prolong_state, sequencing_chain

@@ -198,6 +198,83 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
 
 
 @njit(cache=True)
+def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share):
+    """Released nodes whose step enters the mold. ``_projectors`` releases a contact node whose
+    resultant points out of the mold, but the Newton step couples it to its neighbours, and the
+    step of the whole sheet can still move it into the mold (its neighbours pull it in more than
+    its own resultant lifts it). The line search then stops it at the surface for every step
+    length: the path bends at first order, the step's predicted decrease is mostly that node's
+    (unreachable) move, and no step length lowers the energy enough (the stall on scans). A
+    node not in contact that lies on the surface (signed distance sd0 (n,) [m] <= tol [m]) and
+    whose step points into the mold (along the query's outward normal, beyond rounding) is put
+    back in contact (``contact`` updated in place) with that normal as a constraint (Pi updated
+    in place), and the step is solved again (projected Newton: a variable at its bound whose step
+    leaves the feasible set is held). This is done only when those nodes' moves carry more than
+    ``share`` of the step's predicted energy decrease (rhs (3n,) [N]: the projected forces the
+    step was solved for; the decrease is rhs . dx). With share = 1 (the solver's setting): only
+    when the rest of the step, the part the line search can realise, does not lower the energy at
+    first order; entering nodes with a smaller share only shorten the step, and the path (and the
+    equilibria reached) stay as they were.
+    Returns how many nodes were put back."""
+    if not has_mold:
+        return 0
+    q = np.empty(8)
+    n = pos.shape[0]
+    enter = np.zeros(n, np.bool_)
+    nrm = np.empty((n, 3))
+    total = 0.0
+    part = 0.0
+    for k in range(n):
+        dec = rhs[3 * k] * dx[3 * k] + rhs[3 * k + 1] * dx[3 * k + 1] + rhs[3 * k + 2] * dx[3 * k + 2]
+        total += dec
+        if contact[k] or not (sd0[k] <= tol):
+            continue
+        d0 = dx[3 * k]
+        d1 = dx[3 * k + 1]
+        d2 = dx[3 * k + 2]
+        dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if dn == 0.0:
+            continue
+        mold_query(margs, pos[k], q)
+        if not (d0 * q[3] + d1 * q[4] + d2 * q[5] < -1e-6 * dn):
+            continue
+        enter[k] = True
+        nrm[k, 0] = q[3]
+        nrm[k, 1] = q[4]
+        nrm[k, 2] = q[5]
+        part += dec
+    if not (total > 0.0 and part > share * total):
+        return 0
+    held = 0
+    for k in range(n):
+        if not enter[k]:
+            continue
+        n0 = nrm[k, 0]
+        n1 = nrm[k, 1]
+        n2 = nrm[k, 2]
+        a0 = Pi[k, 0, 0] * n0 + Pi[k, 0, 1] * n1 + Pi[k, 0, 2] * n2
+        a1 = Pi[k, 1, 0] * n0 + Pi[k, 1, 1] * n1 + Pi[k, 1, 2] * n2
+        a2 = Pi[k, 2, 0] * n0 + Pi[k, 2, 1] * n1 + Pi[k, 2, 2] * n2
+        an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        if an < 1e-6:
+            continue
+        a0 /= an
+        a1 /= an
+        a2 /= an
+        Pi[k, 0, 0] -= a0 * a0
+        Pi[k, 0, 1] -= a0 * a1
+        Pi[k, 0, 2] -= a0 * a2
+        Pi[k, 1, 0] -= a1 * a0
+        Pi[k, 1, 1] -= a1 * a1
+        Pi[k, 1, 2] -= a1 * a2
+        Pi[k, 2, 0] -= a2 * a0
+        Pi[k, 2, 1] -= a2 * a1
+        Pi[k, 2, 2] -= a2 * a2
+        contact[k] = True
+        held += 1
+    return held
+
+@njit(cache=True)
 def _apply_pi(Pi, v, out):
     for k in range(Pi.shape[0]):
         a0 = v[3 * k]
@@ -213,6 +290,35 @@ def _mold_distances(pos, has_mold, margs, out):
     q = np.empty(8)
     for k in range(pos.shape[0]):
         out[k] = mold_query(margs, pos[k], q) if has_mold else np.inf
+
+
+@njit(cache=True)
+def _free_distances(pos, contact, has_mold, margs, out):
+    """``_mold_distances`` for the nodes not in contact (the only ones whose distance the step
+    reads: ``_trial_positions``, ``_block_entering``); contact nodes get 0 (they are on the
+    surface) without a query."""
+    q = np.empty(8)
+    for k in range(pos.shape[0]):
+        if not has_mold:
+            out[k] = np.inf
+        elif contact[k]:
+            out[k] = 0.0
+        else:
+            out[k] = mold_query(margs, pos[k], q)
+
+
+@njit(cache=True)
+def _contact_faces(pos, contact, has_mold, margs, out):
+    """out (n,) int64: for a contact node on a mesh mold whose closest feature is a face, that
+    face; -1 otherwise (``_trial_positions``' face-border clip reads it instead of querying the
+    same start point again for every trial of a line search)."""
+    q = np.empty(8)
+    for k in range(pos.shape[0]):
+        out[k] = -1
+        if has_mold and contact[k] and margs[0][0] == MOLD_MESH:
+            mold_query(margs, pos[k], q)
+            if q[6] == 0.0:
+                out[k] = int(q[7])
 
 
 @njit(cache=True)
@@ -253,12 +359,15 @@ def _face_exit(margs, f, p0, d):
 
 
 @njit(cache=True)
-def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, F0, out, contact_out):
+def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
+                     contact_out):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
-    are projected onto the surface. sd0 (N,) [m]: the nodes' signed distances before the step
-    (a free node whose move is shorter than its distance cannot reach the mold and needs no
-    query). Returns the deepest remaining penetration [m] (0 when none)."""
+    are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
+    contact before the step (a free node whose move is shorter than its distance cannot reach the
+    mold and needs no query). clip_faces: on a mesh mold, contact nodes stop at their face's
+    border; face0 (N,) int64: that face (``_contact_faces``; -1: not on a face). Returns the
+    deepest remaining penetration [m] (0 when none)."""
     q = np.empty(8)
     p = np.empty(3)
     dd = np.empty(3)
@@ -284,11 +393,10 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                     # a contact node on a face slides at most to the face's border: the contact
                     # feature changes there (edge or vertex), and the next active set decides
                     # whether it stays on it or moves on to the next face
-                    mold_query(margs, pos0[k], q)
-                    if q[6] == 0.0:
+                    if face0[k] >= 0:
                         for a in range(3):
                             dd[a] = p[a] - pos0[k, a]
-                        t = _face_exit(margs, int(q[7]), pos0[k], dd)
+                        t = _face_exit(margs, face0[k], pos0[k], dd)
                         if t < 1.0:
                             for a in range(3):
                                 if not fixed[k, a]:
@@ -314,7 +422,12 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                     if not fixed[k, a]:
                         p[a] = q[a]
                 c = True
-                sd = mold_query(margs, p, q)
+                if margs[0][0] == MOLD_MESH and not fixed[k, 0] and not fixed[k, 1] and not fixed[k, 2]:
+                    # the closest point of a triangle mesh is on the mesh: no query needed to
+                    # know that it is not inside
+                    sd = 0.0
+                else:
+                    sd = mold_query(margs, p, q)
             if -sd > worst:
                 worst = -sd
         out[k, 0] = p[0]

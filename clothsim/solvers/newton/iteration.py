@@ -19,9 +19,10 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (PENETRATION_TOL, _apply_pi, _block_infeasible, _mold_distances, _projectors,
-                         _trial_positions)
-from .linalg import AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system
+from .active_set import (PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible, _contact_faces,
+                         _free_distances, _projectors, _trial_positions)
+from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
+                     _bsr_matvec, _bsr_pattern, _pcg, _project_system, band_order)
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
 DIRECT_DOFS = 6000
@@ -32,6 +33,13 @@ ENERGY_RESOLUTION = 1e-13
 # quiet machine and a loaded one (a 1 s wall-clock budget made results depend on the load)
 ITERATE_BUDGET_CG = 400
 
+
+# released nodes on the surface whose step enters the mold are held on it (_block_entering);
+# False only to compare with the solver before it (tests, benchmarks)
+HOLD_ENTERING = True
+# ... when their moves carry more than this share of the step's predicted energy decrease (1: all
+# of it, i.e. without them the step would not lower the energy at first order)
+HOLD_SHARE = 1.0
 
 LM_ALPHA_LOW = 0.1
 LM_MAX = 1e4
@@ -72,8 +80,18 @@ class NewtonLevel:
         self.trial_contact = np.zeros(n, bool)
         self.direct = (use_multigrid is False) or (use_multigrid is None and 3 * n <= DIRECT_DOFS)
         # line-smoothed geometric multigrid on one full rectangle, algebraic multigrid elsewhere
+        self._band = None
         if self.direct:
             self.mg = None
+            # on a triangle-mesh mold (scans, CAD), narrow bands (a band or strip of fabric) are
+            # factorised by a banded Cholesky in a reverse Cuthill-McKee node order: a third of
+            # the sparse LU's time on the torso band. Elsewhere the sparse LU stays: its rounding
+            # is what the recorded equilibria of the analytic molds were computed with
+            if self.has_mold and self.margs[0][0] == MOLD_MESH:
+                _, inv, bw = band_order(n, model.spring_nodes)
+                w = 3 * bw + 3
+                if 3 * n * w * w <= BAND_WORK:
+                    self._band = (inv, bw, np.empty((3 * n, w)))
         elif model.topology.is_grid:
             self.mg = Multigrid(model.topology)
         elif preconditioner == "amg":
@@ -87,6 +105,7 @@ class NewtonLevel:
         self.probe = 1e-6 * float(min(model.spacing))
         self._cache = None
         self.sd0 = np.full(n, np.inf)
+        self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
         self._mg_pi = None
         self._mg_mu = None
@@ -112,6 +131,11 @@ class NewtonLevel:
         _project_system(self.indptr, self.indices, self.K, self.diag, self.Pi, mu_abs, self.A)
         n3 = 3 * self.n
         if self.direct:
+            if self._band is not None:
+                inv, bw, work = self._band
+                x = np.empty(n3)
+                if _band_cholesky_solve(self.indptr, self.indices, self.A, inv, bw, rhs, work, x):
+                    return x, 1
             M = sp.bsr_matrix((self.A, self.indices, self.indptr), shape=(n3, n3)).tocsc()
             lu = sla.splu(M, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
                           diag_pivot_thresh=1e-3)
@@ -159,10 +183,11 @@ class NewtonLevel:
         else:
             E0 = self.energy_forces(pos, F)
         self._cache = None
-        _mold_distances(pos, self.has_mold, self.margs, self.sd0)
         contact = state.in_contact
         contact_before = contact.copy()
         _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe)
+        # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
+        _free_distances(pos, contact, self.has_mold, self.margs, self.sd0)
         v_base = self.residual(pos, contact, F) if not np.array_equal(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
@@ -195,7 +220,11 @@ class NewtonLevel:
             for _ in range(3):
                 if not (self.has_mold and np.all(np.isfinite(dx))):
                     break
-                if _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi) == 0:
+                blocked = _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi)
+                if HOLD_ENTERING:
+                    blocked += _block_entering(pos, dx, contact, self.sd0, self.has_mold, self.margs, self.Pi,
+                                               PENETRATION_TOL, rhs, HOLD_SHARE)
+                if blocked == 0:
                     break
                 _apply_pi(self.Pi, f, rhs)
                 dx, _ = self._solve_linear(rhs, mu_abs, tol)
@@ -230,13 +259,18 @@ class NewtonLevel:
             alpha = 0.5 * self.blowup / big
         Ft = np.empty_like(self.F)
         mesh = self.has_mold and self.margs[0][0] == MOLD_MESH and contact.any()
+        face0 = self._face0
+        faces_known = False
         for _ in range(40):
             self.ls_alpha = alpha
             # the straight step (contact nodes projected back onto the surface); on a mesh mold,
             # when it fails, the same step with contact nodes stopped at their face's border
             for clip in ((False, True) if mesh else (False,)):
+                if clip and not faces_known:
+                    _contact_faces(pos, contact, self.has_mold, self.margs, face0)
+                    faces_known = True
                 pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                       clip, self.F, self.trial, self.trial_contact)
+                                       clip, face0, self.F, self.trial, self.trial_contact)
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)

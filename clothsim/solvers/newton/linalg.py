@@ -326,6 +326,109 @@ def _line_gs(indptr, indices, data, nx1, ny1, dslot, pslot, nslot, b, xv, direct
             xv[3 * k + 2] = rr[t, 2]
 
 
+# the banded Cholesky solve is used for a direct system when (3n) x b^2 (b: half-bandwidth in
+# unknowns after the node reordering) is at most this; wider systems go to the sparse LU
+BAND_WORK = 1.2e7
+
+
+def band_order(n, spring_nodes):
+    """A node order (reverse Cuthill-McKee on the spring graph) for the banded solve and its
+    half-bandwidth in nodes: (perm (n,) new -> old node, inverse (n,) old -> new, bandwidth)."""
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    a, b = spring_nodes[:, 0], spring_nodes[:, 1]
+    G = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
+    perm = np.asarray(reverse_cuthill_mckee(G, symmetric_mode=True), np.int64)
+    inv = np.empty(n, np.int64)
+    inv[perm] = np.arange(n)
+    bw = int(np.abs(inv[a] - inv[b]).max()) if a.size else 0
+    return perm, inv, bw
+
+
+@njit(cache=True)
+def _band_cholesky_solve(indptr, indices, data, inv, bw, rhs, L, x):
+    """Solve A x = rhs for the symmetric positive definite BSR matrix A (3x3 blocks) by a banded
+    Cholesky factorisation in the node order ``inv`` (old -> new node; half-bandwidth bw nodes).
+    L (3n, 3 bw + 3) is work space: row i holds L[i, i - w + 1 .. i] (w = 3 bw + 3 columns, the
+    diagonal last), so the inner products run over contiguous memory. Returns False (x
+    undefined) when a pivot is not positive: the caller falls back to the sparse LU."""
+    n = indptr.shape[0] - 1
+    n3 = 3 * n
+    w = L.shape[1]
+    for i in range(n3):
+        for c in range(w):
+            L[i, c] = 0.0
+    # scatter the lower triangle (new numbering): A[r, c] with c <= r -> L[r, w - 1 - (r - c)]
+    for k in range(n):
+        kn = inv[k]
+        for q in range(indptr[k], indptr[k + 1]):
+            jn = inv[indices[q]]
+            if jn > kn:
+                continue
+            for a in range(3):
+                r = 3 * kn + a
+                for b in range(3):
+                    c = 3 * jn + b
+                    if c <= r:
+                        L[r, w - 1 - (r - c)] = data[q, a, b]
+    for j in range(n3):
+        # row j: L[j, k] for k < j, then the diagonal
+        k0 = j - (w - 1)
+        if k0 < 0:
+            k0 = 0
+        for k in range(k0, j):
+            s = L[j, w - 1 - (j - k)]
+            # subtract sum_{m < k} L[j, m] L[k, m]
+            m0 = k0
+            mk = k - (w - 1)
+            if mk > m0:
+                m0 = mk
+            oj = w - 1 - j
+            ok = w - 1 - k
+            for m in range(m0, k):
+                s -= L[j, oj + m] * L[k, ok + m]
+            L[j, w - 1 - (j - k)] = s / L[k, w - 1]
+        s = L[j, w - 1]
+        oj = w - 1 - j
+        for m in range(k0, j):
+            v = L[j, oj + m]
+            s -= v * v
+        if not (s > 0.0) or not math.isfinite(s):
+            return False
+        L[j, w - 1] = math.sqrt(s)
+    # forward: L y = P rhs
+    y = np.empty(n3)
+    for k in range(n):
+        kn = inv[k]
+        for a in range(3):
+            y[3 * kn + a] = rhs[3 * k + a]
+    for j in range(n3):
+        s = y[j]
+        k0 = j - (w - 1)
+        if k0 < 0:
+            k0 = 0
+        oj = w - 1 - j
+        for m in range(k0, j):
+            s -= L[j, oj + m] * y[m]
+        y[j] = s / L[j, w - 1]
+    # backward: L^T z = y
+    for jj in range(n3):
+        j = n3 - 1 - jj
+        y[j] /= L[j, w - 1]
+        v = y[j]
+        k0 = j - (w - 1)
+        if k0 < 0:
+            k0 = 0
+        oj = w - 1 - j
+        for m in range(k0, j):
+            y[m] -= L[j, oj + m] * v
+    for k in range(n):
+        kn = inv[k]
+        for a in range(3):
+            x[3 * k + a] = y[3 * kn + a]
+    return True
+
+
 @njit(cache=True)
 def _bsr_residual(indptr, indices, data, xv, b, out):
     """out = b - A x."""
