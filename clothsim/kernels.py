@@ -249,6 +249,21 @@ def spring_hessian_block(pa, pb, l0, w, x, y, cum, start, comp, t, kink_stiffnes
 # repeat its first node with weight 0.
 
 
+@njit(cache=True, inline="always")
+def _seam_gap(pos, nodes, weight, q):
+    """The gap g_q = sum_i weight[q, i] pos[nodes[q, i]] [m] of seam element q, as (g0, g1, g2)."""
+    g0 = 0.0
+    g1 = 0.0
+    g2 = 0.0
+    for i in range(nodes.shape[1]):
+        n = nodes[q, i]
+        w = weight[q, i]
+        g0 += w * pos[n, 0]
+        g1 += w * pos[n, 1]
+        g2 += w * pos[n, 2]
+    return g0, g1, g2
+
+
 @njit(cache=True, error_model="numpy")
 def seam_forces_and_energy(pos, nodes, weight, k, out):
     """Adds every seam element's force into out (N,3) [N]; returns their energy [J].
@@ -257,15 +272,7 @@ def seam_forces_and_energy(pos, nodes, weight, k, out):
     [N/m]. E_q = k_q |g_q|^2 / 2, g_q = sum_i weight[q, i] pos[nodes[q, i]]."""
     energy = 0.0
     for q in range(nodes.shape[0]):
-        g0 = 0.0
-        g1 = 0.0
-        g2 = 0.0
-        for i in range(nodes.shape[1]):
-            n = nodes[q, i]
-            w = weight[q, i]
-            g0 += w * pos[n, 0]
-            g1 += w * pos[n, 1]
-            g2 += w * pos[n, 2]
+        g0, g1, g2 = _seam_gap(pos, nodes, weight, q)
         kq = k[q]
         energy += 0.5 * kq * (g0 * g0 + g1 * g1 + g2 * g2)
         for i in range(nodes.shape[1]):
@@ -282,15 +289,7 @@ def seam_gaps(pos, nodes, weight, out):
     """|g_q| [m] of every seam element into out (Q,): how far its node is from the point of the
     other side it is sewn to (arrays as in ``seam_forces_and_energy``)."""
     for q in range(nodes.shape[0]):
-        g0 = 0.0
-        g1 = 0.0
-        g2 = 0.0
-        for i in range(nodes.shape[1]):
-            n = nodes[q, i]
-            w = weight[q, i]
-            g0 += w * pos[n, 0]
-            g1 += w * pos[n, 1]
-            g2 += w * pos[n, 2]
+        g0, g1, g2 = _seam_gap(pos, nodes, weight, q)
         out[q] = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
 
 
