@@ -111,6 +111,11 @@ def test_pattern_upload_pieces_added_and_replacing(tmp_path):
     scene = draft.replace_panels(label, at=(0.0, 0.0, 0.0))
     assert [p.name for p in scene.panels] == ["FRONT", "BACK"]
     assert scene.panels[1].placement.transform.translate[0] == pytest.approx(0.1 + 0.02 - 0.15)
+    # saved: the YAML warns that the pattern is a temporary upload; the zip carries it
+    assert "pattern was uploaded" in draft.scene_yaml()
+    import zipfile
+    names = zipfile.ZipFile(io.BytesIO(draft.scene_zip())).namelist()
+    assert "files/pattern_upload_1.dxf" in names
 
 
 def test_pattern_replaces_a_rectangle_and_drops_old_seams(tmp_path):
@@ -123,7 +128,7 @@ def test_pattern_replaces_a_rectangle_and_drops_old_seams(tmp_path):
     scene = sleeve.replace_panels(label)
     assert [p.name for p in scene.panels] == ["FRONT", "BACK"] and not scene.seams
     # the constraint naming the old 'front' panel goes; the unnamed ones stay
-    assert all(not isinstance(c.nodes, object) or getattr(c.nodes, "panel", None) is None for c in scene.constraints)
+    assert all(getattr(c.nodes, "panel", None) is None for c in scene.constraints)
     assert len(scene.constraints) == 2
 
 

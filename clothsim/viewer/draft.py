@@ -560,6 +560,10 @@ class SceneDraft:
         if self.upload_dir is not None and str(self.upload_dir) in str(mold.get("path", "")):
             head += ("# the mold was uploaded: its temporary copy disappears when the viewer stops; "
                      "'Save scene + files (.zip)' keeps it\n")
+        if self.upload_dir is not None and any(str(self.upload_dir) in str((p.get("pattern") or {}).get("file", ""))
+                                               for p in self.data.get("panels", [])):
+            head += ("# a panel's pattern was uploaded: its temporary copy disappears when the viewer stops; "
+                     "'Save scene + files (.zip)' keeps it\n")
         if self.pending:
             head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"
         return head + scene.to_yaml()
