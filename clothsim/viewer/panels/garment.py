@@ -154,5 +154,7 @@ class GarmentPanel(Panel):
         with app.quiet():
             self.gui["panel_pick"].options = tuple(names)
             self.gui["panel_pick"].value = names[-1]
-        app.sync_widgets()
+            self.show_placement()
+            app.panels["fabric"].sync_panels()  # a rectangle replaced: its size widgets go
+            app.panels["constraints"].sync()  # constraints naming an old panel may have gone
         app.draft_changed()
