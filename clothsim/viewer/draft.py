@@ -44,6 +44,15 @@ MOLD_SCALE_MAX = 1e6
 #: and about 2.4 kB of memory per triangle at its peak, so the limit keeps an upload under
 #: about half a minute and 1.2 GB; a larger mesh can still be named in a scene file
 MOLD_UPLOAD_MAX_TRIANGLES = 500_000
+PATTERN_EXTS = (".dxf", ".svg")
+#: most bytes of an uploaded pattern file (it is read on the update loop; a garment's DXF-AAMA
+#: export is a few hundred kB; the viewer's own upload limit applies too) and most pieces listed
+#: from one
+PATTERN_UPLOAD_MAX_BYTES = 4 * 1024 * 1024
+PATTERN_UPLOAD_MAX_PIECES = 100
+#: lattice divisions of a piece added from an uploaded pattern along its longer side
+PATTERN_DEFAULT_DIVISIONS = 24
+ROTATE_MAX = 3600.0  # [deg]
 
 
 def parse_table_text(text: str) -> tuple[list[float], list[float]]:
@@ -137,6 +146,8 @@ class SceneDraft:
         self.uploads: dict[str, dict] = {}  # label -> mold spec of an accepted upload
         self.upload_count = 0
         self.scene_mold_spec: dict | None = copy.deepcopy(self.data.get("mold"))
+        self.patterns: dict[str, tuple[Path, list]] = {}  # label -> (stored file, its pieces)
+        self.pattern_count = 0
 
     # ------------------------------------------------------------------ core
     def validate(self, data: dict | None = None) -> Scene:
@@ -313,9 +324,12 @@ class SceneDraft:
         opts.update(self.uploads)
         return opts
 
-    def mold_spec(self, label: str, scale, offset, up: str | None = None) -> dict | None:
+    def mold_spec(self, label: str, scale, offset, up: str | None = None, surface: str | None = None,
+                  smoothing=None) -> dict | None:
         """The spec of mold choice ``label`` with a scale (mesh files) and an offset [m] applied;
-        ``up`` ('y' or 'z', mesh files): the file's up axis (None: the choice's own)."""
+        ``up`` ('y' or 'z', mesh files): the file's up axis (None: the choice's own);
+        ``surface`` ('faceted' or 'smooth', mesh files; None: the choice's own) and ``smoothing``
+        [m] (the smooth surface's blending radius; 0 or None: the mesh's own default)."""
         opts = self.mold_options()
         if label not in opts:
             raise MoldError(f"unknown mold choice {label[:60]!r}")
@@ -341,6 +355,17 @@ class SceneDraft:
                     spec["up"] = "y"
                 else:
                     spec.pop("up", None)
+            if surface is not None:
+                if surface not in ("faceted", "smooth"):
+                    raise MoldError(f"surface: must be 'faceted' or 'smooth' (got {str(surface)[:20]!r})")
+                spec.pop("smoothing", None)
+                if surface == "smooth":
+                    spec["surface"] = "smooth"
+                    r = as_float(0.0 if smoothing is None else smoothing, "smoothing [m]", 0.0, ABS_LENGTH_MAX)
+                    if r > 0:
+                        spec["smoothing"] = r
+                else:
+                    spec.pop("surface", None)
         elif any(off):
             _kind, prm = next(iter(spec.items()))
             for key in ("center", "point", "min", "max"):
@@ -393,6 +418,139 @@ class SceneDraft:
             cache_mold(self.mold_spec(label, scale, offset), mold)
         return label
 
+    # ------------------------------------------------------------------ panels
+    def panel_names(self) -> list[str]:
+        return [p["name"] for p in self.data.get("panels", [])]
+
+    def _panel_index(self, index) -> int:
+        n = len(self.data.get("panels", []))
+        if index is None or not isinstance(index, int) or not 0 <= index < n:
+            raise SceneError("pick a panel" if n else "the scene has no pattern panels")
+        return index
+
+    def placement(self, index: int) -> tuple[str, dict]:
+        """('transform' | 'wrap' | 'wrap_hull', its fields) of panel ``index`` (an omitted
+        placement is the identity transform)."""
+        pl = self.data["panels"][self._panel_index(index)].get("placement") or {}
+        for kind in ("wrap", "wrap_hull", "transform"):
+            if pl.get(kind) is not None:
+                return kind, pl[kind]
+        return "transform", {}
+
+    def set_transform(self, index: int, translate, rotate) -> Scene:
+        """Panel ``index`` placed rigidly: rotate [deg] about x, then y, then z, then translate [m]
+        (clothsim.config.PanelTransform). A panel that was wrapped becomes a rigid placement."""
+        i = self._panel_index(index)
+        t = [as_float(x, "translate [m]", -ABS_LENGTH_MAX, ABS_LENGTH_MAX) for x in translate]
+        r = [as_float(x, "rotate [deg]", -ROTATE_MAX, ROTATE_MAX) for x in rotate]
+        return self.edit("panels", lambda d: d["panels"][i].__setitem__(
+            "placement", {"transform": {"rotate": r, "translate": t}}))
+
+    def set_wrap(self, index: int, radius, axis) -> Scene:
+        """Panel ``index`` rolled round ``axis`` at ``radius`` [m] (clothsim.config.Wrap; its
+        centre and start angle kept). Only for a panel placed with ``wrap``."""
+        i = self._panel_index(index)
+        kind, _w = self.placement(i)
+        if kind != "wrap":
+            raise SceneError(f"panels.{i}.placement: not a wrap placement (it is {kind}); edit it in the scene file")
+        rad = as_float(radius, "wrap radius [m]", 0.0, ABS_LENGTH_MAX)
+        ax = [as_float(x, "wrap axis", -ABS_LENGTH_MAX, ABS_LENGTH_MAX) for x in axis]
+        return self.edit("panels", lambda d: d["panels"][i]["placement"]["wrap"].update(radius=rad, axis=ax))
+
+    def add_pattern(self, name: str, data: bytes) -> str:
+        """Read an uploaded DXF or SVG pattern (clothsim.patterns.read_pattern) from a copy stored
+        in ``upload_dir`` under a name chosen here; returns its label (a key of ``patterns``).
+        Raises PatternError (file, piece, reason; the browser's file name, never the stored
+        path) and refuses a file over PATTERN_UPLOAD_MAX_BYTES or with more than
+        PATTERN_UPLOAD_MAX_PIECES pieces."""
+        from ..patterns import PatternError, read_pattern
+
+        label_name = _safe_name(name)
+        if self.upload_dir is None:
+            raise PatternError("uploads are not accepted here")
+        ext = Path(str(name)).suffix.lower()
+        if ext not in PATTERN_EXTS:
+            raise PatternError(f"{label_name}: a pattern is a .dxf or .svg file (got '{ext or 'no extension'}')")
+        if len(data) > PATTERN_UPLOAD_MAX_BYTES:
+            raise PatternError(f"{label_name}: {len(data) / 2**20:.1f} MB, over the pattern limit of "
+                               f"{PATTERN_UPLOAD_MAX_BYTES / 2**20:.0f} MB")
+        self.pattern_count += 1
+        stored = self.upload_dir / f"pattern_upload_{self.pattern_count}{ext}"
+        stored.write_bytes(data)
+        try:
+            pieces = read_pattern(stored)
+        except PatternError as exc:
+            stored.unlink(missing_ok=True)
+            raise PatternError(str(exc).replace(str(stored), label_name)) from None
+        if len(pieces) > PATTERN_UPLOAD_MAX_PIECES:
+            stored.unlink(missing_ok=True)
+            raise PatternError(f"{label_name}: {len(pieces)} pieces, more than {PATTERN_UPLOAD_MAX_PIECES}")
+        label = f"{label_name} ({self.pattern_count})"
+        self.patterns[label] = (stored, pieces)
+        return label
+
+    def pattern_panel(self, label: str, piece: str, at=(0.0, 0.0, 0.0), taken=()) -> dict:
+        """The panel spec of ``piece`` of uploaded pattern ``label``: read from the stored file,
+        a lattice of PATTERN_DEFAULT_DIVISIONS spacings along its longer side, and placed rigidly
+        with the corner of its outline's box at ``at`` [m]; named after the piece (made unique
+        against ``taken``)."""
+        if label not in self.patterns:
+            raise SceneError(f"no uploaded pattern {str(label)[:60]!r}")
+        path, pieces = self.patterns[label]
+        pc = next((p for p in pieces if p.name == piece), None)
+        if pc is None:
+            raise SceneError(f"pattern {label[:60]}: no piece {str(piece)[:60]!r}")
+        lo, hi = pc.outline.min(axis=0), pc.outline.max(axis=0)
+        spacing = float(f"{max(hi - lo) / PATTERN_DEFAULT_DIVISIONS:.3g}")
+        name, k = re.sub(r"\s+", "_", pc.name.strip()) or "panel", 1
+        base = name
+        while name in taken:
+            k += 1
+            name = f"{base}_{k}"
+        at = [float(x) for x in at]
+        return {"name": name, "pattern": {"file": str(path), "piece": pc.name}, "spacing": spacing,
+                "placement": {"transform": {"translate": [at[0] - float(lo[0]), at[1] - float(lo[1]), at[2]]}}}
+
+    def add_pattern_piece(self, label: str, piece: str, at=(0.0, 0.0, 0.0)) -> Scene:
+        """Add ``piece`` of uploaded pattern ``label`` as a new panel (:meth:`pattern_panel`).
+        A scene that is a ``fabric:`` rectangle has no panels to add to: the piece replaces the
+        rectangle (see :meth:`replace_panels`)."""
+        if not self.data.get("panels"):
+            return self.replace_panels(label, [piece], at)
+        spec = self.pattern_panel(label, piece, at, taken=set(self.panel_names()))
+        return self.edit("panels", lambda d: d["panels"].append(spec))
+
+    def replace_panels(self, label: str, pieces=None, at=(0.0, 0.0, 0.0)) -> Scene:
+        """Make the pieces of uploaded pattern ``label`` (``pieces``: their names; None: all)
+        the scene's panels, side by side from ``at`` [m] along x, 2 cm apart. The old panels'
+        seams go (they name the old panels), and so do constraints naming an old panel; the
+        rectangle's size and divisions go too (the fabric keeps its tables)."""
+        if label not in self.patterns:
+            raise SceneError(f"no uploaded pattern {str(label)[:60]!r}")
+        all_pieces = self.patterns[label][1]
+        names = [p.name for p in all_pieces] if pieces is None else list(pieces)
+        x, specs, taken = float(at[0]), [], set()
+        for nm in names:
+            spec = self.pattern_panel(label, nm, (x, at[1], at[2]), taken)
+            taken.add(spec["name"])
+            specs.append(spec)
+            pc = next(p for p in all_pieces if p.name == nm)
+            x += float(pc.outline[:, 0].max() - pc.outline[:, 0].min()) + 0.02
+
+        def mutate(d):
+            d["panels"] = specs
+            d.pop("seams", None)
+            for k in ("size", "divisions"):
+                d["fabric"].pop(k, None)
+            d["constraints"] = [c for c in d.get("constraints", [])
+                                if not (isinstance(c.get("nodes"), dict) and c["nodes"].get("panel") is not None
+                                        and c["nodes"]["panel"] not in taken)]
+            init = d.get("initial") or {}
+            for k in ("wrap", "wrap_hull", "file"):
+                init.pop(k, None)
+
+        return self.edit("panels", mutate)
+
     # ------------------------------------------------------------------ files
     def scene_yaml(self) -> str:
         """The draft as YAML, file paths made absolute so it loads from wherever it is saved."""
@@ -401,6 +559,10 @@ class SceneDraft:
         mold = self.data.get("mold") or {}  # the draft's own spec (a dict, as in the YAML)
         if self.upload_dir is not None and str(self.upload_dir) in str(mold.get("path", "")):
             head += ("# the mold was uploaded: its temporary copy disappears when the viewer stops; "
+                     "'Save scene + files (.zip)' keeps it\n")
+        if self.upload_dir is not None and any(str(self.upload_dir) in str((p.get("pattern") or {}).get("file", ""))
+                                               for p in self.data.get("panels", [])):
+            head += ("# a panel's pattern was uploaded: its temporary copy disappears when the viewer stops; "
                      "'Save scene + files (.zip)' keeps it\n")
         if self.pending:
             head += f"# includes edits not yet applied in the viewer: {', '.join(sorted(self.pending))}\n"

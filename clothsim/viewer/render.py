@@ -16,6 +16,9 @@ from .glb import GlbMeshWriter, colormap, vertex_normals
 
 MOLD_GREY = (150, 150, 160)
 MOLD_PENDING = (235, 140, 50)  # a mold shown before it is applied
+#: the pattern panels' outlines (magenta: a colour the sheet's colour map, the seams' orange and
+#: the constrained nodes' red never take)
+OUTLINE_COLOUR = (220, 0, 220)
 #: the sheet is slightly see-through by default, so that a mold under it shows (issue 15, item 24:
 #: the default scene's mold was hidden under the opaque sheet)
 DEFAULT_SHEET_OPACITY = 0.8
@@ -45,6 +48,7 @@ class ViewSettings:
     show_fixed: bool = True
     show_mold: bool = True
     mold_opacity: float = 0.6
+    show_outlines: bool = True
 
 
 def fmt(x: float | None, digits: int = 3) -> str:
@@ -123,6 +127,34 @@ def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = Fals
     return f"{head}: {show(lo)} (dark) · {show(0.5 * (lo + hi))} · {show(hi)} (yellow)"
 
 
+def outline_loops(topology) -> list[np.ndarray]:
+    """Each pattern panel's outline as its boundary nodes in order: one int64 array of node numbers
+    per panel that has an outline (a lattice built without one gets no loop), the
+    panel's boundary nodes (:attr:`clothsim.topology.Topology.boundary`) sorted by where their
+    lattice point (i, j) projects onto the outline polygon (lattice units, counter-clockwise).
+    Drawn as a closed line through these nodes."""
+    import shapely
+
+    loops = []
+    for p, outline in enumerate(topology.outlines):
+        if outline is None:
+            continue
+        nodes = topology.panel_nodes(p)
+        nodes = nodes[topology.boundary[nodes]]
+        if nodes.size < 2:
+            continue
+        ring = shapely.LineString(np.vstack([outline, outline[:1]]).astype(float))
+        t = shapely.line_locate_point(ring, shapely.points(topology.node_ij[nodes].astype(float)))
+        loops.append(nodes[np.argsort(t, kind="stable")].astype(np.int64))
+    return loops
+
+
+def outline_segments(loops: list[np.ndarray]) -> np.ndarray:
+    """(S, 2) int64 node pairs of the closed lines through ``loops`` (:func:`outline_loops`)."""
+    segs = [np.stack([lp, np.roll(lp, -1)], 1) for lp in loops if len(lp) >= 2]
+    return np.concatenate(segs).astype(np.int64) if segs else np.zeros((0, 2), np.int64)
+
+
 def inset_surface(V: np.ndarray, F: np.ndarray, spacing) -> np.ndarray:
     """Display only: move a mold's surface inwards by a quarter of the grid spacing [m], so that
     the sheet's flat triangles spanning nodes in contact (chords of a curved mold) do not show the
@@ -150,14 +182,17 @@ class SceneRenderer:
         self.h_fixed = None
         self.h_seams = None
         self.h_mold = None
+        self.h_outlines = None
+        self.outline_ab = np.zeros((0, 2), np.int64)
         self.fixed_idx = np.zeros(0, np.int64)
         self.seam_ab = np.zeros((0, 2), np.int64)
         self.shown_mold = None
         self.field_key = "strain_warp"
         self.range = (0.0, 1.0)
 
-    def rebuild(self, model, view: ViewSettings) -> None:
-        """Scene nodes for a (new) model."""
+    def rebuild(self, model, view: ViewSettings, outlines: bool = True) -> None:
+        """Scene nodes for a (new) model; ``outlines``: draw each panel's outline (the viewer
+        does for scenes of pattern ``panels``, not for a plain ``fabric:`` rectangle)."""
         self.glb = GlbMeshWriter(model.topology.faces)
         pos = model.rest_positions
         vals = np.zeros(model.node_count)
@@ -185,6 +220,15 @@ class SceneRenderer:
             self.h_seams = self.scene.add_line_segments(
                 "/seams", self.seam_points(pos), colors=(255, 140, 0), thickness=2.0,
                 thickness_units="screen")
+        # the pattern panels' outlines: a closed line through each panel's boundary nodes
+        if self.h_outlines is not None:
+            self.h_outlines.remove()
+            self.h_outlines = None
+        self.outline_ab = outline_segments(outline_loops(model.topology)) if outlines else np.zeros((0, 2), np.int64)
+        if len(self.outline_ab):
+            self.h_outlines = self.scene.add_line_segments(
+                "/outlines", pos[self.outline_ab].astype(np.float32), colors=OUTLINE_COLOUR, thickness=3.0,
+                thickness_units="screen", visible=view.show_outlines)
         self.model = model
 
     def seam_points(self, pos: np.ndarray) -> np.ndarray:
@@ -227,6 +271,9 @@ class SceneRenderer:
             self.h_fixed.visible = bool(view.show_fixed)
         if self.h_seams is not None:
             self.h_seams.points = self.seam_points(f.positions)
+        if self.h_outlines is not None:
+            self.h_outlines.points = f.positions[self.outline_ab].astype(np.float32)
+            self.h_outlines.visible = bool(view.show_outlines)
         return legend_text(view.field, self.field_key, lo, hi, uniform)
 
 

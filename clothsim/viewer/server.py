@@ -58,6 +58,7 @@ from .guard import GuiValueGuard, HandshakeCheck, UploadGuard, guarded_server, i
 from .panels.constraints import ConstraintsPanel
 from .panels.fabric import FabricPanel
 from .panels.files import FilesPanel
+from .panels.garment import GarmentPanel
 from .panels.material import MaterialPanel
 from .panels.probes import ProbesPanel
 from .panels.run import RunPanel
@@ -203,7 +204,7 @@ class ViewerApp:
         self.panels.update({"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
                             "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
                             "fabric": FabricPanel(self), "files": FilesPanel(self),
-                            "probes": ProbesPanel(self)})
+                            "probes": ProbesPanel(self), "garment": GarmentPanel(self)})
         self.plot = self._build_gui()
         self.server.scene.on_click()(self.panels["probes"].on_scene_click)  # records the ray only
         self.sync_widgets()
@@ -439,12 +440,14 @@ class ViewerApp:
                            ("files", "Files")):
             with tabs.add_tab(title):
                 p[key].build(gui)
+                if key == "fabric":  # the Garment section: panels, placements, pattern uploads
+                    p["garment"].build(gui)
         return plot
 
     def sync_widgets(self) -> None:
         """Show the draft's values in every editor (not counted as edits)."""
         with self.quiet():
-            for key in ("solver", "fabric", "material", "constraints", "run"):
+            for key in ("solver", "fabric", "material", "constraints", "garment", "run"):
                 self.panels[key].sync()
         self.panels["material"].refresh()
 
@@ -590,12 +593,16 @@ class ViewerApp:
         self.scene_draft.reset_to(self.sim.scene)
         self.panels["run"].sync()
         self.panels["probes"].reset()
+        with self.quiet():  # the panel list and table of the applied model
+            self.panels["fabric"].sync_panels()
+            self.panels["garment"].sync()
 
     # ------------------------------------------------------------------ uploads
     def _upload_refused(self, client_id, message, filename: str, reason: str) -> None:
         """From viser's event loop: the upload guard refused a transfer (its parts are freed)."""
         msg = f"{filename[:60]}: {reason}"
-        groups = {self.gui[k]._impl.uuid: g for k, g in (("mold_upload", "mold"), ("scene_upload", "files"))
+        groups = {self.gui[k]._impl.uuid: g for k, g in (("mold_upload", "mold"), ("scene_upload", "files"),
+                                                                  ("pattern_upload", "pattern"))
                   if k in self.gui}
         group = groups.get(message.source_component_uuid, "material")
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
@@ -657,7 +664,7 @@ class ViewerApp:
         view = self.panels["view"].settings()
         r = self.renderer
         if model is not r.model:
-            r.rebuild(model, view)
+            r.rebuild(model, view, outlines=bool(sim.scene.panels))
             self._last_frame = None
             self._mold_dirty = True
         if self._mold_dirty:

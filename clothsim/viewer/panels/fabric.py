@@ -108,6 +108,16 @@ class FabricPanel(Panel):
         g["mold_up"] = app.on(gui.add_dropdown("Mold up axis (mesh files)", ("z", "y"), initial_value="z",
                                                hint="y: a Y-up file (most scans) is turned to clothsim's Z-up"),
                               lambda v: self.set_mold(), "mold")
+        g["mold_surface"] = app.on(gui.add_dropdown("Mold surface (mesh files)", ("faceted", "smooth"),
+                                                    initial_value="faceted",
+                                                    hint="smooth: contact on a smooth surface blended from the "
+                                                         "triangles (scans); faceted: on the triangles (CAD molds)"),
+                                   lambda v: self.set_mold(), "mold")
+        g["mold_smoothing"] = app.on(gui.add_number("Mold smoothing [m] (smooth; 0: default)", 0.0, step=0.0005,
+                                                    min=0.0, max=big,
+                                                    hint="the smooth surface's blending radius; 0: the mesh's "
+                                                         "median edge length"),
+                                     lambda v: self.set_mold(), "mold")
         up = gui.add_upload_button("Upload mold", icon=viser.Icon.UPLOAD, mime_type="*/*",
                                    hint=f"STL, OBJ, PLY, OFF, GLB, the paper's .txt, .vtk, .wrl; at most "
                                         f"{MOLD_UPLOAD_MAX_TRIANGLES:,} triangles and "
@@ -124,7 +134,18 @@ class FabricPanel(Panel):
     def sync(self) -> None:
         g = self.gui
         data = self.app.scene_draft.data
-        fab = data["fabric"]
+        self.sync_panels()
+        g["lift"].value = float(self.app.scene_draft.data.get("initial", {}).get("lift", 0.0))
+        with self.app.quiet():
+            g["mold_up"].value = (data.get("mold") or {}).get("up") or "z"
+            g["mold_surface"].value = (data.get("mold") or {}).get("surface") or "faceted"
+            g["mold_smoothing"].value = float((data.get("mold") or {}).get("smoothing") or 0.0)
+        self.refresh_mold_options()
+
+    def sync_panels(self) -> None:
+        """The sheet's size and divisions (a ``fabric:`` rectangle) or the panels table."""
+        g = self.gui
+        fab = self.app.scene_draft.data["fabric"]
         rect = "size" in fab and "divisions" in fab
         for k in ("size", "nx", "ny"):
             g[k].visible = rect
@@ -135,10 +156,7 @@ class FabricPanel(Panel):
             g["ny"].value = int(fab["divisions"][1])
         else:
             g["panels"].content = self.panels_table()
-        g["lift"].value = float(self.app.scene_draft.data.get("initial", {}).get("lift", 0.0))
-        with self.app.quiet():
-            g["mold_up"].value = (data.get("mold") or {}).get("up") or "z"
-        self.refresh_mold_options()
+        self.app._mark_valid("fabric")
 
     def panels_table(self) -> str:
         """A markdown table of the scene's pattern panels (name, nodes, outline area, lattice)."""
@@ -150,7 +168,8 @@ class FabricPanel(Panel):
             nx1, ny1 = topo.panel_shape(p)
             rows.append(f"| {name} | {int(sel.sum())} | {model.node_area[sel].sum() * 1e4:.2f} | "
                         f"{nx1 - 1} x {ny1 - 1} |")
-        return "**Pattern panels** (edit them in the scene file)\n\n" + "\n".join(rows)
+        return ("**Pattern panels** (placements and pattern uploads below; outlines and lattices in the "
+                "scene file)\n\n" + "\n".join(rows))
 
     # fabric ------------------------------------------------------------------
     def set_size(self, v) -> None:
@@ -190,13 +209,14 @@ class FabricPanel(Panel):
         app, g = self.app, self.gui
         draft = app.scene_draft
         spec = draft.mold_spec(g["mold"].value, g["mold_scale"].value, g["mold_offset"].value,
-                               g["mold_up"].value)
+                               g["mold_up"].value, g["mold_surface"].value, g["mold_smoothing"].value)
         if spec is not None:
             base = draft.validate({**draft.data, "mold": spec}).base_dir  # field-level check first
             if not mold_cached(spec, base):
                 if self.job is not None and not self.job.done.is_set():
                     self.job.cancel()
-                restore = {k: app._valid[id(g[k])] for k in ("mold", "mold_scale", "mold_offset", "mold_up")
+                restore = {k: app._valid[id(g[k])] for k in ("mold", "mold_scale", "mold_offset", "mold_up",
+                                                                    "mold_surface", "mold_smoothing")
                            if id(g[k]) in app._valid}
                 path = Path(spec["path"])
                 try:

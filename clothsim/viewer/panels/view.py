@@ -29,6 +29,9 @@ class ViewPanel(Panel):
         for k in ("field", "auto_range", "range_min", "range_max", "sheet_opacity"):
             g[k].on_update(lambda _e: app.view_changed())
         g["show_fixed"] = gui.add_checkbox("Show constrained nodes", True)
+        g["show_outlines"] = gui.add_checkbox("Show panel outlines", True,
+                                              hint="pattern panels: each panel's outline as a magenta line")
+        g["show_outlines"].on_update(lambda _e: app.view_changed())
         g["show_mold"] = gui.add_checkbox("Show mold", True)
         g["mold_opacity"] = gui.add_slider("Mold opacity", min=0.1, max=1.0, step=0.05, initial_value=0.6)
         for k in ("show_fixed", "show_mold", "mold_opacity"):
@@ -42,7 +45,8 @@ class ViewPanel(Panel):
         return ViewSettings(field=g["field"].value, auto_range=bool(g["auto_range"].value),
                             range_min=float(g["range_min"].value), range_max=float(g["range_max"].value),
                             sheet_opacity=float(g["sheet_opacity"].value), show_fixed=bool(g["show_fixed"].value),
-                            show_mold=bool(g["show_mold"].value), mold_opacity=float(g["mold_opacity"].value))
+                            show_mold=bool(g["show_mold"].value), mold_opacity=float(g["mold_opacity"].value),
+                            show_outlines=bool(g["show_outlines"].value))
 
     def set_legend(self, text: str) -> None:
         if text != self.legend:
