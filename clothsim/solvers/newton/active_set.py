@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
-from ...mold import MOLD_MESH, mold_contact_normals, mold_query
+from ...mold import MOLD_MESH, MOLD_SMOOTH, mold_contact_normals, mold_query, smooth_shape_operator
 
 # after a projection onto the mold, a node may be inside by at most this [m]
 PENETRATION_TOL = 1e-10
@@ -435,3 +435,48 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
         out[k, 2] = p[2]
         contact_out[k] = c
     return worst
+
+
+@njit(cache=True)
+def _curvature_blocks(pos, F, contact, has_mold, margs, h, mode, diag, K):
+    """Adds the contact's curvature term to the diagonal Hessian blocks K[diag[k]] (3,3) [N/m] of
+    the contact nodes on a smooth surface (``MOLD_SMOOTH``; other molds: nothing).
+
+    A node held on a curved surface and pressed onto it by lam = -F.n [N] (F (n,3) [N] its
+    resultant without the contact force, n the outward normal) has, along the surface, the
+    energy Hessian K - lam S (S the shape operator, ``smooth_shape_operator``, from differences
+    over h [m]): the tangent-plane model alone misses -lam S. mode 1: only its positive
+    semi-definite part (the stiffening of concave parts; the Hessian stays positive definite);
+    mode 2: all of it. Nodes pulled off (lam <= 0) get nothing. Returns the number of nodes."""
+    if not has_mold or margs[0][0] != MOLD_SMOOTH or mode == 0:
+        return 0
+    n = np.empty(3)
+    S = np.empty((3, 3))
+    M = np.empty((3, 3))
+    count = 0
+    for k in range(pos.shape[0]):
+        if not contact[k]:
+            continue
+        if not smooth_shape_operator(margs, pos[k, 0], pos[k, 1], pos[k, 2], h, n, S):
+            continue
+        lam = -(F[k, 0] * n[0] + F[k, 1] * n[1] + F[k, 2] * n[2])
+        if not (lam > 0.0):
+            continue
+        for a in range(3):
+            for b in range(3):
+                M[a, b] = -lam * S[a, b]
+        if mode == 1:
+            w, v = np.linalg.eigh(M)
+            for a in range(3):
+                for b in range(3):
+                    x = 0.0
+                    for c in range(3):
+                        if w[c] > 0.0:
+                            x += w[c] * v[a, c] * v[b, c]
+                    M[a, b] = x
+        d = diag[k]
+        for a in range(3):
+            for b in range(3):
+                K[d, a, b] += M[a, b]
+        count += 1
+    return count
