@@ -610,7 +610,7 @@ SMOOTH_SCAN_NOTES = [
     "step overshoots and the line search halves it step after step. Only the positive semi-definite "
     "part of -lam S is added, so the Hessian stays positive definite. Campaign iterations, 24 cases: "
     "before 58-263 (median 93; 0 of 24 at most 60); positive part 28-91 (median 50.5; 16 of 24 at most "
-    "60); all of -lam S 25-86 (median 49.5), but on the stocking all of it makes the Hessian indefinite "
+    "60; 29-88, median 48, 18 of 24 with the cost changes below, which change the rounding); all of -lam S 25-86 (median 49.5), but on the stocking all of it makes the Hessian indefinite "
     "and Newton stalls at 1.8 N after 195 iterations (the lead's wrong equilibrium on "
     "configs/class2_sleeve.yaml is the same failure), while the positive part leaves the stocking at 419 "
     "iterations (before: ~420): the stocking's slow line search is not concave curvature. Only the "

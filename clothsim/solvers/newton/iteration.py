@@ -42,6 +42,9 @@ HOLD_ENTERING = True
 HOLD_SHARE = 1.0
 
 LM_ALPHA_LOW = 0.1
+# ... and lowered after a step of at least this length (measured on the stocking: 0.5 or 0.6
+# instead of 0.1 and 1 take more iterations, see docs/benchmarks_scans_smooth.md)
+LM_ALPHA_HIGH = 1.0
 # the banded Cholesky also on the smooth surface of a mesh (no example's equilibrium uses it)
 BAND_ON_SMOOTH = True
 # the contact's curvature term on a smooth surface (_curvature_blocks): 0 off, 1 its positive
@@ -252,7 +255,7 @@ class NewtonLevel:
                 # directions nearly free; contact nodes leave their faces), so shift more
                 if self.ls_alpha < LM_ALPHA_LOW:
                     self.lm = min(max(self.lm * 10.0, 1e-8), LM_MAX)
-                elif self.ls_alpha >= 1.0:
+                elif self.ls_alpha >= LM_ALPHA_HIGH:
                     self.lm = max(self.lm / 10.0, 1e-12)
                 return accepted
             self.lm = max(self.lm * 100.0, 1e-6)
