@@ -599,6 +599,37 @@ def _plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+#: why Newton does what it does on the smooth surface (measured; appended to benchmarks_scans_smooth.md)
+SMOOTH_SCAN_NOTES = [
+    "## Newton on the smooth surface: what changed and why", "",
+    "- **The contact's curvature term** (`active_set._curvature_blocks`, "
+    "`iteration.CURVATURE = 1`). A node held on a curved surface and pressed onto it by lam = -F.n "
+    "has, along the surface, the Hessian K - lam S (S the shape operator, `smooth.smooth_shape_operator`: "
+    "forward differences of grad phi, three phi evaluations, no foot iteration). The tangent-plane model "
+    "misses -lam S: on concave parts (S < 0: the small of the back, between ribs) it is too soft, the "
+    "step overshoots and the line search halves it step after step. Only the positive semi-definite "
+    "part of -lam S is added, so the Hessian stays positive definite. Campaign iterations, 24 cases: "
+    "before 58-263 (median 93; 0 of 24 at most 60); positive part 28-91 (median 50.5; 16 of 24 at most "
+    "60; 29-88, median 48, 18 of 24 with the cost changes below, which change the rounding); all of -lam S 25-86 (median 49.5), but on the stocking all of it makes the Hessian indefinite "
+    "and Newton stalls at 1.8 N after 195 iterations (the lead's wrong equilibrium on "
+    "configs/class2_sleeve.yaml is the same failure), while the positive part leaves the stocking at 419 "
+    "iterations (before: ~420): the stocking's slow line search is not concave curvature. Only the "
+    "smooth surface gets the term (no example's recorded equilibrium changes).",
+    "- **Cost per iteration** (smpl_man, y = 1.20, CPU ms per iteration on the shared machine, "
+    "30 before): the banded Cholesky on the smooth surface too (`iteration.BAND_ON_SMOOTH`: 28; the "
+    "factorisation is a small share here); a node projected onto a converged smooth foot point is not "
+    "queried again for penetration (the foot is on the surface to 1e-13 m; the faceted fallback "
+    "still is; `active_set.SMOOTH_FOOT_TRUSTED`: 24); `_block_infeasible` skips the smooth surface, "
+    "whose answers are all faces (one query per contact node saved, the same steps: 22). "
+    "What is left: the line search's projections (about half), the residual's and the active set's "
+    "normals and the free nodes' distances (one smooth query each, 20 to 55 us).",
+    "- **The Levenberg rule** for line-search steps alpha in [0.1, 1) (shift unchanged) was tried on the "
+    "stocking on the smooth surface (419 iterations with the rule as it is): raising the shift tenfold "
+    "after alpha = 0.5 (`LM_ALPHA_LOW = 0.6`) took 579 iterations; lowering it after alpha = 0.5 "
+    "(`LM_ALPHA_HIGH = 0.5`) had not converged after three times the time. Kept as it is.", "",
+]
+
+
 def write_scan_report(scan_rows: list[dict], out: Path, elapsed: float, surface: str) -> None:
     """``<out>/benchmarks_scans.md`` (``benchmarks_scans_smooth.md`` on the smooth surface): the
     scan campaign alone (``app.py bench --scans [--surface smooth]``)."""
@@ -610,6 +641,8 @@ def write_scan_report(scan_rows: list[dict], out: Path, elapsed: float, surface:
              f"{info['numba']}, clothsim {info['clothsim']}.", ""] + scan_table(scan_rows)
     if not scan_rows:
         lines.append("No body file found (see `bench.SCAN_DIRS`): nothing run.")
+    elif surface == "smooth":
+        lines += SMOOTH_SCAN_NOTES
     stem = "benchmarks_scans" + ("" if surface == "faceted" else f"_{surface}")
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     (out / f"{stem}.json").write_text(json.dumps({"machine": info, "scans": scan_rows}, indent=1))

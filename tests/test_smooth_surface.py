@@ -473,3 +473,34 @@ def test_scene_errors_name_the_field(overrides, message):
     assert message in str(e.value)
     s = clothsim.load_scene(ROOT / "configs" / "thermoform.yaml", ["mold.surface=smooth", "mold.smoothing=0.002"])
     assert s.mold.surface == "smooth" and s.mold.smoothing == 0.002
+
+
+def test_shape_operator_converges_to_the_sphere_curvature():
+    """smooth_shape_operator on icospheres: tangent eigenvalues -> 1/R as the mesh is refined,
+    zero along the normal; the Newton curvature term keeps only its positive part (nothing on a
+    convex sphere), or all of it (-lam/R on the tangent plane)."""
+    from clothsim.mold import smooth_shape_operator
+    from clothsim.solvers.newton.active_set import _curvature_blocks
+
+    p = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+    errs = []
+    for sub in (3, 4, 5):
+        a = _ico(sub).kernel_args()
+        q = np.empty(8)
+        n = np.empty(3)
+        S = np.empty((3, 3))
+        mold_query(a, p * 0.11, q)
+        assert smooth_shape_operator(a, q[0], q[1], q[2], 1e-6, n, S)
+        w = np.linalg.eigvalsh(S)
+        assert abs(w[0]) < 1e-6 and np.allclose(S @ n, 0.0, atol=1e-8) and np.allclose(S, S.T)
+        errs.append(np.abs(w[1:] * R0 - 1.0).max())
+    assert errs[2] < 0.01 and errs[2] < errs[1] < errs[0]
+    pos = q[None, :3].copy()
+    F = -2.0 * n[None, :]                      # pressed on with 2 N
+    K = np.zeros((1, 3, 3))
+    diag = np.zeros(1, np.int64)
+    assert _curvature_blocks(pos, F, np.ones(1, bool), True, a, 1e-6, 1, diag, K) == 1
+    assert np.abs(K).max() < 1e-9             # convex: its negative part is dropped
+    _curvature_blocks(pos, F, np.ones(1, bool), True, a, 1e-6, 2, diag, K)
+    assert np.allclose(K[0], -2.0 * S, atol=1e-9)
+    assert _curvature_blocks(pos, -F, np.ones(1, bool), True, a, 1e-6, 2, diag, K) == 0  # pulled off

@@ -60,7 +60,7 @@ from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MESH_KINDS, MOL
                      MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldArgs,
                      MoldError)
 from .segment import mold_segment_hit
-from .smooth import smooth_phi
+from .smooth import smooth_phi, smooth_shape_operator
 
 __all__ = [
     "MoldError",
@@ -99,4 +99,5 @@ __all__ = [
     "with_surface",
     "median_edge_length",
     "smooth_phi",
+    "smooth_shape_operator",
 ]

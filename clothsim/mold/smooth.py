@@ -282,3 +282,62 @@ def _smooth_query(margs, px, py, pz, out):
     """Signed distance [m] to the smooth surface of a ``MOLD_SMOOTH`` mold; fills out[0:8]."""
     sd, _ = _smooth_query_flag(margs, px, py, pz, out)
     return sd
+
+
+@njit(cache=True)
+def smooth_shape_operator(margs, px, py, pz, h, n_out, S_out):
+    """The smooth surface's unit normal n (3,) (filled into n_out) and its shape operator
+    S = d n / d x restricted to the tangent plane (3,3) [1/m] (filled into S_out, symmetric,
+    S n = 0; positive on convex parts: a sphere of radius R gives (I - n n^T) / R) at a point
+    p [m] on the surface, from forward differences of grad phi over h [m] along two tangents
+    (three evaluations of phi, no foot iteration). Returns False (S = 0) where phi is not
+    defined (no vertex's support reaches p)."""
+    g0 = np.empty(3)
+    g1 = np.empty(3)
+    g2 = np.empty(3)
+    stack = np.empty(128, dtype=np.int64)
+    for a in range(3):
+        for b in range(3):
+            S_out[a, b] = 0.0
+    _, W = _blend(margs, px, py, pz, 0.0, g0, stack)
+    gl = math.sqrt(g0[0] * g0[0] + g0[1] * g0[1] + g0[2] * g0[2])
+    if not (W > 0.0 and gl > 0.0):
+        return False
+    nx = g0[0] / gl
+    ny = g0[1] / gl
+    nz = g0[2] / gl
+    n_out[0] = nx
+    n_out[1] = ny
+    n_out[2] = nz
+    # tangent frame
+    if abs(nx) < 0.9:
+        ax, ay, az = 1.0, 0.0, 0.0
+    else:
+        ax, ay, az = 0.0, 1.0, 0.0
+    d = ax * nx + ay * ny + az * nz
+    t1x = ax - d * nx
+    t1y = ay - d * ny
+    t1z = az - d * nz
+    tl = math.sqrt(t1x * t1x + t1y * t1y + t1z * t1z)
+    t1x /= tl
+    t1y /= tl
+    t1z /= tl
+    t2x = ny * t1z - nz * t1y
+    t2y = nz * t1x - nx * t1z
+    t2z = nx * t1y - ny * t1x
+    _, W1 = _blend(margs, px + h * t1x, py + h * t1y, pz + h * t1z, 0.0, g1, stack)
+    _, W2 = _blend(margs, px + h * t2x, py + h * t2y, pz + h * t2z, 0.0, g2, stack)
+    if not (W1 > 0.0 and W2 > 0.0):
+        return False
+    s = 1.0 / (h * gl)
+    # S_ab = t_a . (g(p + h t_b) - g(p)) / (h |g|), symmetrised
+    s11 = ((g1[0] - g0[0]) * t1x + (g1[1] - g0[1]) * t1y + (g1[2] - g0[2]) * t1z) * s
+    s22 = ((g2[0] - g0[0]) * t2x + (g2[1] - g0[1]) * t2y + (g2[2] - g0[2]) * t2z) * s
+    s12 = 0.5 * s * ((g2[0] - g0[0]) * t1x + (g2[1] - g0[1]) * t1y + (g2[2] - g0[2]) * t1z
+                     + (g1[0] - g0[0]) * t2x + (g1[1] - g0[1]) * t2y + (g1[2] - g0[2]) * t2z)
+    t1 = (t1x, t1y, t1z)
+    t2 = (t2x, t2y, t2z)
+    for a in range(3):
+        for b in range(3):
+            S_out[a, b] = s11 * t1[a] * t1[b] + s22 * t2[a] * t2[b] + s12 * (t1[a] * t2[b] + t2[a] * t1[b])
+    return True

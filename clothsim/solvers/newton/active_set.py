@@ -15,12 +15,15 @@ import numpy as np
 from numba import njit
 
 from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
-from ...mold import MOLD_MESH, mold_contact_normals, mold_query
+from ...mold import MOLD_MESH, MOLD_SMOOTH, mold_contact_normals, mold_query, smooth_shape_operator
+from ...mold.smooth import _smooth_query_flag
 
 # after a projection onto the mold, a node may be inside by at most this [m]
 PENETRATION_TOL = 1e-10
 # a contact node moved farther than this [m] off the surface may leave it (see _trial_positions)
 RELEASE_GAP = 1e-12
+# a node projected onto a converged foot point of the smooth surface is not queried again
+SMOOTH_FOOT_TRUSTED = True
 
 
 @njit(cache=True)
@@ -136,8 +139,9 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
     beside the active one), and the projection back onto the surface then bends the path at
     first order, so no step length lowers the energy. A node whose step direction enters the
     mold within ``probe`` [m] gets the face normal it violates most added to its constraints
-    (Pi updated in place). Returns how many nodes were blocked."""
-    if not has_mold:
+    (Pi updated in place). Returns how many nodes were blocked. On the smooth surface of a mesh
+    every answer is a face (code 0, one normal): nothing to block, no query."""
+    if not has_mold or margs[0][0] == MOLD_SMOOTH:
         return 0
     q = np.empty(8)
     p = np.empty(3)
@@ -403,7 +407,11 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                                     p[a] = pos0[k, a] + t * dd[a]
             else:
                 hit = stop_at_surface(margs, pos0[k], p, fixed[k])
-            sd = mold_query(margs, p, q)
+            on_foot = False
+            if margs[0][0] == MOLD_SMOOTH:
+                sd, on_foot = _smooth_query_flag(margs, p[0], p[1], p[2], q)
+            else:
+                sd = mold_query(margs, p, q)
             if c and sd > RELEASE_GAP and q[6] != 0.0:
                 # a contact node whose move took it off the surface past a convex edge or vertex
                 # (the closest point is on that edge or vertex): it is put back there only if its
@@ -422,9 +430,11 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                     if not fixed[k, a]:
                         p[a] = q[a]
                 c = True
-                if margs[0][0] == MOLD_MESH and not fixed[k, 0] and not fixed[k, 1] and not fixed[k, 2]:
-                    # the closest point of a triangle mesh is on the mesh: no query needed to
-                    # know that it is not inside
+                if (margs[0][0] == MOLD_MESH or (on_foot and SMOOTH_FOOT_TRUSTED)) and not fixed[k, 0] and \
+                        not fixed[k, 1] and not fixed[k, 2]:
+                    # the closest point of a triangle mesh is on the mesh, and a converged foot
+                    # point of the smooth surface is on it to its 1e-13 m tolerance (far below
+                    # PENETRATION_TOL): no query needed to know that it is not inside
                     sd = 0.0
                 else:
                     sd = mold_query(margs, p, q)
@@ -435,3 +445,48 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
         out[k, 2] = p[2]
         contact_out[k] = c
     return worst
+
+
+@njit(cache=True)
+def _curvature_blocks(pos, F, contact, has_mold, margs, h, mode, diag, K):
+    """Adds the contact's curvature term to the diagonal Hessian blocks K[diag[k]] (3,3) [N/m] of
+    the contact nodes on a smooth surface (``MOLD_SMOOTH``; other molds: nothing).
+
+    A node held on a curved surface and pressed onto it by lam = -F.n [N] (F (n,3) [N] its
+    resultant without the contact force, n the outward normal) has, along the surface, the
+    energy Hessian K - lam S (S the shape operator, ``smooth_shape_operator``, from differences
+    over h [m]): the tangent-plane model alone misses -lam S. mode 1: only its positive
+    semi-definite part (the stiffening of concave parts; the Hessian stays positive definite);
+    mode 2: all of it. Nodes pulled off (lam <= 0) get nothing. Returns the number of nodes."""
+    if not has_mold or margs[0][0] != MOLD_SMOOTH or mode == 0:
+        return 0
+    n = np.empty(3)
+    S = np.empty((3, 3))
+    M = np.empty((3, 3))
+    count = 0
+    for k in range(pos.shape[0]):
+        if not contact[k]:
+            continue
+        if not smooth_shape_operator(margs, pos[k, 0], pos[k, 1], pos[k, 2], h, n, S):
+            continue
+        lam = -(F[k, 0] * n[0] + F[k, 1] * n[1] + F[k, 2] * n[2])
+        if not (lam > 0.0):
+            continue
+        for a in range(3):
+            for b in range(3):
+                M[a, b] = -lam * S[a, b]
+        if mode == 1:
+            w, v = np.linalg.eigh(M)
+            for a in range(3):
+                for b in range(3):
+                    x = 0.0
+                    for c in range(3):
+                        if w[c] > 0.0:
+                            x += w[c] * v[a, c] * v[b, c]
+                    M[a, b] = x
+        d = diag[k]
+        for a in range(3):
+            for b in range(3):
+                K[d, a, b] += M[a, b]
+        count += 1
+    return count

@@ -16,10 +16,10 @@ import scipy.sparse.linalg as sla
 
 from ...contact import residual_from_forces as _residual_from_forces
 from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
-from ...mold import MOLD_MESH
+from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible, _contact_faces,
+from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible, _contact_faces,
                          _free_distances, _projectors, _trial_positions)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _pcg, _project_system, band_order)
@@ -42,6 +42,14 @@ HOLD_ENTERING = True
 HOLD_SHARE = 1.0
 
 LM_ALPHA_LOW = 0.1
+# ... and lowered after a step of at least this length (measured on the stocking: 0.5 or 0.6
+# instead of 0.1 and 1 take more iterations, see docs/benchmarks_scans_smooth.md)
+LM_ALPHA_HIGH = 1.0
+# the banded Cholesky also on the smooth surface of a mesh (no example's equilibrium uses it)
+BAND_ON_SMOOTH = True
+# the contact's curvature term on a smooth surface (_curvature_blocks): 0 off, 1 its positive
+# semi-definite part, 2 all of it
+CURVATURE = 1
 LM_MAX = 1e4
 
 
@@ -83,11 +91,12 @@ class NewtonLevel:
         self._band = None
         if self.direct:
             self.mg = None
-            # on a triangle-mesh mold (scans, CAD), narrow bands (a band or strip of fabric) are
+            # on a triangle-mesh mold (scans, CAD; faceted or smooth), narrow bands (a band or strip of fabric) are
             # factorised by a banded Cholesky in a reverse Cuthill-McKee node order: a third of
             # the sparse LU's time on the torso band. Elsewhere the sparse LU stays: its rounding
             # is what the recorded equilibria of the analytic molds were computed with
-            if self.has_mold and self.margs[0][0] == MOLD_MESH:
+            kind = self.margs[0][0] if self.has_mold else -1
+            if kind == MOLD_MESH or (kind == MOLD_SMOOTH and BAND_ON_SMOOTH):
                 _, inv, bw = band_order(n, model.spring_nodes)
                 w = 3 * bw + 3
                 if 3 * n * w * w <= BAND_WORK:
@@ -103,6 +112,8 @@ class NewtonLevel:
         self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
         # step probed for leaving an edge's or vertex's tangent cone [m] (_block_infeasible)
         self.probe = 1e-6 * float(min(model.spacing))
+        # difference step of the smooth surface's shape operator [m] (_curvature_blocks)
+        self.fd_step = 1e-4 * float(min(model.spacing))
         self._cache = None
         self.sd0 = np.full(n, np.inf)
         self._face0 = -np.ones(n, np.int64)
@@ -196,6 +207,8 @@ class NewtonLevel:
         _assemble(pos, *self.sargs, self.kink, self.slot, self.K)
         if m.seam_count:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
+        if CURVATURE and self.has_mold:
+            _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step, CURVATURE, self.diag, self.K)
         dsum = 0.0
         dcount = 0
         dg = self.K[self.diag]
@@ -242,7 +255,7 @@ class NewtonLevel:
                 # directions nearly free; contact nodes leave their faces), so shift more
                 if self.ls_alpha < LM_ALPHA_LOW:
                     self.lm = min(max(self.lm * 10.0, 1e-8), LM_MAX)
-                elif self.ls_alpha >= 1.0:
+                elif self.ls_alpha >= LM_ALPHA_HIGH:
                     self.lm = max(self.lm / 10.0, 1e-12)
                 return accepted
             self.lm = max(self.lm * 100.0, 1e-6)
