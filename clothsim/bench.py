@@ -103,6 +103,33 @@ def cases(quick: bool) -> list[Case]:
     return out
 
 
+def four_panel_cap_overrides(divisions: int = 100) -> list[str]:
+    """Overrides that turn ``configs/sphere_cap.yaml`` into a four-panel garment: the 0.1 m
+    sheet cut into four 0.05 m quarter panels (``divisions`` x ``divisions`` each; 100 gives
+    40,804 nodes, as many as the 201^2 square), sewn edge to edge by four seams, the outer
+    edges held on the square stretched 10 % about the sheet's centre (each panel's stretch acts
+    about its own centre, so a displacement of 0.1 (c - 0.05) m moves it to the sheet's)."""
+    d = int(divisions)
+    quads = (("bl", 0.0, 0.0), ("br", 0.05, 0.0), ("tl", 0.0, 0.05), ("tr", 0.05, 0.05))
+    panels, cons = [], []
+    for name, tx, ty in quads:
+        panels.append(f"{{name: {name}, outline: [[0, 0], [0.05, 0], [0.05, 0.05], [0, 0.05]], "
+                      f"divisions: [{d}, {d}], placement: {{transform: {{translate: [{tx}, {ty}, 0.0]}}}}}}")
+        ox = 0 if tx == 0 else -1  # the outer column (i) and row (j) of this quarter
+        oy = 0 if ty == 0 else -1
+        rng = "[1, -1]" if ox == 0 else "[0, -2]"  # the row without the corner the column has
+        disp = f"[{0.1 * (tx + 0.025 - 0.05):.4f}, {0.1 * (ty + 0.025 - 0.05):.4f}, 0.0]"
+        cons.append(f"{{nodes: {{panel: {name}, i: {ox}, j: null}}, axes: xyz, stretch: 1.1, displacement: {disp}}}")
+        cons.append(f"{{nodes: {{panel: {name}, i: {rng}, j: {oy}}}, axes: xyz, stretch: 1.1, displacement: {disp}}}")
+    seams = ["{a: {panel: bl, side: right}, b: {panel: br, side: left}}",
+             "{a: {panel: tl, side: right}, b: {panel: tr, side: left}}",
+             "{a: {panel: bl, side: top}, b: {panel: tl, side: bottom}}",
+             "{a: {panel: br, side: top}, b: {panel: tr, side: bottom}}"]
+    # each panel's dome leaves the seams on the sheet's plane: lifted clear of the sphere
+    return ["panels=[" + ", ".join(panels) + "]", "seams=[" + ", ".join(seams) + "]",
+            "constraints=[" + ", ".join(cons) + "]", "initial.auto_clearance=true"]
+
+
 def _optional_terms():
     return [
         ("(stretch only)", []),

@@ -20,13 +20,22 @@ from .iteration import NewtonLevel, _forcing
 from ...grid import coarsen_model  # noqa: E402  (the lattice builder at stride 2)
 
 
+def _prolongation(fine_topology, coarse_topology):
+    """P (N, Nc): the full grid's bilinear interpolation, or on a cut or multi-panel lattice the
+    Topology's ``lattice_prolongation`` from its stride-2 coarsening (``coarse_topology``)."""
+    if fine_topology.is_grid:
+        return fine_topology.grid_prolongation()[1]
+    ctopo, sub = fine_topology.coarsen()
+    return fine_topology.lattice_prolongation(ctopo, sub)
+
+
 def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
     two contact nodes) onto its surface as contact nodes."""
     from ...mold import mold_query_many
 
-    _, P = fine_model.topology.grid_prolongation()
+    P = _prolongation(fine_model.topology, coarse_model.topology)
     pos = P @ coarse_state.positions
     cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
     fixed = fine_model.fixed_axes
