@@ -638,8 +638,8 @@ def _coarsen_lattice(model: Model):
     lengths [m] are twice the panel's spacing; node areas [m^2] and external forces [N] are the
     fine ones restricted by the interpolation's transpose (totals kept). Nodes held on the fine
     lattice's outline are mostly not coarse nodes: a free coarse node next to a held fine node
-    is held on that node's axes at its prescribed position (an O(h) shift, a starting guess
-    only); seam pairs are carried as in the full-grid case."""
+    is held on that node's axes at its prescribed position plus their placed rest offset
+    (a starting guess only); seam pairs are carried as in the full-grid case."""
     topo = model.topology
     fam = model.spring_family
     if np.any((fam != FAMILY_WARP) & (fam != FAMILY_WEFT) & (fam != FAMILY_SEAM)):
@@ -721,7 +721,9 @@ def _coarsen_lattice(model: Model):
                 best[np.nonzero(k)[0]] = nb
         h = best >= 0
         fixed[free[h]] = model.fixed_axes[best[h]]
-        presc[free[h]] = model.prescribed_positions[best[h]]
+        # at the held node's prescribed position plus the placed rest offset between the two
+        placed = model.placement.apply(model.rest_positions)
+        presc[free[h]] = model.prescribed_positions[best[h]] + placed[fi[h]] - placed[best[h]]
     cstart = np.searchsorted(ctopo.node_panel, np.arange(ctopo.panel_count + 1))
     coarse = Model(
         node_count=n, topology=ctopo, rest_positions=model.rest_positions[sub].copy(), spring_nodes=spring_nodes,
