@@ -80,3 +80,16 @@ def test_sequencing_gives_the_same_equilibrium_on_panels():
         assert r_seq.status == "converged" and r_off.status == "converged", name
         assert np.abs(p_seq - p_off).max() < 1e-7, name
         assert abs(r_seq.energy - r_off.energy) <= 1e-9 * abs(r_off.energy), name
+
+
+def test_garment_bench_cases_and_report(tmp_path):
+    from clothsim.bench import garment_cases, write_garment_report
+
+    names = [c.name for c in garment_cases()]
+    assert names[0] == "sphere cap 201^2" and len(names) == 3
+    rows = [{"case": n, "nodes": 40000, "status": "converged", "iterations": 4,
+             "times": {"1e-07": 1.0, "1e-09": 1.2}, "times_wu": {"1e-07": wu, "1e-09": wu * 1.1},
+             "error_final": 1e-9} for n, wu in zip(names, (1000.0, 1500.0, 3000.0))]
+    write_garment_report(rows, tmp_path, 1.0)
+    text = (tmp_path / "benchmarks_garments.md").read_text()
+    assert "| 1.50 |" in text and "| 3.00 |" in text
