@@ -276,6 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "writes benchmarks_scans.md")
     b.add_argument("--surface", choices=("faceted", "smooth"), default="faceted",
                    help="the scanned bodies' contact surface in the scan campaign (default: %(default)s)")
+    b.add_argument("--garments", action="store_true",
+                   help="only the panel scenes (a 40k-node circle and four sewn panels on the sphere cap) "
+                        "beside the 201^2 square: writes benchmarks_garments.md")
     b.set_defaults(func=cmd_bench)
     add_compression_commands(sub)
     return p

@@ -569,11 +569,14 @@ def coarsen_model(model: Model):
     """The same scene on the stride-2 lattice (``Topology.coarsen``), built by the same spring
     builder with twice the spacing: (coarse model, sub) where sub (Nc,) are the nodes of
     ``model`` the coarse lattice keeps; (None, None) unless the lattice is a full rectangle with
-    even divisions of at least 4 (what grid sequencing interpolates between)."""
+    even divisions of at least 4 (what grid sequencing interpolates between). Any other lattice
+    (cut or several panels) goes to :func:`_coarsen_lattice`."""
     topo = model.topology
-    if not topo.is_grid or model.seam_count:
+    if model.seam_count:
         # (seam elements tie a node to a point between two fine nodes: not carried to a coarse grid)
         return None, None
+    if not topo.is_grid:
+        return _coarsen_lattice(model)
     nx1, ny1 = topo.grid_shape
     nx, ny = nx1 - 1, ny1 - 1
     if nx % 2 or ny % 2 or nx < 4 or ny < 4:
@@ -620,4 +623,115 @@ def coarsen_model(model: Model):
         external_force=np.ascontiguousarray(ext), node_area=area, adj_ptr=ptr, adj_node=adj_node,
         adj_spring=adj_spring, mold=model.mold, spacing=(dx, dy), placement=model.placement,
         panel_spacing=np.array([[dx, dy]]))
+    return coarse, sub
+
+
+def _coarsen_lattice(model: Model):
+    """The stride-2 coarse model of a cut or multi-panel lattice (``Topology.coarsen``), or
+    (None, None) when a panel has odd divisions or fewer than 5 nodes a side, or the model has
+    springs other than warp, weft and seam pairs (shear, bending: not carried over).
+
+    The coarse springs' tributary widths [m] are the fine ones summed over the band each coarse
+    spring stands for (a coarse warp spring (I, J)-(I+1, J) spans fine springs 2I and 2I+1 on
+    fine line 2J in full and lines 2J -/+ 1 by half, divided by its two fine segments), so a cut
+    cell's true share carries over and a full rectangle gives its closed-form widths; rest
+    lengths [m] are twice the panel's spacing; node areas [m^2] and external forces [N] are the
+    fine ones restricted by the interpolation's transpose (totals kept). Nodes held on the fine
+    lattice's outline are mostly not coarse nodes: a free coarse node next to a held fine node
+    is held on that node's axes at its prescribed position plus their placed rest offset
+    (a starting guess only); seam pairs are carried as in the full-grid case."""
+    topo = model.topology
+    fam = model.spring_family
+    if np.any((fam != FAMILY_WARP) & (fam != FAMILY_WEFT) & (fam != FAMILY_SEAM)):
+        return None, None
+    for p in range(topo.panel_count):
+        nx1, ny1 = topo.panel_shape(p)
+        if nx1 % 2 == 0 or ny1 % 2 == 0 or nx1 < 5 or ny1 < 5:
+            return None, None
+    ctopo, sub = topo.coarsen()
+    if ctopo.node_count == 0:
+        return None, None
+    P = topo.lattice_prolongation(ctopo, sub)
+    n = ctopo.node_count
+    spacing = np.asarray(model.panel_spacing, float).reshape(-1, 2)
+    sp = _Springs()
+    for f, pairs, axis in ((FAMILY_WARP, ctopo.warp, 0), (FAMILY_WEFT, ctopo.weft, 1)):
+        sel = np.nonzero(fam == f)[0]
+        a = model.spring_nodes[sel, 0]
+        pa = topo.node_panel[a]
+        ij = topo.node_ij[a]
+        if pairs.shape[0] == 0:
+            continue
+        cp = ctopo.node_panel[pairs[:, 0]]
+        cij = ctopo.node_ij[pairs[:, 0]]
+        width = np.zeros(pairs.shape[0])
+        table = np.zeros(pairs.shape[0], np.int64)
+        for p in range(topo.panel_count):
+            shp = list(topo.panel_shape(p))
+            shp[axis] -= 1  # springs along axis: one fewer than the nodes
+            W = np.zeros(shp)
+            k = pa == p
+            W[ij[k, 0], ij[k, 1]] = model.spring_width[sel[k]]
+            tid = int(model.spring_table[sel[k]][0]) if k.any() else 0
+            # pad the cross direction by one on both sides (half weights reach lines 2J -/+ 1)
+            Wp = np.pad(W, [(0, 1), (1, 1)] if axis == 0 else [(1, 1), (0, 1)])
+            q = cp == p
+            I, J = cij[q, 0], cij[q, 1]
+            if axis == 0:
+                seg = lambda s: 0.5 * Wp[s, 2 * J] + Wp[s, 2 * J + 1] + 0.5 * Wp[s, 2 * J + 2]  # noqa: E731
+                w = 0.5 * (seg(2 * I) + seg(2 * I + 1))
+            else:
+                seg = lambda s: 0.5 * Wp[2 * I, s] + Wp[2 * I + 1, s] + 0.5 * Wp[2 * I + 2, s]  # noqa: E731
+                w = 0.5 * (seg(2 * J) + seg(2 * J + 1))
+            width[q] = w
+            table[q] = tid
+        rest = 2.0 * spacing[cp, axis]
+        sp.add(pairs[:, 0], pairs[:, 1], rest, width, table, f)
+    seam = fam == FAMILY_SEAM
+    if seam.any():
+        cmap = -np.ones(model.node_count, np.int64)
+        cmap[sub] = np.arange(n)
+        ca = cmap[model.spring_nodes[seam, 0]]
+        cb = cmap[model.spring_nodes[seam, 1]]
+        keep = (ca >= 0) & (cb >= 0)
+        if keep.any():
+            sp.add(ca[keep], cb[keep], model.spring_rest_length[seam][keep], 2.0 * model.spring_width[seam][keep],
+                   model.spring_table[seam][keep], FAMILY_SEAM)
+    spring_nodes, rest_len, width, table, family = sp.arrays()
+    ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
+    area = np.asarray(P.T @ model.node_area)
+    ext = np.asarray(P.T @ model.external_force)
+    fixed = model.fixed_axes[sub].copy()
+    presc = model.prescribed_positions[sub].copy()
+    # a free coarse node beside a held fine node (8-neighbourhood, same panel) is held like it
+    free = np.nonzero(~fixed.any(axis=1))[0]
+    if free.size and model.fixed_axes.any():
+        fi = sub[free]
+        fp, fij = topo.node_panel[fi], topo.node_ij[fi]
+        best = np.full(free.size, -1, np.int64)
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
+            for p in range(topo.panel_count):
+                idx = topo.index[p]
+                k = (fp == p) & (best < 0)
+                i, j = fij[k, 0] + di, fij[k, 1] + dj
+                ok = (i >= 0) & (j >= 0) & (i < idx.shape[0]) & (j < idx.shape[1])
+                nb = np.full(k.sum(), -1, np.int64)
+                nb[ok] = idx[i[ok], j[ok]]
+                nb[nb >= 0] = np.where(model.fixed_axes[nb[nb >= 0]].any(axis=1), nb[nb >= 0], -1)
+                best[np.nonzero(k)[0]] = nb
+        h = best >= 0
+        fixed[free[h]] = model.fixed_axes[best[h]]
+        # at the held node's prescribed position plus the placed rest offset between the two
+        placed = model.placement.apply(model.rest_positions)
+        presc[free[h]] = model.prescribed_positions[best[h]] + placed[fi[h]] - placed[best[h]]
+    cstart = np.searchsorted(ctopo.node_panel, np.arange(ctopo.panel_count + 1))
+    coarse = Model(
+        node_count=n, topology=ctopo, rest_positions=model.rest_positions[sub].copy(), spring_nodes=spring_nodes,
+        spring_rest_length=rest_len, spring_width=width, spring_table=table, spring_family=family,
+        tables=model.tables, table_list=model.table_list,
+        fixed_axes=np.ascontiguousarray(fixed), prescribed_positions=np.ascontiguousarray(presc),
+        external_force=np.ascontiguousarray(ext), node_area=area, adj_ptr=ptr, adj_node=adj_node,
+        adj_spring=adj_spring, mold=model.mold, spacing=(2 * model.spacing[0], 2 * model.spacing[1]),
+        placement=Placements(tuple((int(st), int(sp_), part[2]) for part, st, sp_ in zip(
+            model.placement.parts, cstart[:-1], cstart[1:]))), panel_spacing=2.0 * spacing)
     return coarse, sub

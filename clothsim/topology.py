@@ -242,6 +242,48 @@ class Topology:
         return coarse, sub
 
 
+    def lattice_prolongation(self, coarse: "Topology", sub: np.ndarray):
+        """P (N, Nc) scipy CSR: interpolation from :meth:`coarsen`'s lattice (``coarse``, ``sub``)
+        onto this one, for any panels: bilinear in the node indices over the coarse nodes that
+        exist (weights renormalised to sum 1); a node none of whose up to four coarse corners
+        exists takes the nearest coarse node of its panel (lattice distance). On a full rectangle
+        with even divisions it equals :meth:`grid_prolongation`'s P."""
+        import scipy.sparse as sp
+
+        n = self.node_count
+        rows, cols, vals = [], [], []
+        for p in range(self.panel_count):
+            cidx = coarse.index[p]
+            nodes = self.panel_nodes(p)
+            ij = self.node_ij[nodes]
+            w = np.zeros(nodes.size)
+            cand = []
+            for di in (0, 1):
+                for dj in (0, 1):
+                    ci = ij[:, 0] // 2 + di * (ij[:, 0] % 2)
+                    cj = ij[:, 1] // 2 + dj * (ij[:, 1] % 2)
+                    # each distinct corner once: an even index has one corner along that axis
+                    dup = ((di == 1) & (ij[:, 0] % 2 == 0)) | ((dj == 1) & (ij[:, 1] % 2 == 0))
+                    ok = (ci < cidx.shape[0]) & (cj < cidx.shape[1]) & ~dup
+                    c = np.full(nodes.size, -1, np.int64)
+                    c[ok] = cidx[ci[ok], cj[ok]]
+                    wt = np.where(ij[:, 0] % 2, 0.5, 1.0) * np.where(ij[:, 1] % 2, 0.5, 1.0)
+                    wt = np.where(c >= 0, wt, 0.0)
+                    cand.append((c, wt))
+                    w += wt
+            for c, wt in cand:
+                k = (c >= 0) & (w > 0)
+                rows.append(nodes[k]); cols.append(c[k]); vals.append(wt[k] / w[k])
+            lost = w <= 0
+            if lost.any():
+                cn = coarse.panel_nodes(p)
+                cij = 2 * coarse.node_ij[cn]
+                d = ((ij[lost][:, None, :] - cij[None, :, :]) ** 2).sum(-1)
+                rows.append(nodes[lost]); cols.append(cn[d.argmin(axis=1)]); vals.append(np.ones(int(lost.sum())))
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(n, coarse.node_count))
+
+
 def _interp_1d(n: int):
     """Linear interpolation (n, nc) scipy CSR from the coarse node set (every second node, plus
     the last) of a line of n nodes."""

@@ -47,7 +47,11 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
 4. Grid sequencing (``NewtonOptions.sequencing``): when the grid's divisions are even and large, the
    scene is first solved on the grid with every second node (recursively), and the result is
    interpolated bilinearly and projected onto the mold as the starting point. The coarse solves
-   are one recorded iteration.
+   are one recorded iteration. Cut and multi-panel lattices sequence too (every panel with even
+   divisions; warp, weft and seam-pair springs only): ``Topology.coarsen`` keeps every second
+   node, the coarse springs carry the fine band widths summed over their band
+   (``grid._coarsen_lattice``), the interpolation renormalises over the coarse corners that exist
+   (``Topology.lattice_prolongation``) and the outline's fringe is relaxed after it.
 
 References:
 - Nocedal J., Wright S., Numerical Optimization, 2nd ed., Springer 2006 (line search Newton,
@@ -68,7 +72,9 @@ Limitations:
 - The geometric multigrid needs one full warp/weft rectangle; cut or multi-panel lattices use
   PyAMG's smoothed aggregation instead (AlgebraicMultigrid). The coarse spaces ignore
   the mold, so the CG iteration count grows slowly on grids with many contact nodes.
-- Grid sequencing needs even divisions; otherwise it starts directly on the fine grid.
+- Grid sequencing needs even divisions; otherwise it starts directly on the fine grid. On cut
+  lattices it also skips models with shear or bending springs or seam elements (unequal node
+  counts), which the coarse model does not carry.
 
 Layout (one module per job): ``linalg`` (BSR pattern and assembly, multigrid, PCG),
 ``active_set`` (projectors, ridge faces, blocking constraints, trial positions at the surface),

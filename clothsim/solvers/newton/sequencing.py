@@ -20,17 +20,57 @@ from .iteration import NewtonLevel, _forcing
 from ...grid import coarsen_model  # noqa: E402  (the lattice builder at stride 2)
 
 
+RIM_SWEEPS = 4
+
+
+def _relax_rim(model, pos, cont):
+    """On a cut lattice, the free nodes beside a held or missing lattice node (the outline's
+    fringe, where the interpolation lost corners) are moved, in ``RIM_SWEEPS`` Jacobi sweeps, to
+    the mean of their warp and weft neighbours: the membrane's equilibrium there to first order.
+    pos (N, 3) [m] is changed in place; contact nodes stay."""
+    topo = model.topology
+    n = model.node_count
+    fam = model.spring_family
+    lat = fam <= 1  # warp and weft springs
+    a, b = model.spring_nodes[lat, 0], model.spring_nodes[lat, 1]
+    deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
+    free = ~model.fixed_axes.any(axis=1) & ~cont
+    held_nb = np.zeros(n, bool)
+    held = model.fixed_axes.any(axis=1)
+    held_nb[a[held[b]]] = True
+    held_nb[b[held[a]]] = True
+    rim = np.nonzero(free & ((deg < 4) | held_nb))[0]
+    if rim.size == 0:
+        return
+    A = sp.csr_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
+    A = A[rim]
+    d = np.asarray(A.sum(axis=1)).ravel()
+    for _ in range(RIM_SWEEPS):
+        pos[rim] = (A @ pos) / d[:, None]
+
+
+def _prolongation(fine_topology, coarse_topology):
+    """P (N, Nc): the full grid's bilinear interpolation, or on a cut or multi-panel lattice the
+    Topology's ``lattice_prolongation`` from its stride-2 coarsening (``coarse_topology``)."""
+    if fine_topology.is_grid:
+        return fine_topology.grid_prolongation()[1]
+    ctopo, sub = fine_topology.coarsen()
+    return fine_topology.lattice_prolongation(ctopo, sub)
+
+
 def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
     two contact nodes) onto its surface as contact nodes."""
     from ...mold import mold_query_many
 
-    _, P = fine_model.topology.grid_prolongation()
+    P = _prolongation(fine_model.topology, coarse_model.topology)
     pos = P @ coarse_state.positions
     cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
     fixed = fine_model.fixed_axes
     pos[fixed] = fine_state.positions[fixed]
+    if not fine_model.topology.is_grid:
+        _relax_rim(fine_model, pos, cont)
     if fine_model.mold is not None:
         margs = fine_model.mold.kernel_args()
         n = fine_model.node_count

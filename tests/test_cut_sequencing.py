@@ -1,0 +1,95 @@
+"""Grid sequencing on cut and multi-panel lattices: the stride-2 prolongation, the coarse model
+(Topology.coarsen + clothsim.grid._coarsen_lattice), and the same equilibrium with sequencing as
+without it on the circle and on the four-panel garment of the benchmark."""
+
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from clothsim.bench import Case, _load, four_panel_cap_overrides
+from clothsim.grid import FAMILY_WARP, FAMILY_WEFT, coarsen_model
+from clothsim.solvers import solve
+from clothsim.solvers.newton import sequencing_chain
+from clothsim.topology import Topology
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_lattice_prolongation_equals_the_grid_one_on_a_rectangle():
+    t = Topology.rectangle(8, 6)
+    c, sub = t.coarsen()
+    P = t.lattice_prolongation(c, sub)
+    _, Q = t.grid_prolongation()
+    assert abs(P - Q).max() == 0.0
+
+
+def test_lattice_prolongation_on_a_cut_lattice():
+    m = np.ones((9, 9), bool)
+    m[:3, :3] = False
+    m[7:, 6:] = False
+    t = Topology.from_masks([m, np.ones((5, 5), bool)])
+    c, sub = t.coarsen()
+    P = t.lattice_prolongation(c, sub)
+    assert np.allclose(np.asarray(P.sum(axis=1)).ravel(), 1.0)  # partition of unity
+    assert abs(P[sub] - sp.eye(c.node_count)).max() == 0.0  # coarse nodes keep their value
+    # linear functions of (i, j) are reproduced on the full panel (all corners exist)
+    f = t.node_ij[:, 0] * 2.0 + t.node_ij[:, 1] * 3.0
+    full = t.node_panel == 1
+    assert np.allclose((P @ f[sub])[full], f[full])
+
+
+def _case(name):
+    if name == "circle":
+        return Case("circle", "configs/garments/circle_cap.yaml", ["panels.0.divisions=[60,60]"])
+    return Case("four", "configs/garments/circle_cap.yaml", four_panel_cap_overrides(20))
+
+
+def test_coarse_circle_keeps_area_and_band_widths():
+    model, _, _ = _load(_case("circle"), "newton", 1e-7, None)
+    coarse, sub = coarsen_model(model)
+    assert coarse is not None and coarse.node_count == sub.size
+    assert np.isclose(coarse.node_area.sum(), model.node_area.sum(), rtol=1e-12)
+    for f in (FAMILY_WARP, FAMILY_WEFT):
+        k, kc = model.spring_family == f, coarse.spring_family == f
+        band = (model.spring_width[k] * model.spring_rest_length[k]).sum()
+        bandc = (coarse.spring_width[kc] * coarse.spring_rest_length[kc]).sum()
+        assert abs(bandc / band - 1) < 0.05  # the outline's half cells are what differ
+    assert len(sequencing_chain(model, min_nodes=100)) >= 2
+
+
+def test_full_rectangle_path_unchanged():
+    # a one-panel full rectangle still goes through the closed-form coarse grid
+    model, _, _ = _load(Case("sq", "configs/sphere_cap.yaml", []), "newton", 1e-7, None)
+    coarse, _ = coarsen_model(model)
+    k = coarse.spring_family == FAMILY_WARP
+    assert np.allclose(coarse.spring_width[k].max(), 2 * model.spacing[1])
+
+
+def _solve(name, seq):
+    model, state, settings = _load(_case(name), "newton", 1e-9, 60.0)
+    assert len(sequencing_chain(model)) >= 2  # the sequencing does run on this lattice
+    res = solve(model, state, settings.model_copy(update={"newton_sequencing": seq}))
+    return state.positions, res
+
+
+def test_sequencing_gives_the_same_equilibrium_on_panels():
+    for name in ("circle", "four"):
+        p_seq, r_seq = _solve(name, True)
+        p_off, r_off = _solve(name, False)
+        assert r_seq.status == "converged" and r_off.status == "converged", name
+        assert np.abs(p_seq - p_off).max() < 1e-7, name
+        assert abs(r_seq.energy - r_off.energy) <= 1e-9 * abs(r_off.energy), name
+
+
+def test_garment_bench_cases_and_report(tmp_path):
+    from clothsim.bench import garment_cases, write_garment_report
+
+    names = [c.name for c in garment_cases()]
+    assert names[0] == "sphere cap 201^2" and len(names) == 3
+    rows = [{"case": n, "nodes": 40000, "status": "converged", "iterations": 4,
+             "times": {"1e-07": 1.0, "1e-09": 1.2}, "times_wu": {"1e-07": wu, "1e-09": wu * 1.1},
+             "error_final": 1e-9} for n, wu in zip(names, (1000.0, 1500.0, 3000.0))]
+    write_garment_report(rows, tmp_path, 1.0)
+    text = (tmp_path / "benchmarks_garments.md").read_text()
+    assert "| 1.50 |" in text and "| 3.00 |" in text
