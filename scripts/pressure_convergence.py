@@ -57,7 +57,11 @@ def measure(scene, label: dict, profile: bool = False) -> dict:
     m, x, c = res.model, res.state.positions, res.state.in_contact
     f = np.asarray(res._f()[2])
     p = np.asarray(res._f()[3])
-    ok = c & np.isfinite(p)
+    ok = c & np.isfinite(p) & (f > 0)
+    if not ok.any():   # every loaded contact node gathered into a rope: no pressure (a line load)
+        return dict(label, converged=bool(res.converged), iterations=int(res.solve.iterations),
+                    wall_s=round(wall, 1), nodes=int(m.node_count), contact_nodes=int(c.sum()),
+                    note="no defined contact pressure: " + str(res.diagnostics().get("contact_pressure_note")))
     S = sensor_pressure(x, np.where(np.isfinite(f), f, 0.0), pressure_area(m, x), np.nonzero(ok)[0])
     row = dict(label, converged=bool(res.converged), iterations=int(res.solve.iterations),
                wall_s=round(wall, 1), nodes=int(m.node_count), contact_nodes=int(c.sum()),
