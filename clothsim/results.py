@@ -157,11 +157,9 @@ def sensor_pressure(positions: np.ndarray, force: np.ndarray, area: np.ndarray, 
     reach = radius + float(rho.max())
     for s in range(0, centers.size, 2048):   # chunks: bounded memory on big lattices
         c = centers[s:s + 2048]
-        lists = tree.query_ball_point(X[c], reach)
-        cnt = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-        k = np.fromiter((j for x in lists for j in x), np.int64, int(cnt.sum()))
-        row = np.repeat(np.arange(c.size), cnt)
-        f = _lens_fraction(np.linalg.norm(X[k] - X[c[row]], axis=1), radius, rho[k])
+        pairs = cKDTree(X[c]).sparse_distance_matrix(tree, reach, output_type="ndarray")
+        row, k = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+        f = _lens_fraction(pairs["v"], radius, rho[k])
         num = np.bincount(row, F[k] * f, c.size)
         den = np.bincount(row, A[k] * f, c.size)
         np.divide(num, den, out=out[s:s + 2048], where=den > 0)
