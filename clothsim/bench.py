@@ -168,8 +168,8 @@ SCAN_BODIES = (
     ("smpl_man", tuple(round(1.02 + 0.02 * i, 2) for i in range(12))),
     ("smpl_neutral", tuple(round(0.96 + 0.02 * i, 2) for i in range(12))),
 )
-#: where the campaign looks for the body files, first hit wins (repository copy, then the shared data)
-SCAN_DIRS = (ROOT / "static" / "bodies", Path("/work/shared/data/bodies"))
+#: where the campaign looks for the body files (the repository's copies, see static/bodies/README.md)
+SCAN_DIRS = (ROOT / "static" / "bodies",)
 SCAN_MAX_ITERATIONS = 400
 SCAN_TIME_LIMIT = 120.0
 
