@@ -113,3 +113,40 @@ def text_area_for(page, label: str):
 
 def have_browser() -> bool:
     return Path(CHROMIUM).exists() or shutil.which("chromium") is not None
+
+
+def pixels_js(test: str) -> str:
+    """A JavaScript function for ``page.evaluate``: how many pixels of the largest canvas (the 3D
+    view) pass ``test``, a JavaScript condition on the pixel's ``r``, ``g``, ``b`` (0-255)."""
+    return """() => {
+  const c = [...document.querySelectorAll('canvas')].reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
+  const o = document.createElement('canvas'); o.width = c.width; o.height = c.height;
+  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
+  const d = ctx.getImageData(0, 0, c.width, c.height).data;
+  let n = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    const r = d[i], g = d[i+1], b = d[i+2];
+    if (""" + test + """) n++;
+  }
+  return n;
+}"""
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def poll(fn, timeout=30.0, every=0.2):
+    """fn() until it is truthy or ``timeout`` [s] has passed; its last value."""
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        v = fn()
+        if v:
+            return v
+        time.sleep(every)
+    return fn()

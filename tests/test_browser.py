@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import os
 import re
-import socket
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +21,10 @@ pytest.importorskip("playwright")
 from browser_util import (  # noqa: E402
     canvas_pixels,
     close_notifications,
+    free_port,
     launch,
+    pixels_js,
+    poll,
     require_chromium,
     shown_iteration,
     shown_residual,
@@ -41,24 +42,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SMALL = {**SMALL_CAP, "name": "browser-cap"}
 
 # orange of a mold that is uploaded but not yet applied (viewer: (235, 140, 50)), lit: any shade
-ORANGE_JS = """() => {
-  const c = [...document.querySelectorAll('canvas')].reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
-  const o = document.createElement('canvas'); o.width = c.width; o.height = c.height;
-  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
-  const d = ctx.getImageData(0, 0, c.width, c.height).data;
-  let n = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    const r = d[i], g = d[i+1], b = d[i+2];
-    if (r > 90 && r > 1.3 * g && g > 1.3 * b && r - b > 60) n++;
-  }
-  return n;
-}"""
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+ORANGE_JS = pixels_js("r > 90 && r > 1.3 * g && g > 1.3 * b && r - b > 60")
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +58,7 @@ def browser():
 
 @pytest.fixture(scope="module")
 def app_page(browser):
-    app = ViewerApp(scene_from_dict(SMALL), port=_free_port())
+    app = ViewerApp(scene_from_dict(SMALL), port=free_port())
     page = browser.new_page(viewport={"width": 1400, "height": 900})
     page.goto(app.url)
     first = wait_for_render(page, min_pixels=2000, timeout=90)
@@ -82,16 +66,6 @@ def app_page(browser):
     yield app, page, first
     page.close()
     app.close()
-
-
-def _poll(fn, timeout=30.0, every=0.2):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        v = fn()
-        if v:
-            return v
-        time.sleep(every)
-    return fn()
 
 
 def test_page_loads_and_canvas_not_blank(app_page):
@@ -109,7 +83,7 @@ def test_start_makes_shown_residual_fall(app_page):
     app, page, _ = app_page
     before = shown_residual(page)
     page.get_by_role("button", name="Start").click()
-    _poll(lambda: "converged" in status_text(page), timeout=60)
+    poll(lambda: "converged" in status_text(page), timeout=60)
     after = shown_residual(page)
     print(f"shown residual before Start {before:.3e} N, after {after:.3e} N at iteration {shown_iteration(page)}")
     assert app.sim.status == "converged"
@@ -125,7 +99,7 @@ def test_changing_C_reaches_solver(app_page):
     box = page.get_by_label("C (step divisor)")
     box.fill("3.5")
     box.press("Tab")
-    assert _poll(lambda: app.sim.settings.C == 3.5, timeout=20), app.sim.settings.C
+    assert poll(lambda: app.sim.settings.C == 3.5, timeout=20), app.sim.settings.C
     box.fill("0.5")
     box.press("Tab")
     page.get_by_text("must be greater than 1").first.wait_for(timeout=20_000)
@@ -158,12 +132,12 @@ def test_uploaded_mold_appears(app_page, tmp_path):
     f = tmp_path / "block.stl"
     f.write_bytes(box.export(file_type="stl"))
     page.set_input_files(f"#file_upload_{app.gui['mold_upload']._impl.uuid}", files=[str(f)])
-    assert _poll(lambda: app.gui["mold"].value == "upload: block.stl", timeout=30), app.errors
-    orange = _poll(lambda: page.evaluate(ORANGE_JS) > orange0 + 500 and page.evaluate(ORANGE_JS), timeout=40)
+    assert poll(lambda: app.gui["mold"].value == "upload: block.stl", timeout=30), app.errors
+    orange = poll(lambda: page.evaluate(ORANGE_JS) > orange0 + 500 and page.evaluate(ORANGE_JS), timeout=40)
     print(f"orange (uploaded mold) pixels: {orange0} before, {orange} after the upload")
     assert orange and orange > orange0 + 500
     page.get_by_role("button", name="Apply edits").click()
-    assert _poll(lambda: app.sim.model.mold is not None and app.sim.model.mold.kind_name == "mesh", timeout=30)
+    assert poll(lambda: app.sim.model.mold is not None and app.sim.model.mold.kind_name == "mesh", timeout=30)
     bad = tmp_path / "notes.xyz"
     bad.write_bytes(b"\x00\x01\x02 not a mesh" * 20)
     page.set_input_files(f"#file_upload_{app.gui['mold_upload']._impl.uuid}", files=[str(bad)])
@@ -177,8 +151,8 @@ def test_second_tab_and_download(app_page, browser, tmp_path):
     other = browser.new_page(viewport={"width": 1200, "height": 800})
     try:
         other.goto(app.url)
-        assert _poll(lambda: other.locator("p", has_text="· residual").count() > 0, timeout=60)
-        assert _poll(lambda: status_text(other) == status_text(page), timeout=30)
+        assert poll(lambda: other.locator("p", has_text="· residual").count() > 0, timeout=60)
+        assert poll(lambda: status_text(other) == status_text(page), timeout=30)
     finally:
         other.close()
     page.get_by_role("tab", name="Files").click()
@@ -195,7 +169,7 @@ def test_screenshot(browser):
     """docs/screenshot.png: the default scene (thermoform) mid-run, after three Newton steps, the
     sheet slightly see-through so that the mold shows."""
     scene = load_scene(ROOT / "configs" / "thermoform.yaml")
-    app = ViewerApp(scene, port=_free_port())
+    app = ViewerApp(scene, port=free_port())
     page = browser.new_page(viewport={"width": 1500, "height": 950})
     try:
         page.goto(app.url)
@@ -203,7 +177,7 @@ def test_screenshot(browser):
         page.add_style_tag(content=".mantine-Notifications-root {display: none !important}")
         for k in range(int(os.environ.get("CLOTHSIM_SCREENSHOT_STEPS", "3"))):
             page.get_by_role("button", name="Step").click()
-            _poll(lambda: app.sim.state.iteration > k and app.sim.status != "running", timeout=120)
+            poll(lambda: app.sim.state.iteration > k and app.sim.status != "running", timeout=120)
         app.gui["sheet_opacity"].value = 0.8
         page.wait_for_timeout(6000)
         out = ROOT / "docs" / "screenshot.png"

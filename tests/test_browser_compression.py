@@ -7,9 +7,7 @@ Without /usr/bin/chromium these tests skip locally and fail in CI (``CI`` set)."
 
 from __future__ import annotations
 
-import io
 import re
-import time
 import zipfile
 
 import numpy as np
@@ -18,7 +16,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, launch, require_chromium, wait_for_render  # noqa: E402
+from browser_util import close_notifications, launch, pixels_js, poll, require_chromium, wait_for_render  # noqa: E402
 
 from clothsim.config import load_scene, scene_from_dict  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -28,16 +26,6 @@ from conftest import ROOT  # noqa: E402
 from test_viewer import free_port  # noqa: E402
 
 CLASS2 = ROOT / "configs" / "class2_sleeve.yaml"
-
-
-def _poll(fn, timeout=30.0, every=0.2):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        v = fn()
-        if v:
-            return v
-        time.sleep(every)
-    return fn()
 
 
 @pytest.fixture(scope="module")
@@ -59,25 +47,14 @@ def sleeve(browser):
     wait_for_render(page, min_pixels=2000, timeout=90)
     close_notifications(page)
     page.get_by_role("button", name="Start").click()
-    assert _poll(lambda: app.sim.status == "converged", timeout=120), app.sim.status
+    assert poll(lambda: app.sim.status == "converged", timeout=120), app.sim.status
     yield app, page
     page.close()
     app.close()
 
 
 # blue of the probes' rings (viewer: (20, 110, 220)), any shade
-BLUE_JS = """() => {
-  const c = [...document.querySelectorAll('canvas')].reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
-  const o = document.createElement('canvas'); o.width = c.width; o.height = c.height;
-  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
-  const d = ctx.getImageData(0, 0, c.width, c.height).data;
-  let n = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    const r = d[i], g = d[i+1], b = d[i+2];
-    if (b > 150 && b > r + 90 && b > g + 40) n++;
-  }
-  return n;
-}"""
+BLUE_JS = pixels_js("b > 150 && b > r + 90 && b > g + 40")
 
 # dark pixels in the top rows of the convergence plot's canvas: a tick label cut by the edge
 PLOT_TOP_JS = """(rows) => {
@@ -96,15 +73,15 @@ def test_probes_drawn_with_their_readings(sleeve):
     their classes."""
     app, page = sleeve
     pp = app.panels["probes"]
-    assert _poll(lambda: pp.read_at == app.sim.state.iteration, timeout=30)
+    assert poll(lambda: pp.read_at == app.sim.state.iteration, timeout=30)
     ankle = next(r for r in pp.readings if r["name"] == "ankle")
     assert f"ankle {ankle['pressure_mmhg']:.1f} mmHg" in [h.text for h in pp._nodes if hasattr(h, "text")]
-    shown = _poll(lambda: page.evaluate(BLUE_JS) > 100 and page.evaluate(BLUE_JS), timeout=30)
+    shown = poll(lambda: page.evaluate(BLUE_JS) > 100 and page.evaluate(BLUE_JS), timeout=30)
     page.get_by_role("tab", name="Probes").click()
     page.get_by_role("cell", name="ankle").first.wait_for(timeout=20_000)
     assert page.get_by_text(re.compile("RAL-GZ 387: class II")).count() > 0
     page.get_by_label("Show probes").uncheck()
-    hidden = _poll(lambda: page.evaluate(BLUE_JS) < (shown or 0) / 4 and page.evaluate(BLUE_JS) + 1, timeout=30)
+    hidden = poll(lambda: page.evaluate(BLUE_JS) < (shown or 0) / 4 and page.evaluate(BLUE_JS) + 1, timeout=30)
     print(f"probe ring pixels: {shown} shown, {hidden - 1 if hidden else None} hidden")
     assert shown and hidden
     page.get_by_label("Show probes").check()
@@ -127,7 +104,7 @@ def test_click_on_the_sheet_shows_a_readout(sleeve):
     box = canvas.bounding_box()
     pp = app.panels["probes"]
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    assert _poll(lambda: pp.readout is not None, timeout=30), (
+    assert poll(lambda: pp.readout is not None, timeout=30), (
         f"{pp.clicks} clicks, {pp.misses} missed the sheet; ray {pp.last_ray}, cameras "
         f"{[(c.camera.position, c.camera.look_at) for c in app.server.get_clients().values()]}")
     r = pp.readout
@@ -182,7 +159,7 @@ def test_open_scene_through_the_page(browser, tmp_path):
         page.set_input_files(sel, files=[str(good)])
         page.get_by_text("clothsim · class2-sleeve").first.wait_for(timeout=60_000)
         assert app.sim.scene.name == "class2-sleeve" and app.errors["files"] == ""
-        assert _poll(lambda: app.pushed_positions is not None and len(app.pushed_positions) == 35 * 17, timeout=30)
+        assert poll(lambda: app.pushed_positions is not None and len(app.pushed_positions) == 35 * 17, timeout=30)
     finally:
         page.close()
         app.close()
@@ -202,14 +179,14 @@ def test_camera_follows_a_stretched_sheet(browser):
     try:
         page.goto(app.url)
         wait_for_render(page, min_pixels=300, timeout=90)
-        client = _poll(lambda: next(iter(app.server.get_clients().values()), None), timeout=20)
+        client = poll(lambda: next(iter(app.server.get_clients().values()), None), timeout=20)
         look0 = np.array(client.camera.look_at)
         pos0 = np.array(client.camera.position)
         assert look0[0] == pytest.approx(0.05, abs=0.01)
         app.scene_draft.edit("constraints", lambda d: d["constraints"][1].__setitem__("displacement", [0.2, 0, 0]))
         app.start(wait=True)
         assert app.sim.wait(60) == "converged"
-        assert _poll(lambda: abs(np.array(client.camera.look_at)[0] - 0.15) < 0.01, timeout=30), client.camera.look_at
+        assert poll(lambda: abs(np.array(client.camera.look_at)[0] - 0.15) < 0.01, timeout=30), client.camera.look_at
         dist0 = np.linalg.norm(pos0 - look0)
         dist1 = np.linalg.norm(np.array(client.camera.position) - np.array(client.camera.look_at))
         print(f"camera distance {dist0:.3f} m -> {dist1:.3f} m; look-at x {look0[0]:.3f} -> {client.camera.look_at[0]:.3f} m")

@@ -7,8 +7,6 @@ Without /usr/bin/chromium these tests skip locally and fail in CI (``CI`` set)."
 
 from __future__ import annotations
 
-import socket
-import time
 from pathlib import Path
 
 import pytest
@@ -16,7 +14,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, launch, require_chromium, wait_for_render  # noqa: E402
+from browser_util import close_notifications, free_port, launch, pixels_js, poll, require_chromium, wait_for_render  # noqa: E402
 
 from clothsim.config import load_scene  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -26,41 +24,14 @@ ROOT = Path(__file__).resolve().parent.parent
 # pixels of the outlines' magenta (220, 0, 220), lit or blended: red and blue high, green far
 # below both (the sheet's viridis map, the seams' orange, the constrained nodes' red and the
 # grey mold never are)
-MAGENTA_JS = """() => {
-  const c = [...document.querySelectorAll('canvas')].reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
-  const o = document.createElement('canvas'); o.width = c.width; o.height = c.height;
-  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
-  const d = ctx.getImageData(0, 0, c.width, c.height).data;
-  let n = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    const r = d[i], g = d[i+1], b = d[i+2];
-    if (r > 120 && b > 120 && g < 0.45 * Math.min(r, b)) n++;
-  }
-  return n;
-}"""
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _poll(fn, timeout=30.0, every=0.3):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        v = fn()
-        if v:
-            return v
-        time.sleep(every)
-    return fn()
+MAGENTA_JS = pixels_js("r > 120 && b > 120 && g < 0.45 * Math.min(r, b)")
 
 
 def test_panel_outlines_and_panel_list_in_chromium():
     require_chromium()
     from playwright.sync_api import sync_playwright
 
-    app = ViewerApp(load_scene(ROOT / "configs" / "garments" / "sleeve_dxf.yaml"), port=_free_port())
+    app = ViewerApp(load_scene(ROOT / "configs" / "garments" / "sleeve_dxf.yaml"), port=free_port())
     try:
         with sync_playwright() as p:
             browser = launch(p)
@@ -71,11 +42,11 @@ def test_panel_outlines_and_panel_list_in_chromium():
                 close_notifications(page)
                 assert app.renderer.h_outlines is not None
                 assert len(app.renderer.h_outlines.points) == int(app.sim.model.topology.boundary.sum())
-                shown = _poll(lambda: page.evaluate(MAGENTA_JS) > 200 and page.evaluate(MAGENTA_JS), timeout=30)
+                shown = poll(lambda: page.evaluate(MAGENTA_JS) > 200 and page.evaluate(MAGENTA_JS), timeout=30)
                 # untick "Show panel outlines" in the View tab (the page, not the server)
                 page.get_by_role("tab", name="View").click()
                 page.get_by_text("Show panel outlines").first.click()
-                hidden = _poll(lambda: page.evaluate(MAGENTA_JS) < (shown or 0) / 10 and page.evaluate(MAGENTA_JS) + 1,
+                hidden = poll(lambda: page.evaluate(MAGENTA_JS) < (shown or 0) / 10 and page.evaluate(MAGENTA_JS) + 1,
                                timeout=30)
                 print(f"magenta pixels: {shown} with the outlines, {hidden and hidden - 1} without")
                 assert shown and hidden and hidden - 1 < shown / 10

@@ -7,8 +7,6 @@ Without /usr/bin/chromium these tests skip locally and fail in CI (``CI`` set)."
 from __future__ import annotations
 
 import re
-import socket
-import time
 from pathlib import Path
 
 import pytest
@@ -16,7 +14,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, launch, require_chromium, status_text, wait_for_render  # noqa: E402
+from browser_util import close_notifications, free_port, launch, pixels_js, poll, require_chromium, status_text, wait_for_render  # noqa: E402
 
 from clothsim.config import load_scene  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -24,34 +22,7 @@ from clothsim.viewer import ViewerApp  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 # pixels of the seam threads' orange (255, 140, 0), lit or blended: any shade with r >> g >> b
-ORANGE_JS = """() => {
-  const c = [...document.querySelectorAll('canvas')].reduce((a, b) => (a.width * a.height >= b.width * b.height ? a : b));
-  const o = document.createElement('canvas'); o.width = c.width; o.height = c.height;
-  const ctx = o.getContext('2d'); ctx.drawImage(c, 0, 0);
-  const d = ctx.getImageData(0, 0, c.width, c.height).data;
-  let n = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    const r = d[i], g = d[i+1], b = d[i+2];
-    if (r > 150 && g > 0.35 * r && g < 0.75 * r && b < 0.35 * g) n++;
-  }
-  return n;
-}"""
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _poll(fn, timeout=30.0, every=0.3):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        v = fn()
-        if v:
-            return v
-        time.sleep(every)
-    return fn()
+ORANGE_JS = pixels_js("r > 150 && g > 0.35 * r && g < 0.75 * r && b < 0.35 * g")
 
 
 def test_unequal_seam_threads_and_gap_list_in_chromium():
@@ -64,7 +35,7 @@ def test_unequal_seam_threads_and_gap_list_in_chromium():
 
     scene = load_scene(ROOT / "configs" / "garments" / "eased_seam.yaml",
                        ["panels.1.placement.transform.translate=[-0.005,0.08,0]"])
-    app = ViewerApp(scene, port=_free_port())
+    app = ViewerApp(scene, port=free_port())
     try:
         with sync_playwright() as p:
             browser = launch(p)
@@ -74,15 +45,15 @@ def test_unequal_seam_threads_and_gap_list_in_chromium():
                 wait_for_render(page, min_pixels=2000, timeout=90)
                 close_notifications(page)
                 assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 23
-                shown = _poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
+                shown = poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
                 app.renderer.h_seams.visible = False
-                hidden = _poll(lambda: page.evaluate(ORANGE_JS) < (shown or 0) / 4 and page.evaluate(ORANGE_JS) + 1,
+                hidden = poll(lambda: page.evaluate(ORANGE_JS) < (shown or 0) / 4 and page.evaluate(ORANGE_JS) + 1,
                                timeout=30)
                 print(f"orange pixels: {shown} with the seam threads, {hidden and hidden - 1} without")
                 assert shown and hidden and hidden - 1 < shown / 4
                 app.renderer.h_seams.visible = True
                 page.get_by_role("button", name="Start").click()
-                text = _poll(lambda: "converged" in status_text(page) and "seam 0" in status_text(page)
+                text = poll(lambda: "converged" in status_text(page) and "seam 0" in status_text(page)
                              and status_text(page), timeout=90)
                 assert text, status_text(page)
                 m = re.search(r"seam 0: widest gap ([0-9.eE+-]+) m \(ease 10\.0 %\)", text)
