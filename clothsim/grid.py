@@ -565,6 +565,23 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     )
 
 
+def _coarse_seams(model, fam, sub, n: int, sp) -> None:
+    """Adds to the coarse spring set ``sp`` the seam pairs of ``model`` whose two nodes are both
+    kept (``sub`` (n,): the fine index of each coarse node); each carries the seam length of two
+    fine pairs (twice the width, so twice the stiffness)."""
+    seam = fam == FAMILY_SEAM
+    if not seam.any():
+        return
+    cmap = -np.ones(model.node_count, np.int64)
+    cmap[sub] = np.arange(n)
+    ca = cmap[model.spring_nodes[seam, 0]]
+    cb = cmap[model.spring_nodes[seam, 1]]
+    keep = (ca >= 0) & (cb >= 0)
+    if keep.any():
+        sp.add(ca[keep], cb[keep], model.spring_rest_length[seam][keep], 2.0 * model.spring_width[seam][keep],
+               model.spring_table[seam][keep], FAMILY_SEAM)
+
+
 def coarsen_model(model: Model):
     """The same scene on the stride-2 lattice (``Topology.coarsen``), built by the same spring
     builder with twice the spacing: (coarse model, sub) where sub (Nc,) are the nodes of
@@ -597,18 +614,7 @@ def coarsen_model(model: Model):
     bend = bend if bend is not None else tid(FAMILY_BEND_WEFT)
     sp = lattice_springs(ctopo, [cgeom], [(tid(FAMILY_WARP), tid(FAMILY_WEFT))], shear_table=tid(FAMILY_SHEAR),
                          bend_table=bend)
-    seam = fam == FAMILY_SEAM
-    if seam.any():
-        # seams keep the pairs whose two nodes are both on the coarse grid; each carries the
-        # seam length of two fine pairs (twice the stiffness)
-        cmap = -np.ones(model.node_count, np.int64)
-        cmap[sub] = np.arange(n)
-        ca = cmap[model.spring_nodes[seam, 0]]
-        cb = cmap[model.spring_nodes[seam, 1]]
-        keep = (ca >= 0) & (cb >= 0)
-        if keep.any():
-            sp.add(ca[keep], cb[keep], model.spring_rest_length[seam][keep], 2.0 * model.spring_width[seam][keep],
-                   model.spring_table[seam][keep], FAMILY_SEAM)
+    _coarse_seams(model, fam, sub, n, sp)
     spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
     area = cgeom.node_frac[cgeom.mask] * (dx * dy)
@@ -687,16 +693,7 @@ def _coarsen_lattice(model: Model):
             table[q] = tid
         rest = 2.0 * spacing[cp, axis]
         sp.add(pairs[:, 0], pairs[:, 1], rest, width, table, f)
-    seam = fam == FAMILY_SEAM
-    if seam.any():
-        cmap = -np.ones(model.node_count, np.int64)
-        cmap[sub] = np.arange(n)
-        ca = cmap[model.spring_nodes[seam, 0]]
-        cb = cmap[model.spring_nodes[seam, 1]]
-        keep = (ca >= 0) & (cb >= 0)
-        if keep.any():
-            sp.add(ca[keep], cb[keep], model.spring_rest_length[seam][keep], 2.0 * model.spring_width[seam][keep],
-                   model.spring_table[seam][keep], FAMILY_SEAM)
+    _coarse_seams(model, fam, sub, n, sp)
     spring_nodes, rest_len, width, table, family = sp.arrays()
     ptr, adj_node, adj_spring = _adjacency(n, spring_nodes)
     area = np.asarray(P.T @ model.node_area)

@@ -131,6 +131,32 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
     return released
 
 
+@njit(cache=True, inline="always")
+def _remove_direction(Pi, k, n0, n1, n2, min_norm):
+    """Constrains node k along the unit vector Pi_k n / |Pi_k n| (Pi (n,3,3) updated in place:
+    Pi_k -= a a^T); returns False, leaving Pi unchanged, when |Pi_k n| < min_norm (n already
+    blocked)."""
+    a0 = Pi[k, 0, 0] * n0 + Pi[k, 0, 1] * n1 + Pi[k, 0, 2] * n2
+    a1 = Pi[k, 1, 0] * n0 + Pi[k, 1, 1] * n1 + Pi[k, 1, 2] * n2
+    a2 = Pi[k, 2, 0] * n0 + Pi[k, 2, 1] * n1 + Pi[k, 2, 2] * n2
+    an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if an < min_norm:
+        return False
+    a0 /= an
+    a1 /= an
+    a2 /= an
+    Pi[k, 0, 0] -= a0 * a0
+    Pi[k, 0, 1] -= a0 * a1
+    Pi[k, 0, 2] -= a0 * a2
+    Pi[k, 1, 0] -= a1 * a0
+    Pi[k, 1, 1] -= a1 * a1
+    Pi[k, 1, 2] -= a1 * a2
+    Pi[k, 2, 0] -= a2 * a0
+    Pi[k, 2, 1] -= a2 * a1
+    Pi[k, 2, 2] -= a2 * a2
+    return True
+
+
 @njit(cache=True)
 def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
     """Blocking constraints at edges and vertices. The active set (``_projectors``) keeps the
@@ -181,22 +207,7 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
                 jb = j
         if jb < 0:
             continue
-        a0 = Pi[k, 0, 0] * nbuf[jb, 0] + Pi[k, 0, 1] * nbuf[jb, 1] + Pi[k, 0, 2] * nbuf[jb, 2]
-        a1 = Pi[k, 1, 0] * nbuf[jb, 0] + Pi[k, 1, 1] * nbuf[jb, 1] + Pi[k, 1, 2] * nbuf[jb, 2]
-        a2 = Pi[k, 2, 0] * nbuf[jb, 0] + Pi[k, 2, 1] * nbuf[jb, 1] + Pi[k, 2, 2] * nbuf[jb, 2]
-        an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        a0 /= an
-        a1 /= an
-        a2 /= an
-        Pi[k, 0, 0] -= a0 * a0
-        Pi[k, 0, 1] -= a0 * a1
-        Pi[k, 0, 2] -= a0 * a2
-        Pi[k, 1, 0] -= a1 * a0
-        Pi[k, 1, 1] -= a1 * a1
-        Pi[k, 1, 2] -= a1 * a2
-        Pi[k, 2, 0] -= a2 * a0
-        Pi[k, 2, 1] -= a2 * a1
-        Pi[k, 2, 2] -= a2 * a2
+        _remove_direction(Pi, k, nbuf[jb, 0], nbuf[jb, 1], nbuf[jb, 2], -1.0)
         blocked += 1
     return blocked
 
@@ -256,24 +267,8 @@ def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share)
         n0 = nrm[k, 0]
         n1 = nrm[k, 1]
         n2 = nrm[k, 2]
-        a0 = Pi[k, 0, 0] * n0 + Pi[k, 0, 1] * n1 + Pi[k, 0, 2] * n2
-        a1 = Pi[k, 1, 0] * n0 + Pi[k, 1, 1] * n1 + Pi[k, 1, 2] * n2
-        a2 = Pi[k, 2, 0] * n0 + Pi[k, 2, 1] * n1 + Pi[k, 2, 2] * n2
-        an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        if an < 1e-6:
+        if not _remove_direction(Pi, k, n0, n1, n2, 1e-6):
             continue
-        a0 /= an
-        a1 /= an
-        a2 /= an
-        Pi[k, 0, 0] -= a0 * a0
-        Pi[k, 0, 1] -= a0 * a1
-        Pi[k, 0, 2] -= a0 * a2
-        Pi[k, 1, 0] -= a1 * a0
-        Pi[k, 1, 1] -= a1 * a1
-        Pi[k, 1, 2] -= a1 * a2
-        Pi[k, 2, 0] -= a2 * a0
-        Pi[k, 2, 1] -= a2 * a1
-        Pi[k, 2, 2] -= a2 * a2
         contact[k] = True
         held += 1
     return held
