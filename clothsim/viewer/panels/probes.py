@@ -108,9 +108,10 @@ class ProbesPanel(Panel):
         with self._lock:
             done, self._done = self._done, None
         if done is not None and done[0] == self._key:  # a reading of the frame shown
-            self.readings, self.read_at = done[2], done[1]
+            self.readings = done[2]
             self._draw_probes()
             self.gui["probes_table"].content = self.table()
+            self.read_at = done[1]  # last: once it is set, the rings, labels and table show it
         if show != self._shown:
             self._shown = show
             for h in self._nodes:
