@@ -7,6 +7,17 @@ A refactor must leave every equilibrium where it was: within 1e-9 m and 1e-9 rel
 analytic and flat scenes, within 2e-5 m on faceted meshes (their many nearby equilibria), and,
 on scenes with slack regions (nodes held by nothing, so no unique position), the energy only.
 tests/test_equilibria.py runs the comparison in the test suite.
+
+Another machine: numba compiles the kernels for the host CPU (its vector width, fused
+multiply-adds), so rounding differs from one CPU to another, and a solve stopped at ||V||_inf <= e
+is only determined to about e over the scene's softest stiffness. Measured from the Intel Xeon
+that recorded the references to an AMD EPYC: analytic and flat scenes within 1e-12 m, the sewn
+sleeves 0.4-3.4e-8 m (e = 1e-7 N; energy within 3e-12), the faceted tube on the leg cone 3.7e-5 m
+and the stocking's 12 slack nodes up to 3.3 mm (energy within 6e-8). So where the positions
+differ by more than the tolerance, the comparison checks what a change of the model would break
+and a change of rounding would not: the recorded positions must still be an equilibrium of the
+code (||V||_inf <= e at them, with the nodes on the mold's surface in contact), and the energy of
+the new solve must equal the recorded one (1e-9 relative; 1e-6 on faceted meshes).
 """
 
 from __future__ import annotations
@@ -55,9 +66,34 @@ def compare(scene: str, folder: Path) -> str | None:
     dx = float(np.abs(pos - ref["positions"]).max())
     de = abs(energy - e0) / max(abs(e0), 1e-300)
     tol = 2e-5 if faceted else 1e-9
-    if dx > tol or (not faceted and de > 1e-9):
+    etol = 1e-6 if faceted else 1e-9
+    if de > etol:
         return f"{scene}: positions differ by {dx:.2e} m (tolerance {tol:g}), energy by {de:.2e} relative"
+    if dx > tol:
+        v, e = reference_residual(scene, ref["positions"])
+        if not (v <= e):
+            return (f"{scene}: positions differ by {dx:.2e} m (tolerance {tol:g}) and the recorded "
+                    f"positions are no equilibrium of the code: ||V||_inf = {v:.2e} N > e = {e:.1e} N")
     return None
+
+
+def reference_residual(scene: str, positions: np.ndarray) -> tuple[float, float]:
+    """(||V||_inf [N] of the code at the recorded positions (N, 3) [m], the scene's e [N]). The
+    nodes within 1e-9 m of the mold's surface count as in contact (a converged solve leaves its
+    contact nodes on the surface, its free nodes off it or touching it without force)."""
+    import clothsim
+    from clothsim.compile import compile_scene
+    from clothsim.solvers.common import residual
+    from clothsim.mold import mold_query
+
+    s = clothsim.load_scene(ROOT / scene)
+    model, state = compile_scene(s)
+    state.positions[:] = positions
+    state.in_contact[:] = False
+    if model.mold is not None:
+        margs, q = model.mold.kernel_args(), np.empty(8)
+        state.in_contact[:] = [mold_query(margs, p, q) <= 1e-9 for p in state.positions]
+    return residual(model, state)[0], float(s.solver.e)
 
 
 def main(argv: list[str]) -> int:

@@ -81,9 +81,11 @@ def close_notifications(page) -> None:
 
 
 def status_text(page) -> str:
-    """The status line (the markdown holding 'residual ... N')."""
+    """The status line (the markdown holding 'residual ... N'). On a cold start the page shows
+    "Compiling kernels" first and the status line only when the kernels are ready (half a minute
+    or more on a loaded 2-core machine): wait up to 90 s for it."""
     loc = page.locator("p", has_text=re.compile(r"iteration \d+ · residual")).first
-    return loc.inner_text(timeout=10_000)
+    return loc.inner_text(timeout=90_000)
 
 
 def shown_residual(page) -> float:
