@@ -52,9 +52,17 @@ def _bsr_pattern(n, spring_nodes):
     out = np.empty(cols.shape[0], np.int64)
     m = 0
     for i in range(n):
-        row = np.sort(cols[ptr[i]:ptr[i + 1]])
+        # insertion sort in place (rows are short; np.sort allocates per row)
+        for a in range(ptr[i] + 1, ptr[i + 1]):
+            c = cols[a]
+            b = a - 1
+            while b >= ptr[i] and cols[b] > c:
+                cols[b + 1] = cols[b]
+                b -= 1
+            cols[b + 1] = c
         last = -1
-        for c in row:
+        for a in range(ptr[i], ptr[i + 1]):
+            c = cols[a]
             if c != last:
                 out[m] = c
                 m += 1
