@@ -529,11 +529,18 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
     for c in range(nc):
         # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
         m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
-        row = np.sort(rowbuf[:m])
+        # insertion sort in place (rows are short; np.sort allocates per row)
+        for a in range(1, m):
+            v = rowbuf[a]
+            b = a - 1
+            while b >= 0 and rowbuf[b] > v:
+                rowbuf[b + 1] = rowbuf[b]
+                b -= 1
+            rowbuf[b + 1] = v
         base = cip[c]
         for t in range(m):
-            cidx[base + t] = row[t]
-            slot[row[t]] = base + t
+            cidx[base + t] = rowbuf[t]
+            slot[rowbuf[t]] = base + t
         for qc in range(cptr[c], cptr[c + 1]):
             k = cchild[qc]
             wk = cw[qc]
