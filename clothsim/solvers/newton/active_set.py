@@ -307,6 +307,47 @@ def _free_distances(pos, contact, has_mold, margs, out):
 
 
 @njit(cache=True)
+def _free_distance_bounds(pos, contact, has_mold, margs, ref_pos, ref_sd, exact_below, out):
+    """``_free_distances`` with fewer queries: a lower bound of the signed distance where it is
+    enough. The distance changes by at most a node's move (it is 1-Lipschitz, which the
+    trial positions' skip test already assumes), so a node not in contact that was queried at
+    ref_pos[k] (distance ref_sd[k], NaN: never) gets ref_sd[k] - |pos[k] - ref_pos[k]| when that
+    bound exceeds exact_below [m], and a query (which updates ref_pos, ref_sd) otherwise. Every
+    reader decides alike with the bound: ``_trial_positions`` queries a node whose move may reach
+    its distance (a lower bound only adds queries that find no hit), ``_block_entering`` reads
+    only whether it is <= PENETRATION_TOL (exact_below must be at least that). Contact nodes get
+    0 and forget their reference. pos, ref_pos (n,3) [m]; ref_sd, out (n,) [m]. Returns the
+    number of queries."""
+    q = np.empty(8)
+    queries = 0
+    for k in range(pos.shape[0]):
+        if not has_mold:
+            out[k] = np.inf
+            continue
+        if contact[k]:
+            out[k] = 0.0
+            ref_sd[k] = np.nan
+            continue
+        r = ref_sd[k]
+        if r == r:
+            d0 = pos[k, 0] - ref_pos[k, 0]
+            d1 = pos[k, 1] - ref_pos[k, 1]
+            d2 = pos[k, 2] - ref_pos[k, 2]
+            b = r - math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * (1.0 + 1e-9) - 1e-15
+            if b > exact_below:
+                out[k] = b
+                continue
+        sd = mold_query(margs, pos[k], q)
+        queries += 1
+        ref_pos[k, 0] = pos[k, 0]
+        ref_pos[k, 1] = pos[k, 1]
+        ref_pos[k, 2] = pos[k, 2]
+        ref_sd[k] = sd
+        out[k] = sd
+    return queries
+
+
+@njit(cache=True)
 def _contact_faces(pos, contact, has_mold, margs, out):
     """out (n,) int64: for a contact node on a mesh mold whose closest feature is a face, that
     face; -1 otherwise (``_trial_positions``' face-border clip reads it instead of querying the

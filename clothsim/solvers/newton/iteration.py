@@ -13,6 +13,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
+from numba import njit
 
 from ...contact import residual_from_forces as _residual_from_forces
 from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
@@ -20,9 +21,9 @@ from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
 from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible, _contact_faces,
-                         _free_distances, _projectors, _trial_positions)
+                         _free_distance_bounds, _projectors, _trial_positions)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
-                     _bsr_matvec, _bsr_pattern, _pcg, _project_system, band_order)
+                     _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
 DIRECT_DOFS = 6000
@@ -116,12 +117,16 @@ class NewtonLevel:
         self.fd_step = 1e-4 * float(min(model.spacing))
         self._cache = None
         self.sd0 = np.full(n, np.inf)
+        # where each node's distance was last queried, and that distance (_free_distance_bounds)
+        self._sd_pos = np.zeros((n, 3))
+        self._sd_ref = np.full(n, np.nan)
         self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
         self._mg_pi = None
         self._mg_mu = None
         self._mg_age = 0
         self._last_cg = 0
+        self.v_prev = None  # the residual [N] the last iteration started from (forcing terms)
 
     # -- helpers ---------------------------------------------------------------------------
     def energy_forces(self, pos, F):
@@ -188,6 +193,7 @@ class NewtonLevel:
         m = self.model
         pos = state.positions
         F = self.F
+        self.v_prev = vinf_now
         if self._cache is not None and self._cache[0] is pos and np.array_equal(self._cache[1], pos):
             E0 = self._cache[2]
             F[:] = self._cache[3]
@@ -198,25 +204,22 @@ class NewtonLevel:
         contact_before = contact.copy()
         _projectors(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe)
         # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
-        _free_distances(pos, contact, self.has_mold, self.margs, self.sd0)
+        # (a lower bound where that is enough: no query for a node that moved less than its distance)
+        _free_distance_bounds(pos, contact, self.has_mold, self.margs, self._sd_pos, self._sd_ref, PENETRATION_TOL,
+                              self.sd0)
         v_base = self.residual(pos, contact, F) if not np.array_equal(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
         _apply_pi(self.Pi, f, rhs)
-        gnorm = np.linalg.norm(rhs)
         _assemble(pos, *self.sargs, self.kink, self.slot, self.K)
         if m.seam_count:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
         if CURVATURE and self.has_mold:
             _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step, CURVATURE, self.diag, self.K)
-        dsum = 0.0
-        dcount = 0
-        dg = self.K[self.diag]
-        tr = np.einsum("nii->n", dg)
+        tr = _diag_traces(self.K, self.diag)
         free = ~m.fixed_axes.all(axis=1)
-        if free.any():
-            dsum = tr[free].sum()
-            dcount = 3 * free.sum()
+        dsum = tr[free].sum()
+        dcount = 3 * int(free.sum())
         dmean = dsum / dcount if dcount else 1.0
         if not (dmean > 0.0):
             dmean = 1.0
@@ -227,11 +230,11 @@ class NewtonLevel:
                 # keep one iteration (and so the driver's batches) short
                 break
             mu_abs = self.lm * dmean
-            tol = min(1e-2, max(forcing, 1e-12))
+            tol = min(FORCING_MAX, max(forcing, 1e-12))
             dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
             cg_spent += cg_it
             for _ in range(3):
-                if not (self.has_mold and np.all(np.isfinite(dx))):
+                if not (self.has_mold and _all_finite(dx)):
                     break
                 blocked = _block_infeasible(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi)
                 if HOLD_ENTERING:
@@ -241,10 +244,10 @@ class NewtonLevel:
                     break
                 _apply_pi(self.Pi, f, rhs)
                 dx, _ = self._solve_linear(rhs, mu_abs, tol)
-            if not np.all(np.isfinite(dx)):
+            if not _all_finite(dx):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
-            slope = -(rhs @ dx)  # directional derivative of E (negative for a descent direction)
+            slope = -_dot(rhs, dx)  # directional derivative of E (negative for a descent direction)
             if not (slope < 0.0):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
@@ -315,6 +318,26 @@ class NewtonLevel:
         return v1, E1, 0
 
 
+@njit(cache=True)
+def _diag_traces(K, diag):
+    """Traces (n,) [N/m] of the diagonal blocks K[diag] (the Levenberg shift's scale; summed by
+    numpy afterwards, in the order the recorded equilibria were computed with)."""
+    out = np.empty(diag.shape[0])
+    for k in range(diag.shape[0]):
+        q = diag[k]
+        out[k] = 0.0 + K[q, 0, 0] + K[q, 1, 1] + K[q, 2, 2]
+    return out
+
+
+@njit(cache=True)
+def _all_finite(x):
+    """np.isfinite(x).all() for a flat array, without the temporary."""
+    for i in range(x.shape[0]):
+        if not math.isfinite(x[i]):
+            return False
+    return True
+
+
 def _coupled_pairs(model):
     """(P,2) node pairs whose Hessian blocks couple: the springs', then every pair of nodes of
     each seam element (only the springs' without seam elements)."""
@@ -326,8 +349,22 @@ def _coupled_pairs(model):
     return np.ascontiguousarray(np.concatenate([model.spring_nodes, pairs]))
 
 
-def _forcing(v, e):
-    """Inexact-Newton forcing term: loose far from the solution, tight close to it."""
+# largest forcing term (relative residual of the linear solve) of the inexact Newton iteration
+FORCING_MAX = 1e-1
+
+
+def _forcing(v, e, v_prev=None):
+    """Inexact-Newton forcing term (relative linear residual) at residual v [N] for the limit e
+    [N]: Eisenstat and Walker's choice 2, 0.9 (v / v_prev)^2 (v_prev: the residual one
+    iteration before, None: unknown), capped at FORCING_MAX, and at least 0.5 e / v (Kelley's
+    safeguard: the last iteration does not solve beyond what reaching e needs).
+
+    References: Eisenstat S. C., Walker H. F., Choosing the forcing terms in an inexact Newton
+    method, SIAM J. Sci. Comput. 17 (1996); Kelley C. T., Iterative Methods for Linear and
+    Nonlinear Equations, SIAM 1995, section 6.3."""
     if not math.isfinite(v) or v <= 0:
-        return 1e-2
-    return float(min(1e-2, max(1e-10, 1e-2 * math.sqrt(max(e, 1e-300) / v))))
+        return FORCING_MAX
+    eta = FORCING_MAX
+    if v_prev is not None and math.isfinite(v_prev) and v_prev > 0:
+        eta = min(eta, 0.9 * (v / v_prev) ** 2)
+    return float(min(FORCING_MAX, max(eta, 0.5 * max(e, 0.0) / v, 1e-10)))

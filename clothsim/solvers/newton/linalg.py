@@ -52,9 +52,17 @@ def _bsr_pattern(n, spring_nodes):
     out = np.empty(cols.shape[0], np.int64)
     m = 0
     for i in range(n):
-        row = np.sort(cols[ptr[i]:ptr[i + 1]])
+        # insertion sort in place (rows are short; np.sort allocates per row)
+        for a in range(ptr[i] + 1, ptr[i + 1]):
+            c = cols[a]
+            b = a - 1
+            while b >= ptr[i] and cols[b] > c:
+                cols[b + 1] = cols[b]
+                b -= 1
+            cols[b + 1] = c
         last = -1
-        for c in row:
+        for a in range(ptr[i], ptr[i + 1]):
+            c = cols[a]
             if c != last:
                 out[m] = c
                 m += 1
@@ -521,11 +529,18 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
     for c in range(nc):
         # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
         m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
-        row = np.sort(rowbuf[:m])
+        # insertion sort in place (rows are short; np.sort allocates per row)
+        for a in range(1, m):
+            v = rowbuf[a]
+            b = a - 1
+            while b >= 0 and rowbuf[b] > v:
+                rowbuf[b + 1] = rowbuf[b]
+                b -= 1
+            rowbuf[b + 1] = v
         base = cip[c]
         for t in range(m):
-            cidx[base + t] = row[t]
-            slot[row[t]] = base + t
+            cidx[base + t] = rowbuf[t]
+            slot[rowbuf[t]] = base + t
         for qc in range(cptr[c], cptr[c + 1]):
             k = cchild[qc]
             wk = cw[qc]

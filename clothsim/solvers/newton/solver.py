@@ -90,7 +90,7 @@ class NewtonSolver(Solver):
             v0 = fine.residual(state.positions, state.in_contact)
         prev_pos = state.positions.copy()
         prev_c = state.in_contact.copy()
-        v, E, flag = fine.iterate(state, v0, forcing=_forcing(v0, e))
+        v, E, flag = fine.iterate(state, v0, forcing=_forcing(v0, e, fine.v_prev))
         if flag == 2 or not math.isfinite(v) or not np.isfinite(state.positions).all() \
                 or np.abs(state.positions).max() > fine.blowup:
             state.positions[:] = prev_pos
