@@ -106,7 +106,7 @@ class NewtonLevel:
         elif preconditioner == "amg":
             self.mg = AlgebraicMultigrid()
         else:
-            self.mg = PaddedMultigrid(model.topology)
+            self.mg = PaddedMultigrid(model.topology, _seam_pairs(model))
         self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
         ext = np.ptp(model.rest_positions, axis=0).max()
         self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
@@ -331,3 +331,13 @@ def _forcing(v, e):
     if not math.isfinite(v) or v <= 0:
         return 1e-2
     return float(min(1e-2, max(1e-10, 1e-2 * math.sqrt(max(e, 1e-300) / v))))
+
+
+def _seam_pairs(model):
+    """(m,2) int64: the model's sewn node pairs (its zero-length seam springs), or None."""
+    from ...grid import FAMILY_SEAM
+
+    sel = model.spring_family == FAMILY_SEAM
+    if not sel.any():
+        return None
+    return np.ascontiguousarray(model.spring_nodes[sel], np.int64)
