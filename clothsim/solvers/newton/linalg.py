@@ -926,9 +926,14 @@ class Multigrid:
         nx1, ny1 = self.shapes[lv]
         tr = self.transfers[lv]
         x = np.zeros_like(b)
-        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, False)
-        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, False)
+        # on sewn lattices the seam chains are relaxed before, between and after the line sweeps
         pr = self.pairs[lv] if self.pairs is not None else None
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, False)
+        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, False)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, False)
+        _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, False)
         if pr is not None:
             _seam_smooth(L, pr, self._pslots[lv], b, x, False)
         r = np.empty_like(b)
@@ -940,7 +945,11 @@ class Multigrid:
         if pr is not None:
             _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, True)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, True)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         return x
 
 
