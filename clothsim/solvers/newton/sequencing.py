@@ -147,6 +147,12 @@ def grid_sequence(model, state, e, kink, deadline):
     for li, (mdl, _) in enumerate(chain[:-1]):
         p, c = starts[li]
         cst = State(np.ascontiguousarray(p), c.copy(), 0)
+        if not mdl.topology.is_grid:
+            # a cut lattice's coarse grid holds nodes that are free on the fine one (beside its
+            # held outline): the restricted state has them where the fine start had those free
+            # nodes (lifted), and Newton never moves a held coordinate, so put them in place
+            held = mdl.fixed_axes
+            cst.positions[held] = mdl.prescribed_positions[held]
         if prev_state is not None:
             # the previous level's solution; when it cannot be interpolated (prolong_state then
             # leaves cst alone) this level starts from the restricted state
