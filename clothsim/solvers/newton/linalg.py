@@ -327,91 +327,6 @@ def _line_gs(indptr, indices, data, nx1, ny1, dslot, pslot, nslot, b, xv, direct
 
 
 @njit(cache=True)
-def _pair_slots(indptr, indices, pairs):
-    """Block slots of the sewn node pairs (m,2) for ``_pair_gs``: (m,4) the slots of (a,a),
-    (b,b), (a,b), (b,a); -1 where the pattern has no such block."""
-    m = pairs.shape[0]
-    out = -np.ones((m, 4), np.int64)
-    for p in range(m):
-        a = pairs[p, 0]
-        b = pairs[p, 1]
-        out[p, 0] = _find_block(indptr, indices, a, a)
-        out[p, 1] = _find_block(indptr, indices, b, b)
-        out[p, 2] = _find_block(indptr, indices, a, b)
-        out[p, 3] = _find_block(indptr, indices, b, a)
-    return out
-
-
-@njit(cache=True)
-def _pair_gs(indptr, indices, data, pairs, pslot, b, xv, reverse):
-    """Block Gauss-Seidel over sewn node pairs (m,2): each pair's two nodes are solved together
-    (a 6x6 system, Gaussian elimination with partial pivoting) with every other coupling taken
-    from the current iterate; pairs visited in reverse when ``reverse`` (the adjoint sweep).
-
-    Why: a seam is a penalty spring about 1000 times a lattice spring's stiffness. A smoother
-    that relaxes one node at a time (or one grid line) pins each sewn node to its partner's
-    current value, so the pair's common motion, which the panels' soft springs decide, moves by
-    about 1/1000 of its error per sweep; solving the pair jointly moves it at once."""
-    m = pairs.shape[0]
-    M = np.empty((6, 7))
-    for pp in range(m):
-        p = m - 1 - pp if reverse else pp
-        if pslot[p, 2] < 0 or pslot[p, 0] < 0 or pslot[p, 1] < 0:
-            continue
-        for h in range(2):
-            k = pairs[p, h]
-            o = pairs[p, 1 - h]
-            for r in range(3):
-                M[3 * h + r, 6] = b[3 * k + r]
-            for q in range(indptr[k], indptr[k + 1]):
-                j = indices[q]
-                if j == k or j == o:
-                    continue
-                for r in range(3):
-                    M[3 * h + r, 6] -= data[q, r, 0] * xv[3 * j] + data[q, r, 1] * xv[3 * j + 1] + data[q, r, 2] * xv[3 * j + 2]
-        for h in range(2):
-            for g in range(2):
-                q = pslot[p, 0] if (h == 0 and g == 0) else (pslot[p, 1] if (h == 1 and g == 1) else (pslot[p, 2] if h == 0 else pslot[p, 3]))
-                for r in range(3):
-                    for c in range(3):
-                        M[3 * h + r, 3 * g + c] = data[q, r, c]
-        # Gaussian elimination with partial pivoting
-        ok = True
-        for c in range(6):
-            piv = c
-            big = abs(M[c, c])
-            for r in range(c + 1, 6):
-                if abs(M[r, c]) > big:
-                    big = abs(M[r, c])
-                    piv = r
-            if not (big > 0.0):
-                ok = False
-                break
-            if piv != c:
-                for t in range(7):
-                    tmp = M[c, t]
-                    M[c, t] = M[piv, t]
-                    M[piv, t] = tmp
-            for r in range(c + 1, 6):
-                f = M[r, c] / M[c, c]
-                if f != 0.0:
-                    for t in range(c, 7):
-                        M[r, t] -= f * M[c, t]
-        if not ok:
-            continue
-        for c in range(5, -1, -1):
-            v = M[c, 6]
-            for t in range(c + 1, 6):
-                v -= M[c, t] * M[t, 6]
-            M[c, 6] = v / M[c, c]
-        a = pairs[p, 0]
-        o = pairs[p, 1]
-        for r in range(3):
-            xv[3 * a + r] = M[r, 6]
-            xv[3 * o + r] = M[3 + r, 6]
-
-
-@njit(cache=True)
 def _block6(indptr, indices, data, u, v, out):
     """out (6,6) = the blocks of the node pairs u (2,) x v (2,) (zero where not coupled)."""
     for h in range(2):
@@ -879,7 +794,7 @@ class Multigrid:
             self.shapes.append((nx1, ny1))
         self.levels: list[_Level] = []
         self.Pi = None
-        # sewn node pairs (m,2) per level relaxed jointly by _pair_gs, or None (set by
+        # sewn node pairs (m,2) per level relaxed jointly by _chain_gs (along seam chains), or None (set by
         # PaddedMultigrid on sewn lattices; a full rectangle has none)
         self.pairs = None
         self._pslots = None
@@ -904,8 +819,8 @@ class Multigrid:
             nx1, ny1 = self.shapes[lv]
             L.ds, L.ps, L.ns = _line_slots(L.indptr, L.indices, nx1, ny1)
         if self.pairs is not None:
-            self._pslots = [None if pr is None else (_pair_slots(L.indptr, L.indices, pr) if not CHAINS
-                            else seam_chains(L.indptr, L.indices, pr)) for L, pr in zip(levels, self.pairs)]
+            self._pslots = [None if pr is None else seam_chains(L.indptr, L.indices, pr)
+                            for L, pr in zip(levels, self.pairs)]
         last = levels[-1]
         n3 = 3 * last.n
         Alast = sp.bsr_matrix((last.data, last.indices, last.indptr), shape=(n3, n3)).tocsc()
@@ -957,14 +872,8 @@ class Multigrid:
 PAIR_SMOOTHING = True
 
 
-CHAINS = True
-
-
-def _seam_smooth(L, pr, aux, b, x, reverse):
-    if CHAINS:
-        _chain_gs(L.indptr, L.indices, L.data, pr, aux, b, x, reverse)
-    else:
-        _pair_gs(L.indptr, L.indices, L.data, pr, aux, b, x, reverse)
+def _seam_smooth(L, pr, starts, b, x, reverse):
+    _chain_gs(L.indptr, L.indices, L.data, pr, starts, b, x, reverse)
 
 
 def seam_chains(indptr, indices, pairs):
@@ -1008,9 +917,10 @@ class PaddedMultigrid:
     """The line-smoothed geometric multigrid for any lattice: its panels laid side by side (one
     empty column between two) on one rectangle, the rectangle's nodes that are not lattice nodes
     given an identity block, decoupled, and a zero projector (so no coarse space moves them).
-    Cut panels and several panels sewn together keep the smoother's lines (the seams' couplings
-    are off-line blocks, taken from the current iterate like any other) and the Galerkin coarse
-    grids. Same interface as :class:`Multigrid`; ``prepare`` takes the lattice's BSR pattern once.
+    Cut panels and several panels sewn together keep the smoother's lines and the Galerkin
+    coarse grids; the seams' stiff pairs, off-line blocks for the lines, are relaxed by their own
+    6x6-block line solves along each seam (``_chain_gs``) before, between and after the line
+    sweeps, on every level both nodes of a pair reach (:func:`coarse_pairs`). Same interface as :class:`Multigrid`; ``prepare`` takes the lattice's BSR pattern once.
 
     Shapes: the lattice's n nodes map to rows ``emb`` (n,) of the rectangle's N nodes; the
     embedding is increasing, so every row keeps its sorted block columns."""
