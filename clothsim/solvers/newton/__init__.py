@@ -69,9 +69,10 @@ Limitations:
 - Slack regions have no unique equilibrium; Newton stops at one of them (see Result
   .undetermined_nodes()). Near springs that end exactly at strain 0 the residual can chatter;
   the residual-based acceptance keeps it converging but a few extra iterations may be needed.
-- The geometric multigrid needs one full warp/weft rectangle; cut or multi-panel lattices use
-  PyAMG's smoothed aggregation instead (AlgebraicMultigrid). The coarse spaces ignore
-  the mold, so the CG iteration count grows slowly on grids with many contact nodes.
+- The geometric multigrid needs one full warp/weft rectangle; cut or multi-panel lattices are
+  laid in a padded rectangle (PaddedMultigrid; seams relaxed by 6x6-block line solves along
+  them), or use PyAMG's smoothed aggregation (AlgebraicMultigrid, slower). The coarse spaces
+  ignore the mold, so the CG iteration count grows slowly on grids with many contact nodes.
 - Grid sequencing needs even divisions; otherwise it starts directly on the fine grid. On cut
   lattices it also skips models with shear or bending springs or seam elements (unequal node
   counts), which the coarse model does not carry.

@@ -107,7 +107,7 @@ class NewtonLevel:
         elif preconditioner == "amg":
             self.mg = AlgebraicMultigrid()
         else:
-            self.mg = PaddedMultigrid(model.topology)
+            self.mg = PaddedMultigrid(model.topology, _seam_pairs(model))
         self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
         ext = np.ptp(model.rest_positions, axis=0).max()
         self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
@@ -368,3 +368,13 @@ def _forcing(v, e, v_prev=None):
     if v_prev is not None and math.isfinite(v_prev) and v_prev > 0:
         eta = min(eta, 0.9 * (v / v_prev) ** 2)
     return float(min(FORCING_MAX, max(eta, 0.5 * max(e, 0.0) / v, 1e-10)))
+
+
+def _seam_pairs(model):
+    """(m,2) int64: the model's sewn node pairs (its zero-length seam springs), or None."""
+    from ...grid import FAMILY_SEAM
+
+    sel = model.spring_family == FAMILY_SEAM
+    if not sel.any():
+        return None
+    return np.ascontiguousarray(model.spring_nodes[sel], np.int64)

@@ -334,6 +334,152 @@ def _line_gs(indptr, indices, data, nx1, ny1, dslot, pslot, nslot, b, xv, direct
             xv[3 * k + 2] = rr[t, 2]
 
 
+@njit(cache=True)
+def _block6(indptr, indices, data, u, v, out):
+    """out (6,6) = the blocks of the node pairs u (2,) x v (2,) (zero where not coupled)."""
+    for h in range(2):
+        for g in range(2):
+            q = _find_block(indptr, indices, u[h], v[g])
+            for r in range(3):
+                for c in range(3):
+                    out[3 * h + r, 3 * g + c] = data[q, r, c] if q >= 0 else 0.0
+
+
+@njit(cache=True)
+def _chain_gs(indptr, indices, data, pairs, cstart, b, xv, reverse):
+    """Block line Gauss-Seidel along seams: each chain of sewn pairs (pairs[cstart[c]:cstart[c+1]],
+    consecutive along the seam) is solved exactly as a 6x6-block tridiagonal system (the pair's
+    two nodes together; block Thomas algorithm), every other coupling taken from the current
+    iterate; chains visited in reverse when ``reverse`` (the adjoint sweep).
+
+    Why: a seam is a penalty spring about 1000 times a lattice spring's stiffness. A smoother
+    that relaxes one node or one grid line at a time pins each sewn node to its partner's
+    current value, so the pair's common motion, which the panels' soft springs decide, moves by
+    about 1/1000 of its error per sweep; solving the two sides of the seam together moves it at
+    once, and along the seam's line as the line smoother does on the grid."""
+    nch = cstart.shape[0] - 1
+    longest = 0
+    for c in range(nch):
+        longest = max(longest, cstart[c + 1] - cstart[c])
+    D = np.empty((6, 6))
+    Lb = np.empty((6, 6))
+    Cm = np.zeros((longest, 6, 6))
+    y = np.zeros((longest, 6))
+    rhs = np.empty((6, 7))
+    for cc in range(nch):
+        c = nch - 1 - cc if reverse else cc
+        s0 = cstart[c]
+        m = cstart[c + 1] - s0
+        for t in range(m):
+            p = s0 + t
+            # right-hand side without the couplings inside the window t-1..t+1
+            for h in range(2):
+                k = pairs[p, h]
+                r0 = b[3 * k]
+                r1 = b[3 * k + 1]
+                r2 = b[3 * k + 2]
+                for q in range(indptr[k], indptr[k + 1]):
+                    j = indices[q]
+                    inwin = j == pairs[p, 0] or j == pairs[p, 1]
+                    if t > 0:
+                        inwin = inwin or j == pairs[p - 1, 0] or j == pairs[p - 1, 1]
+                    if t < m - 1:
+                        inwin = inwin or j == pairs[p + 1, 0] or j == pairs[p + 1, 1]
+                    if inwin:
+                        continue
+                    x0 = xv[3 * j]
+                    x1 = xv[3 * j + 1]
+                    x2 = xv[3 * j + 2]
+                    r0 -= data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
+                    r1 -= data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
+                    r2 -= data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
+                y[t, 3 * h] = r0
+                y[t, 3 * h + 1] = r1
+                y[t, 3 * h + 2] = r2
+            _block6(indptr, indices, data, pairs[p], pairs[p], D)
+            if t > 0:
+                _block6(indptr, indices, data, pairs[p], pairs[p - 1], Lb)
+                # D -= L C_{t-1}; y_t -= L y_{t-1}
+                for r in range(6):
+                    for q2 in range(6):
+                        v = 0.0
+                        for u in range(6):
+                            v += Lb[r, u] * Cm[t - 1, u, q2]
+                        D[r, q2] -= v
+                    v = 0.0
+                    for u in range(6):
+                        v += Lb[r, u] * y[t - 1, u]
+                    y[t, r] -= v
+            # solve D [C_t | y_t] = [U_t | y_t]
+            for r in range(6):
+                for q2 in range(6):
+                    rhs[r, q2] = 0.0
+                rhs[r, 6] = y[t, r]
+            if t < m - 1:
+                _block6(indptr, indices, data, pairs[p], pairs[p + 1], Lb)
+                for r in range(6):
+                    for q2 in range(6):
+                        rhs[r, q2] = Lb[r, q2]
+            _solve6(D, rhs)
+            for r in range(6):
+                for q2 in range(6):
+                    Cm[t, r, q2] = rhs[r, q2]
+                y[t, r] = rhs[r, 6]
+        for tt in range(m):
+            t = m - 1 - tt
+            if t < m - 1:
+                for r in range(6):
+                    v = 0.0
+                    for u in range(6):
+                        v += Cm[t, r, u] * y[t + 1, u]
+                    y[t, r] -= v
+            p = s0 + t
+            for h in range(2):
+                k = pairs[p, h]
+                for r in range(3):
+                    xv[3 * k + r] = y[t, 3 * h + r]
+
+
+@njit(cache=True)
+def _solve6(D, R):
+    """R (6,7) <- D^{-1} R by Gaussian elimination with partial pivoting (D (6,6) is
+    overwritten); a zero pivot column gives zero rows."""
+    for c in range(6):
+        piv = c
+        big = abs(D[c, c])
+        for r in range(c + 1, 6):
+            if abs(D[r, c]) > big:
+                big = abs(D[r, c])
+                piv = r
+        if not (big > 0.0):
+            for t in range(7):
+                R[c, t] = 0.0
+            D[c, c] = 1.0
+            continue
+        if piv != c:
+            for t in range(6):
+                tmp = D[c, t]
+                D[c, t] = D[piv, t]
+                D[piv, t] = tmp
+            for t in range(7):
+                tmp = R[c, t]
+                R[c, t] = R[piv, t]
+                R[piv, t] = tmp
+        for r in range(c + 1, 6):
+            f = D[r, c] / D[c, c]
+            if f != 0.0:
+                for t in range(c, 6):
+                    D[r, t] -= f * D[c, t]
+                for t in range(7):
+                    R[r, t] -= f * R[c, t]
+    for c in range(5, -1, -1):
+        for t in range(7):
+            v = R[c, t]
+            for u in range(c + 1, 6):
+                v -= D[c, u] * R[u, t]
+            R[c, t] = v / D[c, c]
+
+
 # the banded Cholesky solve is used for a direct system when (3n) x b^2 (b: half-bandwidth in
 # unknowns after the node reordering) is at most this; wider systems go to the sparse LU
 BAND_WORK = 1.2e7
@@ -663,6 +809,10 @@ class Multigrid:
             self.shapes.append((nx1, ny1))
         self.levels: list[_Level] = []
         self.Pi = None
+        # sewn node pairs (m,2) per level relaxed jointly by _chain_gs (along seam chains), or None (set by
+        # PaddedMultigrid on sewn lattices; a full rectangle has none)
+        self.pairs = None
+        self._pslots = None
 
     def setup(self, indptr, indices, data, Pi):
         """Build the hierarchy for the projected fine matrix (BSR arrays)."""
@@ -683,6 +833,9 @@ class Multigrid:
         for lv, L in enumerate(levels[:-1]):
             nx1, ny1 = self.shapes[lv]
             L.ds, L.ps, L.ns = _line_slots(L.indptr, L.indices, nx1, ny1)
+        if self.pairs is not None:
+            self._pslots = [None if pr is None else seam_chains(L.indptr, L.indices, pr)
+                            for L, pr in zip(levels, self.pairs)]
         last = levels[-1]
         n3 = 3 * last.n
         Alast = sp.bsr_matrix((last.data, last.indices, last.indptr), shape=(n3, n3)).tocsc()
@@ -703,31 +856,93 @@ class Multigrid:
         nx1, ny1 = self.shapes[lv]
         tr = self.transfers[lv]
         x = np.zeros_like(b)
+        # on sewn lattices the seam chains are relaxed before, between and after the line sweeps
+        pr = self.pairs[lv] if self.pairs is not None else None
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, False)
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, False)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, False)
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, False)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, False)
         r = np.empty_like(b)
         _bsr_residual(L.indptr, L.indices, L.data, x, b, r)
         rc = np.empty(3 * tr.nc)
         _restrict(r, tr.cptr, tr.cchild, tr.cw, self.Pi, lv == 0, rc)
         xc = self.vcycle(rc, lv + 1)
         _prolong_add(xc, tr.pidx, tr.pw, self.Pi, lv == 0, x)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 1, True)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, True)
+        if pr is not None:
+            _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         return x
+
+
+# sewn pairs relaxed jointly in PaddedMultigrid's smoother (False: the line smoother alone)
+PAIR_SMOOTHING = True
+
+
+def _seam_smooth(L, pr, starts, b, x, reverse):
+    _chain_gs(L.indptr, L.indices, L.data, pr, starts, b, x, reverse)
+
+
+def seam_chains(indptr, indices, pairs):
+    """Where the sewn pairs (m,2), in seam order, split into chains for ``_chain_gs``: (c+1,)
+    int64 starts. Two consecutive pairs stay in one chain when a node of one is coupled to a
+    node of the other (a block in the pattern) and the four nodes are distinct."""
+    m = len(pairs)
+    starts = [0]
+    for p in range(1, m):
+        a0, b0 = pairs[p - 1]
+        a1, b1 = pairs[p]
+        linked = len({a0, b0, a1, b1}) == 4 and any(
+            _find_block(indptr, indices, u, v) >= 0 for u in (a0, b0) for v in (a1, b1))
+        if not linked:
+            starts.append(p)
+    starts.append(m)
+    return np.asarray(starts, np.int64)
+
+
+def coarse_pairs(pairs, transfers):
+    """The sewn node pairs (m,2) of each level: level 0's are ``pairs``; a pair goes on to the
+    next level when both its nodes are coarse grid nodes (a prolongation row of one weight-1
+    entry), as those coarse nodes. Returns a list, one (m_l,2) int64 array or None per level
+    (len(transfers) + 1 levels)."""
+    out = [np.ascontiguousarray(pairs, np.int64)]
+    for tr in transfers:
+        pr = out[-1]
+        if pr is None or not len(pr):
+            out.append(None)
+            continue
+        inj = (tr.pidx[:, 1] < 0) & (tr.pw[:, 0] == 1.0)
+        a, b = pr[:, 0], pr[:, 1]
+        keep = inj[a] & inj[b]
+        nxt = np.stack([tr.pidx[a[keep], 0], tr.pidx[b[keep], 0]], axis=1)
+        nxt = nxt[nxt[:, 0] != nxt[:, 1]]
+        out.append(np.ascontiguousarray(nxt, np.int64) if len(nxt) else None)
+    return out
 
 
 class PaddedMultigrid:
     """The line-smoothed geometric multigrid for any lattice: its panels laid side by side (one
     empty column between two) on one rectangle, the rectangle's nodes that are not lattice nodes
     given an identity block, decoupled, and a zero projector (so no coarse space moves them).
-    Cut panels and several panels sewn together keep the smoother's lines (the seams' couplings
-    are off-line blocks, taken from the current iterate like any other) and the Galerkin coarse
-    grids. Same interface as :class:`Multigrid`; ``prepare`` takes the lattice's BSR pattern once.
+    Cut panels and several panels sewn together keep the smoother's lines and the Galerkin
+    coarse grids; the seams' stiff pairs, off-line blocks for the lines, are relaxed by their own
+    6x6-block line solves along each seam (``_chain_gs``) before, between and after the line
+    sweeps, on every level both nodes of a pair reach (:func:`coarse_pairs`). Same interface as :class:`Multigrid`; ``prepare`` takes the lattice's BSR pattern once.
 
     Shapes: the lattice's n nodes map to rows ``emb`` (n,) of the rectangle's N nodes; the
     embedding is increasing, so every row keeps its sorted block columns."""
 
-    def __init__(self, topology):
+    def __init__(self, topology, seam_pairs=None):
+        """seam_pairs (m,2): the lattice's sewn node pairs (zero-length seam springs), relaxed
+        jointly on every level where both nodes are grid nodes (:func:`coarse_pairs`)."""
         from ...topology import Topology
 
         shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
@@ -740,6 +955,8 @@ class PaddedMultigrid:
         self.N = width * height
         self.mg = Multigrid(self.full)
         self._pattern = None
+        if seam_pairs is not None and len(seam_pairs) and PAIR_SMOOTHING:
+            self.mg.pairs = coarse_pairs(self.emb[np.asarray(seam_pairs, np.int64)], self.mg.transfers)
 
     def prepare(self, indptr, indices):
         """The rectangle's BSR pattern and, per block, the lattice block it copies (-1: identity)."""

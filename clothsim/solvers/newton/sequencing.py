@@ -17,7 +17,7 @@ from .active_set import PENETRATION_TOL
 from .iteration import NewtonLevel, _forcing
 
 
-from ...grid import coarsen_model  # noqa: E402  (the lattice builder at stride 2)
+from ...grid import FAMILY_SEAM, coarsen_model  # noqa: E402  (the lattice builder at stride 2)
 
 
 RIM_SWEEPS = 4
@@ -27,6 +27,7 @@ def _relax_rim(model, pos, cont):
     """On a cut lattice, the free nodes beside a held or missing lattice node (the outline's
     fringe, where the interpolation lost corners) are moved, in ``RIM_SWEEPS`` Jacobi sweeps, to
     the mean of their warp and weft neighbours: the membrane's equilibrium there to first order.
+    Sewn nodes (ends of seam springs) are left alone.
     pos (N, 3) [m] is changed in place; contact nodes stay."""
     topo = model.topology
     n = model.node_count
@@ -39,7 +40,11 @@ def _relax_rim(model, pos, cont):
     held = model.fixed_axes.any(axis=1)
     held_nb[a[held[b]]] = True
     held_nb[b[held[a]]] = True
-    rim = np.nonzero(free & ((deg < 4) | held_nb))[0]
+    # a sewn node's missing neighbours are across its seam (its partner's panel): it is not on
+    # the fringe, and the mean of its own panel's neighbours would open the seam
+    sewn = np.zeros(n, bool)
+    sewn[model.spring_nodes[fam == FAMILY_SEAM].ravel()] = True
+    rim = np.nonzero(free & ((deg < 4) | held_nb) & ~sewn)[0]
     if rim.size == 0:
         return
     A = sp.csr_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
@@ -142,6 +147,12 @@ def grid_sequence(model, state, e, kink, deadline):
     for li, (mdl, _) in enumerate(chain[:-1]):
         p, c = starts[li]
         cst = State(np.ascontiguousarray(p), c.copy(), 0)
+        if not mdl.topology.is_grid:
+            # a cut lattice's coarse grid holds nodes that are free on the fine one (beside its
+            # held outline): the restricted state has them where the fine start had those free
+            # nodes (lifted), and Newton never moves a held coordinate, so put them in place
+            held = mdl.fixed_axes
+            cst.positions[held] = mdl.prescribed_positions[held]
         if prev_state is not None:
             # the previous level's solution; when it cannot be interpolated (prolong_state then
             # leaves cst alone) this level starts from the restricted state
