@@ -671,7 +671,26 @@ SMOOTH_SCAN_NOTES = [
     "- **The Levenberg rule** for line-search steps alpha in [0.1, 1) (shift unchanged) was tried on the "
     "stocking on the smooth surface (419 iterations with the rule as it is): raising the shift tenfold "
     "after alpha = 0.5 (`LM_ALPHA_LOW = 0.6`) took 579 iterations; lowering it after alpha = 0.5 "
-    "(`LM_ALPHA_HIGH = 0.5`) had not converged after three times the time. Kept as it is.", "",
+    "(`LM_ALPHA_HIGH = 0.5`) had not converged after three times the time. Kept as it is.",
+    "- **Issue 12: what limited the steps** (per-iteration traces, `scripts/newton_trace.py`). (1) The "
+    "stocking's ~420 iterations: the front's held column (x fixed) was moved onto the foot point along y "
+    "and z only, which leaves it inside a curved leg by about its offset times the curvature; every step "
+    "longer than ~5e-5 m failed the line search's 1e-10 m penetration check, so alpha sat at 0.25 with the "
+    "shift at 1e-3 for 300 iterations. Newton steps along the normal's free part put such nodes on the "
+    "surface (`active_set.FIXED_PROJECTION_STEPS`): the energy reached its final value in ~60 "
+    "iterations. (2) Then nodes whose multiplier is about 0 churned: released (resultant pointing out), "
+    "their coupled step entered the body, the line search stopped them at the surface and cut alpha to "
+    "1/128, they were back in contact, and again. Holding every entering node (`iteration.HOLD_SHARE = "
+    "0`, projected Newton) ends it: the stocking converges in 60 iterations. (3) Linear tails (the "
+    "residual halving per full step, no contact change): the kink stiffness of slack springs in a "
+    "gathered rope is comparable to the little that holds the rows along the body axis; it now decays "
+    "tenfold after every full step (`iteration.KINK_DECAY`). These three apply on the smooth surface; on "
+    "facets (`SCAN_RULES_ON_FACETS`, `FIXED_PROJECTION_EVERYWHERE`) they take the faceted campaign from "
+    "36-90 to 29-59 iterations (median 45, 0 of 24 above 60) but move the recorded equilibria of the "
+    "faceted stocking and torso_band_held, so they are off there. (4) Cost: the mold's answers at the "
+    "nodes are queried once per set of positions (`active_set._query_nodes`): the accepted step's "
+    "residual queries them and the next iteration's active set, distances, blocking rules and face "
+    "clips read them (they queried the same points three to four times).", "",
 ]
 
 

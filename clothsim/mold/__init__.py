@@ -55,7 +55,7 @@ from .checks import SCALE_WARNING_RATIO, mold_reach_warning, mold_scale_warning,
 from .load import (MOLD_CACHE_SIZE, cache_mold, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info,
                    mold_cached)
 from .readers import MAX_MOLD_FILE_BYTES
-from .queries import mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
+from .queries import contact_normals_from_query, mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
 from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MESH_KINDS, MOLD_BOX, MOLD_CYLINDER,
                      MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, QUERY_OUT_SIZE, Mold, MoldArgs,
                      MoldError)
@@ -94,6 +94,7 @@ __all__ = [
     "mold_query",
     "mold_feature_normals",
     "mold_contact_normals",
+    "contact_normals_from_query",
     "mold_segment_hit",
     "mold_query_many",
     "with_surface",

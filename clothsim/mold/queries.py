@@ -671,6 +671,13 @@ def mold_contact_normals(margs, p, out, normals_out):
     a caller needs no second query for them.
     """
     mold_query(margs, p, out)
+    return contact_normals_from_query(margs, out, normals_out)
+
+
+@njit(cache=True)
+def contact_normals_from_query(margs, out, normals_out):
+    """:func:`mold_contact_normals` from the answer ``out`` (>= 8) of a :func:`mold_query` already
+    made at the point (no query): the same normals, written into normals_out; returns the count."""
     kind = margs.info[0]
     k = mold_feature_normals(margs, out[6], out[7], normals_out)
     if k > 0:

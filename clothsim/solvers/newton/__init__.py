@@ -20,7 +20,12 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    the projection back onto the surface bends the path at first order and no step length lowers
    the energy (the stall on the torso mesh). Likewise a released node still on the surface whose
    coupled step moves it into the mold is held on it (``_block_entering``) when, without its
-   move, the step would not lower the energy at first order (the stalls on scanned bodies).
+   move, the step would not lower the energy at first order (the stalls on scanned bodies); on
+   the smooth surface of a mesh always (``iteration.HOLD_SHARE``: otherwise nodes whose
+   multiplier is about 0 churn in and out of contact), where the slack springs' kink also decays
+   after full steps (``iteration.KINK_DECAY``) and held-axis contact nodes are projected onto the
+   curved surface along their free axes (``active_set.FIXED_PROJECTION_STEPS``). The mold's
+   answers at the nodes are queried once per set of positions (``active_set._query_nodes``).
 2. Linear system: (Pi K Pi + mu Pi + (I - Pi)) dx = Pi f, where K = d^2E/dx^2 is assembled from
    ``kernels.spring_hessian_block`` (transverse term clamped >= 0 so K is positive semi-definite;
    at and below strain 0 the first segment's slope times ``NewtonOptions.kink`` (default 1e-3)

@@ -14,8 +14,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
-from ...mold import MOLD_MESH, MOLD_SMOOTH, mold_contact_normals, mold_query, smooth_shape_operator
+from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, free_axis_normals, stop_at_surface
+from ...mold import (MOLD_MESH, MOLD_SMOOTH, contact_normals_from_query, mold_contact_normals, mold_query,
+                     smooth_shape_operator)
 from ...mold.smooth import _smooth_query_flag
 
 # after a projection onto the mold, a node may be inside by at most this [m]
@@ -24,6 +25,15 @@ PENETRATION_TOL = 1e-10
 RELEASE_GAP = 1e-12
 # a node projected onto a converged foot point of the smooth surface is not queried again
 SMOOTH_FOOT_TRUSTED = True
+# Newton steps along the free part of the normal that bring a contact node with constrained axes
+# out of the mold after its projection (``_trial_positions``); 0: none (the solver before them)
+FIXED_PROJECTION_STEPS = 6
+# ... on the smooth surface of a mesh; on the other molds too when True (False: True moves the
+# recorded equilibria of the faceted stocking, by 3 mm along its degenerate courses, and of the
+# cylinder sleeves, by 3e-8 m, measured; on facets the creep it cures is rare: flat faces)
+FIXED_PROJECTION_EVERYWHERE = False
+# ... until it is within this [m] of the surface
+FIXED_PROJECTION_TOL = 1e-14
 
 
 @njit(cache=True)
@@ -65,13 +75,61 @@ def _ridge_face(x, R, normals, m, margs, probe, act, na):
 
 
 @njit(cache=True)
+def _query_nodes(pos, has_mold, margs, Q):
+    """Q (n, 9): every node's ``mold_query`` answer at pos (n,3) [m] in Q[k, 0:8] and its signed
+    distance [m] in Q[k, 8] (inf without a mold): one call for the whole sheet, read by the
+    ``*_q`` kernels instead of querying the same points again."""
+    for k in range(pos.shape[0]):
+        if has_mold:
+            Q[k, 8] = mold_query(margs, pos[k], Q[k])
+        else:
+            Q[k, 8] = np.inf
+
+
+@njit(cache=True)
+def _residual_q(F, fixed, in_contact, has_mold, margs, Q, V):
+    """``contact.residual_from_forces`` (the same arithmetic) with the mold's answers at the nodes
+    read from Q (``_query_nodes``) instead of queried: V (n,) filled with eq. (6)'s entries,
+    returns ||V||_inf [N] (nan if any entry is not finite)."""
+    R = np.empty(3)
+    nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
+    vmax = 0.0
+    for k in range(F.shape[0]):
+        r0 = 0.0 if fixed[k, 0] else F[k, 0]
+        r1 = 0.0 if fixed[k, 1] else F[k, 1]
+        r2 = 0.0 if fixed[k, 2] else F[k, 2]
+        if in_contact[k] and has_mold:
+            R[0] = r0
+            R[1] = r1
+            R[2] = r2
+            m = contact_normals_from_query(margs, Q[k], nbuf)
+            free_axis_normals(fixed[k], nbuf, m)
+            v = cone_distance(R, nbuf, m)
+        else:
+            v = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        V[k] = v
+        if not (v <= vmax):
+            if math.isnan(v):
+                return math.nan
+            vmax = v
+    return vmax
+
+
+@njit(cache=True)
 def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
     """Active set and per-node projectors Pi (n,3,3) onto the allowed directions.
 
     Releases contact nodes whose resultant points out of the mold (in_contact updated in place).
     With ``probe`` > 0 [m], a node pressed onto a convex edge or vertex keeps only the face it
     slides down (``_ridge_face``). Returns the number of released nodes."""
-    qbuf = np.empty(8)
+    Q = np.empty((pos.shape[0], 9))
+    _query_nodes(pos, has_mold, margs, Q)
+    return _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, Q)
+
+
+@njit(cache=True)
+def _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, QA):
+    """``_projectors`` with the mold's answers at the nodes read from QA (n, 9) (``_query_nodes``)."""
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     act = np.empty(3, np.int64)
     R = np.empty(3)
@@ -89,10 +147,10 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
         if in_contact[k] and has_mold and nq < 3:
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
-            m = mold_contact_normals(margs, pos[k], qbuf, nbuf)
+            m = contact_normals_from_query(margs, QA[k], nbuf)
             free_axis_normals(fixed[k], nbuf, m)
             na = cone_active(R, nbuf, m, act)
-            if na >= 2 and qbuf[6] != 0.0 and probe > 0.0:
+            if na >= 2 and QA[k, 6] != 0.0 and probe > 0.0:
                 na = _ridge_face(pos[k], R, nbuf, m, margs, probe, act, na)
             if na == 0:
                 in_contact[k] = False
@@ -159,6 +217,16 @@ def _remove_direction(Pi, k, n0, n1, n2, min_norm):
 
 @njit(cache=True)
 def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
+    """``_block_infeasible_q`` querying the nodes itself."""
+    if not has_mold or margs[0][0] == MOLD_SMOOTH:
+        return 0
+    Q = np.empty((pos.shape[0], 9))
+    _query_nodes(pos, has_mold, margs, Q)
+    return _block_infeasible_q(pos, dx, contact, has_mold, margs, probe, Pi, Q)
+
+
+@njit(cache=True)
+def _block_infeasible_q(pos, dx, contact, has_mold, margs, probe, Pi, Q):
     """Blocking constraints at edges and vertices. The active set (``_projectors``) keeps the
     normals that carry a positive multiplier; the Newton step of a node on an edge or vertex can
     still leave the feature's tangent cone through another face (in a groove: into the face
@@ -166,7 +234,8 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
     first order, so no step length lowers the energy. A node whose step direction enters the
     mold within ``probe`` [m] gets the face normal it violates most added to its constraints
     (Pi updated in place). Returns how many nodes were blocked. On the smooth surface of a mesh
-    every answer is a face (code 0, one normal): nothing to block, no query."""
+    every answer is a face (code 0, one normal): nothing to block, no query. Q (n, 9): the mold's
+    answers at pos (``_query_nodes``)."""
     if not has_mold or margs[0][0] == MOLD_SMOOTH:
         return 0
     q = np.empty(8)
@@ -182,8 +251,7 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
         dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if dn == 0.0:
             continue
-        mold_query(margs, pos[k], q)
-        if q[6] == 0.0:
+        if Q[k, 6] == 0.0:
             continue
         p[0] = pos[k, 0] + probe * d0 / dn
         p[1] = pos[k, 1] + probe * d1 / dn
@@ -191,7 +259,7 @@ def _block_infeasible(pos, dx, contact, has_mold, margs, probe, Pi):
         sd = mold_query(margs, p, q)
         if not (sd < -1e-3 * probe):
             continue
-        m = mold_contact_normals(margs, pos[k], q, nbuf)
+        m = contact_normals_from_query(margs, Q[k], nbuf)
         best = 0.0
         jb = -1
         for j in range(m):
@@ -226,10 +294,11 @@ def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share)
     in place), and the step is solved again (projected Newton: a variable at its bound whose step
     leaves the feasible set is held). This is done only when those nodes' moves carry more than
     ``share`` of the step's predicted energy decrease (rhs (3n,) [N]: the projected forces the
-    step was solved for; the decrease is rhs . dx). With share = 1 (the solver's setting): only
-    when the rest of the step, the part the line search can realise, does not lower the energy at
-    first order; entering nodes with a smaller share only shorten the step, and the path (and the
-    equilibria reached) stay as they were.
+    step was solved for; the decrease is rhs . dx). With share = 1: only when the rest of the
+    step, the part the line search can realise, does not lower the energy at first order; with
+    share = 0 (the solver's setting, ``iteration.HOLD_SHARE``): every entering node, the projected
+    Newton rule (otherwise a node whose multiplier is about 0 at the solution churns in and out of
+    contact, each entry cutting the step to a sliver).
     Returns how many nodes were put back."""
     if not has_mold:
         return 0
@@ -307,44 +376,24 @@ def _free_distances(pos, contact, has_mold, margs, out):
 
 
 @njit(cache=True)
-def _free_distance_bounds(pos, contact, has_mold, margs, ref_pos, ref_sd, exact_below, out):
-    """``_free_distances`` with fewer queries: a lower bound of the signed distance where it is
-    enough. The distance changes by at most a node's move (it is 1-Lipschitz, which the
-    trial positions' skip test already assumes), so a node not in contact that was queried at
-    ref_pos[k] (distance ref_sd[k], NaN: never) gets ref_sd[k] - |pos[k] - ref_pos[k]| when that
-    bound exceeds exact_below [m], and a query (which updates ref_pos, ref_sd) otherwise. Every
-    reader decides alike with the bound: ``_trial_positions`` queries a node whose move may reach
-    its distance (a lower bound only adds queries that find no hit), ``_block_entering`` reads
-    only whether it is <= PENETRATION_TOL (exact_below must be at least that). Contact nodes get
-    0 and forget their reference. pos, ref_pos (n,3) [m]; ref_sd, out (n,) [m]. Returns the
-    number of queries."""
-    q = np.empty(8)
-    queries = 0
-    for k in range(pos.shape[0]):
+def _free_distances_q(contact, has_mold, Q, out):
+    """``_free_distances`` from the mold's answers at the nodes in Q (``_query_nodes``)."""
+    for k in range(contact.shape[0]):
         if not has_mold:
             out[k] = np.inf
-            continue
-        if contact[k]:
+        elif contact[k]:
             out[k] = 0.0
-            ref_sd[k] = np.nan
-            continue
-        r = ref_sd[k]
-        if r == r:
-            d0 = pos[k, 0] - ref_pos[k, 0]
-            d1 = pos[k, 1] - ref_pos[k, 1]
-            d2 = pos[k, 2] - ref_pos[k, 2]
-            b = r - math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * (1.0 + 1e-9) - 1e-15
-            if b > exact_below:
-                out[k] = b
-                continue
-        sd = mold_query(margs, pos[k], q)
-        queries += 1
-        ref_pos[k, 0] = pos[k, 0]
-        ref_pos[k, 1] = pos[k, 1]
-        ref_pos[k, 2] = pos[k, 2]
-        ref_sd[k] = sd
-        out[k] = sd
-    return queries
+        else:
+            out[k] = Q[k, 8]
+
+
+@njit(cache=True)
+def _contact_faces_q(contact, has_mold, margs, Q, out):
+    """``_contact_faces`` from the mold's answers at the nodes in Q (``_query_nodes``)."""
+    for k in range(contact.shape[0]):
+        out[k] = -1
+        if has_mold and contact[k] and margs[0][0] == MOLD_MESH and Q[k, 6] == 0.0:
+            out[k] = int(Q[k, 7])
 
 
 @njit(cache=True)
@@ -474,6 +523,27 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                     sd = 0.0
                 else:
                     sd = mold_query(margs, p, q)
+                    # a node with constrained axes moved onto the foot point along its free axes
+                    # only is still inside where the surface curves (by about its constrained
+                    # offset times the curvature): the line search then rejects any step longer
+                    # than the curvature allows, and the run creeps (the stocking's held column on
+                    # the smooth leg: alpha = 0.25 for 400 iterations). Newton along the normal's
+                    # free part n_f: p -= sd n_f / |n_f|^2 puts it on the surface to first order;
+                    # started only for a node inside, repeated while it is off the surface
+                    for t in range(FIXED_PROJECTION_STEPS if (FIXED_PROJECTION_EVERYWHERE or
+                                                               margs[0][0] == MOLD_SMOOTH) else 0):
+                        if not (sd < 0.0 or (t > 0 and sd > FIXED_PROJECTION_TOL)):
+                            break
+                        nf2 = 0.0
+                        for a in range(3):
+                            if not fixed[k, a]:
+                                nf2 += q[3 + a] * q[3 + a]
+                        if not (nf2 > 1e-12):
+                            break
+                        for a in range(3):
+                            if not fixed[k, a]:
+                                p[a] -= sd * q[3 + a] / nf2
+                        sd = mold_query(margs, p, q)
             if -sd > worst:
                 worst = -sd
         out[k, 0] = p[0]
