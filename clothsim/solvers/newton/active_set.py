@@ -28,10 +28,11 @@ SMOOTH_FOOT_TRUSTED = True
 # Newton steps along the free part of the normal that bring a contact node with constrained axes
 # out of the mold after its projection (``_trial_positions``); 0: none (the solver before them)
 FIXED_PROJECTION_STEPS = 6
-# ... on the smooth surface of a mesh; on the other molds too when True (False: True moves the
-# recorded equilibria of the faceted stocking, by 3 mm along its degenerate courses, and of the
-# cylinder sleeves, by 3e-8 m, measured; on facets the creep it cures is rare: flat faces)
-FIXED_PROJECTION_EVERYWHERE = False
+# ... on the smooth surface of a mesh, and on the other molds too when True (False only to compare
+# with the solver before it). Turning it on moved the faceted stocking by up to 3 mm along its
+# degenerate courses (to another equilibrium, see SCAN_RULES_ON_FACETS) and the cylinder sleeves
+# by 3e-8 m (within their solve's tolerance), measured
+FIXED_PROJECTION_EVERYWHERE = True
 # ... until it is within this [m] of the surface
 FIXED_PROJECTION_TOL = 1e-14
 
