@@ -21,7 +21,8 @@ from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
 from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible_q,
-                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q, _trial_positions)
+                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+                         _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
@@ -151,6 +152,7 @@ class NewtonLevel:
         self.Q = np.zeros((n, 9))
         self._q_pos = None
         self.sd0 = np.full(n, np.inf)
+        self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
         self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
         self._mg_pi = None
@@ -338,8 +340,10 @@ class NewtonLevel:
                 if clip and not faces_known:
                     _contact_faces_q(contact, self.has_mold, self.margs, self.queries(pos), face0)
                     faces_known = True
-                pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                       clip, face0, self.F, self.trial, self.trial_contact)
+                # the clipped pass re-queries only the nodes the clip stops (the others' answers
+                # from the pass just before, at the same alpha, stand)
+                pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
+                                          clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip)
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
