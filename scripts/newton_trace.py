@@ -59,7 +59,7 @@ def main(argv=None):
     orig_ls = iteration.NewtonLevel._line_search
     orig_be = iteration._block_entering
     orig_bi = iteration._block_infeasible_q
-    orig_tp = iteration._trial_positions
+    orig_tp = iteration._trial_positions_sd
 
     def ls(self, state, dx, E0, slope, v_base):
         rec["ls_calls"] = rec.get("ls_calls", 0) + 1
@@ -85,7 +85,7 @@ def main(argv=None):
     iteration.NewtonLevel._line_search = ls
     iteration._block_entering = be
     iteration._block_infeasible_q = bi
-    iteration._trial_positions = tp
+    iteration._trial_positions_sd = tp
 
     solver = NewtonSolver(model, newton_options(settings))
     fine = solver.fine

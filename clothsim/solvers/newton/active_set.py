@@ -451,13 +451,26 @@ def _face_exit(margs, f, p0, d):
 @njit(cache=True)
 def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
                      contact_out):
+    """``_trial_positions_sd`` without the per-node distances and the reuse of an earlier pass."""
+    sd_out = np.empty(pos0.shape[0])
+    return _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0,
+                               out, contact_out, sd_out, False)
+
+
+@njit(cache=True)
+def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
+                        contact_out, sd_out, reuse):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
     are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
     contact before the step (a free node whose move is shorter than its distance cannot reach the
     mold and needs no query). clip_faces: on a mesh mold, contact nodes stop at their face's
     border; face0 (N,) int64: that face (``_contact_faces``; -1: not on a face). Returns the
-    deepest remaining penetration [m] (0 when none)."""
+    deepest remaining penetration [m] (0 when none). sd_out (N,) [m]: each node's signed
+    distance after its move (0 for a node not queried). reuse (with clip_faces): out,
+    contact_out and sd_out hold the pass without the clip at the same pos0, step and alpha, and
+    the nodes that the clip does not stop (their position is the same) keep that pass's answers
+    instead of being queried again: the same result, bit for bit."""
     q = np.empty(8)
     p = np.empty(3)
     dd = np.empty(3)
@@ -475,6 +488,7 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                 v += d
             p[a] = v
         c = contact0[k]
+        sdk = 0.0
         if has_mold and moved and (c or not (sd0[k] > math.sqrt(d2) * (1.0 + 1e-9) + 1e-15)):
             hit = False
             if c:
@@ -483,14 +497,25 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                     # a contact node on a face slides at most to the face's border: the contact
                     # feature changes there (edge or vertex), and the next active set decides
                     # whether it stays on it or moves on to the next face
+                    clipped = False
                     if face0[k] >= 0:
                         for a in range(3):
                             dd[a] = p[a] - pos0[k, a]
                         t = _face_exit(margs, face0[k], pos0[k], dd)
                         if t < 1.0:
+                            clipped = True
                             for a in range(3):
                                 if not fixed[k, a]:
                                     p[a] = pos0[k, a] + t * dd[a]
+                    if reuse and not clipped:
+                        # the same position as in the pass without the clip: its answers stand
+                        if -sd_out[k] > worst:
+                            worst = -sd_out[k]
+                        continue
+            elif reuse:
+                if -sd_out[k] > worst:
+                    worst = -sd_out[k]
+                continue
             else:
                 hit = stop_at_surface(margs, pos0[k], p, fixed[k])
             on_foot = False
@@ -545,12 +570,17 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
                             if not fixed[k, a]:
                                 p[a] -= sd * q[3 + a] / nf2
                         sd = mold_query(margs, p, q)
+            sdk = sd
             if -sd > worst:
                 worst = -sd
+        elif reuse:
+            # not moved, or a free node that cannot reach the mold: as in the earlier pass
+            continue
         out[k, 0] = p[0]
         out[k, 1] = p[1]
         out[k, 2] = p[2]
         contact_out[k] = c
+        sd_out[k] = sdk
     return worst
 
 

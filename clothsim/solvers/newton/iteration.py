@@ -21,7 +21,8 @@ from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
 from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible_q,
-                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q, _trial_positions)
+                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+                         _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
@@ -151,6 +152,7 @@ class NewtonLevel:
         self.Q = np.zeros((n, 9))
         self._q_pos = None
         self.sd0 = np.full(n, np.inf)
+        self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
         self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
         self._mg_pi = None
@@ -179,7 +181,7 @@ class NewtonLevel:
     def queries(self, pos):
         """The mold's answers at the nodes at pos (n,3) [m] (``_query_nodes``: Q (n, 9)), queried
         once per set of positions."""
-        if self._q_pos is None or not np.array_equal(self._q_pos, pos):
+        if self._q_pos is None or not _same(self._q_pos, pos):
             _query_nodes(pos, self.has_mold, self.margs, self.Q)
             if self._q_pos is None:
                 self._q_pos = pos.copy()
@@ -244,7 +246,7 @@ class NewtonLevel:
         pos = state.positions
         F = self.F
         self.v_prev = vinf_now
-        if self._cache is not None and self._cache[0] is pos and np.array_equal(self._cache[1], pos):
+        if self._cache is not None and self._cache[0] is pos and _same(self._cache[1], pos):
             E0 = self._cache[2]
             F[:] = self._cache[3]
         else:
@@ -256,7 +258,7 @@ class NewtonLevel:
         _projectors_q(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe, Q)
         # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
         _free_distances_q(contact, self.has_mold, Q, self.sd0)
-        v_base = self.residual(pos, contact, F) if not np.array_equal(contact, contact_before) else vinf_now
+        v_base = self.residual(pos, contact, F) if not _same(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
         _apply_pi(self.Pi, f, rhs)
@@ -311,7 +313,7 @@ class NewtonLevel:
                     self._set_kink(1.0)
                 elif self.ls_alpha >= LM_ALPHA_HIGH:
                     self.lm = max(self.lm / 10.0, 1e-12)
-                    if self._kink_decay > 1.0 and np.array_equal(contact_before, state.in_contact):
+                    if self._kink_decay > 1.0 and _same(contact_before, state.in_contact):
                         self._set_kink(max(self._kink_scale / self._kink_decay, KINK_FLOOR))
                 return accepted
             self.lm = max(self.lm * 100.0, 1e-6)
@@ -338,8 +340,10 @@ class NewtonLevel:
                 if clip and not faces_known:
                     _contact_faces_q(contact, self.has_mold, self.margs, self.queries(pos), face0)
                     faces_known = True
-                pen = _trial_positions(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                       clip, face0, self.F, self.trial, self.trial_contact)
+                # the clipped pass re-queries only the nodes the clip stops (the others' answers
+                # from the pass just before, at the same alpha, stand)
+                pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
+                                          clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip)
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
@@ -380,6 +384,20 @@ def _diag_traces(K, diag):
         q = diag[k]
         out[k] = 0.0 + K[q, 0, 0] + K[q, 1, 1] + K[q, 2, 2]
     return out
+
+
+@njit(cache=True)
+def _same(a, b):
+    """np.array_equal(a, b) for two arrays of the same shape (1-d or 2-d; nan differs from
+    everything), without numpy's temporaries: the per-call cost of the cached-answer checks."""
+    if a.shape != b.shape:
+        return False
+    x = a.ravel()
+    y = b.ravel()
+    for i in range(x.shape[0]):
+        if not (x[i] == y[i]):
+            return False
+    return True
 
 
 @njit(cache=True)

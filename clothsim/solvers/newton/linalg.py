@@ -499,6 +499,97 @@ def band_order(n, spring_nodes):
     return perm, inv, bw
 
 
+@njit(cache=True, inline="always")
+def _band_entry(L, j, k, k0, w):
+    """L[j, k] (k < j) of ``_band_factor``: A[j, k] minus the sum over m = k0 .. k-1 of
+    L[j, m] L[k, m] (in that order), over L[k, k]."""
+    s = L[j, w - 1 - (j - k)]
+    oj = w - 1 - j
+    ok = w - 1 - k
+    for m in range(k0, k):
+        s -= L[j, oj + m] * L[k, ok + m]
+    L[j, w - 1 - (j - k)] = s / L[k, w - 1]
+
+
+@njit(cache=True)
+def _band_factor(L):
+    """In-place banded Cholesky factorisation of the lower band stored in L (3n, w) (row i holds
+    A[i, i - w + 1 .. i], the diagonal last; see ``_band_cholesky_solve``). Returns False when a
+    pivot is not positive.
+
+    Each entry is computed by the same arithmetic, in the same order, as the row-by-row
+    algorithm (s = A[j, k] - sum_{m} L[j, m] L[k, m], m increasing); four rows are computed side
+    by side against the same earlier row k, so that the four sums' additions (a chain each)
+    overlap in the processor's pipeline instead of waiting on one another."""
+    n3 = L.shape[0]
+    w = L.shape[1]
+    j0 = 0
+    while j0 < n3:
+        R = n3 - j0
+        if R > 4:
+            R = 4
+        k00 = max(j0 - (w - 1), 0)
+        if R == 4:
+            k01 = max(j0 + 1 - (w - 1), 0)
+            k02 = max(j0 + 2 - (w - 1), 0)
+            k03 = max(j0 + 3 - (w - 1), 0)
+            oj0 = w - 1 - j0
+            oj1 = oj0 - 1
+            oj2 = oj0 - 2
+            oj3 = oj0 - 3
+            for k in range(k00, j0):
+                if k < k03:
+                    # not every row of the four has an entry in column k yet
+                    _band_entry(L, j0, k, k00, w)
+                    if k >= k01:
+                        _band_entry(L, j0 + 1, k, k01, w)
+                    if k >= k02:
+                        _band_entry(L, j0 + 2, k, k02, w)
+                    continue
+                ok = w - 1 - k
+                s0 = L[j0, oj0 + k]
+                s1 = L[j0 + 1, oj1 + k]
+                s2 = L[j0 + 2, oj2 + k]
+                s3 = L[j0 + 3, oj3 + k]
+                for m in range(k00, k03):
+                    s0 -= L[j0, oj0 + m] * L[k, ok + m]
+                for m in range(k01, k03):
+                    s1 -= L[j0 + 1, oj1 + m] * L[k, ok + m]
+                for m in range(k02, k03):
+                    s2 -= L[j0 + 2, oj2 + m] * L[k, ok + m]
+                for m in range(k03, k):
+                    lk = L[k, ok + m]
+                    s0 -= L[j0, oj0 + m] * lk
+                    s1 -= L[j0 + 1, oj1 + m] * lk
+                    s2 -= L[j0 + 2, oj2 + m] * lk
+                    s3 -= L[j0 + 3, oj3 + m] * lk
+                d = L[k, w - 1]
+                L[j0, oj0 + k] = s0 / d
+                L[j0 + 1, oj1 + k] = s1 / d
+                L[j0 + 2, oj2 + k] = s2 / d
+                L[j0 + 3, oj3 + k] = s3 / d
+            kstart = j0
+        else:
+            kstart = -1
+        # the rest of each row (row by row): its entries from column kstart on, then its diagonal
+        for r in range(R):
+            j = j0 + r
+            k0 = max(j - (w - 1), 0)
+            kb = k0 if kstart < 0 else max(kstart, k0)
+            for k in range(kb, j):
+                _band_entry(L, j, k, k0, w)
+            s = L[j, w - 1]
+            oj = w - 1 - j
+            for m in range(k0, j):
+                v = L[j, oj + m]
+                s -= v * v
+            if not (s > 0.0) or not math.isfinite(s):
+                return False
+            L[j, w - 1] = math.sqrt(s)
+        j0 += R
+    return True
+
+
 @njit(cache=True)
 def _band_cholesky_solve(indptr, indices, data, inv, bw, rhs, L, x):
     """Solve A x = rhs for the symmetric positive definite BSR matrix A (3x3 blocks) by a banded
@@ -525,31 +616,8 @@ def _band_cholesky_solve(indptr, indices, data, inv, bw, rhs, L, x):
                     c = 3 * jn + b
                     if c <= r:
                         L[r, w - 1 - (r - c)] = data[q, a, b]
-    for j in range(n3):
-        # row j: L[j, k] for k < j, then the diagonal
-        k0 = j - (w - 1)
-        if k0 < 0:
-            k0 = 0
-        for k in range(k0, j):
-            s = L[j, w - 1 - (j - k)]
-            # subtract sum_{m < k} L[j, m] L[k, m]
-            m0 = k0
-            mk = k - (w - 1)
-            if mk > m0:
-                m0 = mk
-            oj = w - 1 - j
-            ok = w - 1 - k
-            for m in range(m0, k):
-                s -= L[j, oj + m] * L[k, ok + m]
-            L[j, w - 1 - (j - k)] = s / L[k, w - 1]
-        s = L[j, w - 1]
-        oj = w - 1 - j
-        for m in range(k0, j):
-            v = L[j, oj + m]
-            s -= v * v
-        if not (s > 0.0) or not math.isfinite(s):
-            return False
-        L[j, w - 1] = math.sqrt(s)
+    if not _band_factor(L):
+        return False
     # forward: L y = P rhs
     y = np.empty(n3)
     for k in range(n):
