@@ -814,8 +814,11 @@ class Multigrid:
         self.pairs = None
         self._pslots = None
 
-    def setup(self, indptr, indices, data, Pi):
-        """Build the hierarchy for the projected fine matrix (BSR arrays)."""
+    def setup(self, indptr, indices, data, Pi, pad_scale=None):
+        """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
+        a coarse node whose diagonal block the Galerkin product leaves zero (no lattice node
+        among its children: padding) gets pad_scale x I3, decoupled (its right-hand sides are
+        zero, so it stays at zero)."""
         self.Pi = Pi
         levels = []
         L = _Level()
@@ -830,6 +833,10 @@ class Multigrid:
             C.indptr, C.indices, C.data = cip, cidx, cdat
             C.n = tr.nc
             levels.append(C)
+        if pad_scale is not None:
+            # after all the products, so that a filled row does not reach the next level
+            for C in levels[1:]:
+                _fill_empty_diagonal(C.indptr, C.indices, C.data, pad_scale)
         for lv, L in enumerate(levels[:-1]):
             nx1, ny1 = self.shapes[lv]
             L.ds, L.ps, L.ns = _line_slots(L.indptr, L.indices, nx1, ny1)
@@ -882,6 +889,33 @@ class Multigrid:
             _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         return x
 
+
+@njit(cache=True)
+def _fill_empty_diagonal(indptr, indices, data, value):
+    """Rows of a BSR matrix whose blocks are all zero get value x I3 on their diagonal block
+    (data (nb,3,3) edited in place; every row must hold its diagonal block). Returns how many."""
+    n = indptr.shape[0] - 1
+    cnt = 0
+    for i in range(n):
+        empty = True
+        d = -1
+        for q in range(indptr[i], indptr[i + 1]):
+            if indices[q] == i:
+                d = q
+            for r in range(3):
+                for c in range(3):
+                    if data[q, r, c] != 0.0:
+                        empty = False
+        if empty and d >= 0:
+            for r in range(3):
+                data[d, r, r] = value
+            cnt += 1
+    return cnt
+
+
+# the padding of PaddedMultigrid's rectangle given identity blocks (exact Galerkin products; False:
+# a scaled identity, which adds (scale - 1) I to the coarse nodes next to the padding)
+PAD_IDENTITY = True
 
 # sewn pairs relaxed jointly in PaddedMultigrid's smoother (False: the line smoother alone)
 PAIR_SMOOTHING = True
@@ -986,10 +1020,13 @@ class PaddedMultigrid:
         fdat = np.zeros((fidx.shape[0], 3, 3))
         got = src >= 0
         fdat[got] = data[src[got]]
-        fdat[~got] = np.eye(3) * max(scale, 1e-300)
+        # the padding's blocks are the identity, like a held node's (I - Pi with Pi = 0): the
+        # Galerkin products drop exactly that part, so the padding adds nothing to a coarse node
+        # (a scaled identity there would pin the coarse nodes next to it: seam edges, outlines)
+        fdat[~got] = np.eye(3) if PAD_IDENTITY else np.eye(3) * max(scale, 1e-300)
         fpi = np.zeros((self.N, 3, 3))
         fpi[self.emb] = Pi
-        self.mg.setup(fptr, fidx, fdat, fpi)
+        self.mg.setup(fptr, fidx, fdat, fpi, pad_scale=max(scale, 1e-300) if PAD_IDENTITY else None)
 
     def vcycle(self, b):
         bf = np.zeros((self.N, 3))
