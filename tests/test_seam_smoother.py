@@ -185,6 +185,21 @@ def test_padded_coarse_operators_are_the_lattice_galerkin_products(monkeypatch):
         assert np.abs(got - want).max() <= 1e-12 * scale
 
 
+def test_padded_layout_starts_panels_on_aligned_columns():
+    """Four 17 x 17 panels: each starts on a column that is a multiple of PANEL_ALIGN (4: columns
+    0, 20, 40, 60), the rectangle ends at the last panel's last column (77 x 17); a node (i, j) of
+    panel p is row (start_p + i) * 17 + j."""
+    from clothsim.solvers.newton import linalg
+
+    assert linalg.PANEL_ALIGN == 4
+    model, _ = _small_garment(16)
+    top = model.topology
+    pm = PaddedMultigrid(top)
+    assert pm.full.grid_shape == (77, 17) and pm.N == 77 * 17
+    want = (20 * top.node_panel + top.node_ij[:, 0]) * 17 + top.node_ij[:, 1]
+    assert np.array_equal(pm.emb, want)
+
+
 def test_sequencing_keeps_the_seams_closed():
     from clothsim.grid import State
 

@@ -913,6 +913,11 @@ def _fill_empty_diagonal(indptr, indices, data, value):
     return cnt
 
 
+# PaddedMultigrid's panels start on columns that are multiples of this (1: one empty column
+# between two panels, the first round's layout; 4: a panel's first column is a grid node on the
+# two first coarse levels)
+PANEL_ALIGN = 4
+
 # the padding of PaddedMultigrid's rectangle given identity blocks (exact Galerkin products; False:
 # a scaled identity, which adds (scale - 1) I to the coarse nodes next to the padding)
 PAD_IDENTITY = True
@@ -981,8 +986,12 @@ class PaddedMultigrid:
 
         shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
         height = max(s[1] for s in shapes)
-        offs = np.cumsum([0] + [s[0] + 1 for s in shapes])
-        width = int(offs[-1]) - 1
+        # each panel starts on a column that is a multiple of PANEL_ALIGN (at least one empty
+        # column before it): its first column then stays a grid node on the first coarse levels
+        # instead of being interpolated from the previous panel's last column
+        al = PANEL_ALIGN
+        offs = np.cumsum([0] + [-(-(s[0] + 1) // al) * al for s in shapes])
+        width = int(offs[-2]) + shapes[-1][0]
         self.full = Topology.rectangle(width - 1, height - 1)
         I = offs[topology.node_panel] + topology.node_ij[:, 0]
         self.emb = (I * height + topology.node_ij[:, 1]).astype(np.int64)
