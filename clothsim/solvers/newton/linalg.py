@@ -891,6 +891,19 @@ class Multigrid:
 
 
 @njit(cache=True)
+def _pad_copy(src, data, value, out):
+    """out[q] = data[src[q]] where src[q] >= 0, else value x I3 (out (nq,3,3), every block written)."""
+    for q in range(src.shape[0]):
+        k = src[q]
+        for r in range(3):
+            for c in range(3):
+                if k >= 0:
+                    out[q, r, c] = data[k, r, c]
+                else:
+                    out[q, r, c] = value if r == c else 0.0
+
+
+@njit(cache=True)
 def _fill_empty_diagonal(indptr, indices, data, value):
     """Rows of a BSR matrix whose blocks are all zero get value x I3 on their diagonal block
     (data (nb,3,3) edited in place; every row must hold its diagonal block). Returns how many."""
@@ -1026,13 +1039,11 @@ class PaddedMultigrid:
             self.prepare(indptr, indices)
         fptr, fidx, src = self._pattern
         scale = float(np.abs(np.einsum("kii->k", data)).mean() / 3) if data.shape[0] else 1.0
-        fdat = np.zeros((fidx.shape[0], 3, 3))
-        got = src >= 0
-        fdat[got] = data[src[got]]
+        fdat = np.empty((fidx.shape[0], 3, 3))
         # the padding's blocks are the identity, like a held node's (I - Pi with Pi = 0): the
         # Galerkin products drop exactly that part, so the padding adds nothing to a coarse node
         # (a scaled identity there would pin the coarse nodes next to it: seam edges, outlines)
-        fdat[~got] = np.eye(3) if PAD_IDENTITY else np.eye(3) * max(scale, 1e-300)
+        _pad_copy(src, data, 1.0 if PAD_IDENTITY else max(scale, 1e-300), fdat)
         fpi = np.zeros((self.N, 3, 3))
         fpi[self.emb] = Pi
         self.mg.setup(fptr, fidx, fdat, fpi, pad_scale=max(scale, 1e-300) if PAD_IDENTITY else None)
