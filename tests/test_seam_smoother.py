@@ -8,8 +8,8 @@ import scipy.sparse as sp
 from clothsim.bench import Case, _load, four_panel_cap_overrides
 from clothsim.grid import FAMILY_SEAM
 from clothsim.solvers.newton.iteration import NewtonLevel
-from clothsim.solvers.newton.linalg import (PaddedMultigrid, _assemble, _bsr_matvec, _bsr_pattern, _chain_gs, _pcg,
-                                             _project_system, coarse_pairs, seam_chains)
+from clothsim.solvers.newton.linalg import (PaddedMultigrid, _assemble, _bsr_matvec, _bsr_pattern, _chain_gs,
+                                             _fill_empty_diagonal, _pcg, _project_system, coarse_pairs, seam_chains)
 from clothsim.solvers.newton.sequencing import prolong_state, sequencing_chain
 
 
@@ -111,6 +111,93 @@ def test_pcg_with_the_seam_smoother_solves_a_sewn_system():
     lv.mg.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
     _, it_lines, _ = _pcg(mv, lv.mg.vcycle, rhs, 1e-8, 400)
     assert it_lines > 2 * it
+
+
+def _projected_system(model, lv):
+    """The Hessian at the flat placed sheet stretched 5 %, the seams' penalty blocks, the held
+    nodes projected out, into lv.A; returns the free-node mask."""
+    from clothsim.kernels import seam_assemble
+
+    pos = model.rest_positions * 1.05
+    _assemble(pos, *lv.sargs, lv.kink, lv.slot, lv.K)
+    if model.seam_count:
+        seam_assemble(*model.seam_args(), lv.seam_slot, lv.K)
+    free = ~model.fixed_axes.any(axis=1)
+    lv.Pi[:] = 0.0
+    lv.Pi[free] = np.eye(3)
+    dmean = np.einsum("nii->n", lv.K[lv.diag])[free].mean() / 3
+    _project_system(lv.indptr, lv.indices, lv.K, lv.diag, lv.Pi, 1e-8 * dmean, lv.A)
+    return free
+
+
+def _transfer_matrix(tr):
+    n = tr.pidx.shape[0]
+    rows = np.repeat(np.arange(n), tr.pidx.shape[1]).reshape(n, -1)
+    keep = tr.pidx >= 0
+    return sp.csr_matrix((tr.pw[keep], (rows[keep], tr.pidx[keep])), shape=(n, tr.nc))
+
+
+def test_fill_empty_diagonal_sets_only_all_zero_rows():
+    indptr = np.array([0, 2, 4, 5])
+    indices = np.array([0, 1, 0, 1, 2])
+    data = np.zeros((5, 3, 3))
+    data[0] = np.eye(3)
+    data[1, 0, 2] = 0.5  # row 0: a diagonal and an off-diagonal block
+    data[2, 2, 0] = 0.5  # row 1 holds a non-zero off-diagonal block: not empty
+    assert _fill_empty_diagonal(indptr, indices, data, 7.0) == 1
+    assert np.array_equal(data[4], 7.0 * np.eye(3))
+    assert np.array_equal(data[3], np.zeros((3, 3))) and np.array_equal(data[0], np.eye(3))
+
+
+def test_padded_coarse_operators_are_the_lattice_galerkin_products(monkeypatch):
+    """The padded rectangle's coarse operators are (E P)^T (Pi A Pi) (E P) for the lattice alone
+    (E: the lattice's rows of the rectangle, P: the rectangle's bilinear prolongation), level by
+    level: the padding adds nothing to the coarse nodes next to it (the seams' edges), and a
+    coarse node without a lattice child gets a decoupled scaled identity."""
+    from clothsim.solvers.newton import linalg
+
+    monkeypatch.setattr(linalg, "COARSEST_NODES", 40)  # three coarse levels on the small garment
+    model, state = _small_garment(16)
+    lv = NewtonLevel(model, use_multigrid=True)
+    pm = lv.mg
+    assert isinstance(pm, PaddedMultigrid) and len(pm.mg.transfers) >= 3
+    free = _projected_system(model, lv)
+    pm.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
+    n, n3 = model.node_count, 3 * model.node_count
+    A = sp.bsr_matrix((lv.A, lv.indices, lv.indptr), shape=(n3, n3)).tocsr()
+    # Pi A Pi = A - (I - Pi) for the projected system
+    PAP = (A - sp.diags(np.repeat(~free, 3).astype(float))).tocsr()
+    E = sp.csr_matrix((np.ones(n), (np.arange(n), pm.emb)), shape=(n, pm.N))
+    # the projector on the fine level (Pi P), plain P below
+    R = sp.kron(sp.diags(free.astype(float)) @ E, sp.identity(3)).tocsr()
+    cur = R.T @ PAP @ R
+    for lvl, tr in enumerate(pm.mg.transfers):
+        P3 = sp.kron(_transfer_matrix(tr), sp.identity(3)).tocsr()
+        cur = (P3.T @ cur @ P3).tocsr()
+        C = pm.mg.levels[lvl + 1]
+        got = sp.bsr_matrix((C.data, C.indices, C.indptr), shape=(3 * C.n, 3 * C.n)).toarray()
+        want = cur.toarray()
+        empty = ~np.abs(want).reshape(C.n, 3, -1).any(axis=(1, 2))
+        scale = np.abs(got).max()
+        for c in np.nonzero(empty)[0]:
+            want[3 * c:3 * c + 3, 3 * c:3 * c + 3] = got[3 * c, 3 * c] * np.eye(3)
+            assert got[3 * c, 3 * c] > 0
+        assert np.abs(got - want).max() <= 1e-12 * scale
+
+
+def test_padded_layout_starts_panels_on_aligned_columns():
+    """Four 17 x 17 panels: each starts on a column that is a multiple of PANEL_ALIGN (4: columns
+    0, 20, 40, 60), the rectangle ends at the last panel's last column (77 x 17); a node (i, j) of
+    panel p is row (start_p + i) * 17 + j."""
+    from clothsim.solvers.newton import linalg
+
+    assert linalg.PANEL_ALIGN == 4
+    model, _ = _small_garment(16)
+    top = model.topology
+    pm = PaddedMultigrid(top)
+    assert pm.full.grid_shape == (77, 17) and pm.N == 77 * 17
+    want = (20 * top.node_panel + top.node_ij[:, 0]) * 17 + top.node_ij[:, 1]
+    assert np.array_equal(pm.emb, want)
 
 
 def test_sequencing_keeps_the_seams_closed():

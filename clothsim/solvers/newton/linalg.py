@@ -882,8 +882,11 @@ class Multigrid:
         self.pairs = None
         self._pslots = None
 
-    def setup(self, indptr, indices, data, Pi):
-        """Build the hierarchy for the projected fine matrix (BSR arrays)."""
+    def setup(self, indptr, indices, data, Pi, pad_scale=None):
+        """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
+        a coarse node whose diagonal block the Galerkin product leaves zero (no lattice node
+        among its children: padding) gets pad_scale x I3, decoupled (its right-hand sides are
+        zero, so it stays at zero)."""
         self.Pi = Pi
         levels = []
         L = _Level()
@@ -898,6 +901,10 @@ class Multigrid:
             C.indptr, C.indices, C.data = cip, cidx, cdat
             C.n = tr.nc
             levels.append(C)
+        if pad_scale is not None:
+            # after all the products, so that a filled row does not reach the next level
+            for C in levels[1:]:
+                _fill_empty_diagonal(C.indptr, C.indices, C.data, pad_scale)
         for lv, L in enumerate(levels[:-1]):
             nx1, ny1 = self.shapes[lv]
             L.ds, L.ps, L.ns = _line_slots(L.indptr, L.indices, nx1, ny1)
@@ -950,6 +957,51 @@ class Multigrid:
             _seam_smooth(L, pr, self._pslots[lv], b, x, True)
         return x
 
+
+@njit(cache=True)
+def _pad_copy(src, data, value, out):
+    """out[q] = data[src[q]] where src[q] >= 0, else value x I3 (out (nq,3,3), every block written)."""
+    for q in range(src.shape[0]):
+        k = src[q]
+        for r in range(3):
+            for c in range(3):
+                if k >= 0:
+                    out[q, r, c] = data[k, r, c]
+                else:
+                    out[q, r, c] = value if r == c else 0.0
+
+
+@njit(cache=True)
+def _fill_empty_diagonal(indptr, indices, data, value):
+    """Rows of a BSR matrix whose blocks are all zero get value x I3 on their diagonal block
+    (data (nb,3,3) edited in place; every row must hold its diagonal block). Returns how many."""
+    n = indptr.shape[0] - 1
+    cnt = 0
+    for i in range(n):
+        empty = True
+        d = -1
+        for q in range(indptr[i], indptr[i + 1]):
+            if indices[q] == i:
+                d = q
+            for r in range(3):
+                for c in range(3):
+                    if data[q, r, c] != 0.0:
+                        empty = False
+        if empty and d >= 0:
+            for r in range(3):
+                data[d, r, r] = value
+            cnt += 1
+    return cnt
+
+
+# PaddedMultigrid's panels start on columns that are multiples of this (1: one empty column
+# between two panels, the first round's layout; 4: a panel's first column is a grid node on the
+# two first coarse levels)
+PANEL_ALIGN = 4
+
+# the padding of PaddedMultigrid's rectangle given identity blocks (exact Galerkin products; False:
+# a scaled identity, which adds (scale - 1) I to the coarse nodes next to the padding)
+PAD_IDENTITY = True
 
 # sewn pairs relaxed jointly in PaddedMultigrid's smoother (False: the line smoother alone)
 PAIR_SMOOTHING = True
@@ -1015,8 +1067,12 @@ class PaddedMultigrid:
 
         shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
         height = max(s[1] for s in shapes)
-        offs = np.cumsum([0] + [s[0] + 1 for s in shapes])
-        width = int(offs[-1]) - 1
+        # each panel starts on a column that is a multiple of PANEL_ALIGN (at least one empty
+        # column before it): its first column then stays a grid node on the first coarse levels
+        # instead of being interpolated from the previous panel's last column
+        al = PANEL_ALIGN
+        offs = np.cumsum([0] + [-(-(s[0] + 1) // al) * al for s in shapes])
+        width = int(offs[-2]) + shapes[-1][0]
         self.full = Topology.rectangle(width - 1, height - 1)
         I = offs[topology.node_panel] + topology.node_ij[:, 0]
         self.emb = (I * height + topology.node_ij[:, 1]).astype(np.int64)
@@ -1051,13 +1107,14 @@ class PaddedMultigrid:
             self.prepare(indptr, indices)
         fptr, fidx, src = self._pattern
         scale = float(np.abs(np.einsum("kii->k", data)).mean() / 3) if data.shape[0] else 1.0
-        fdat = np.zeros((fidx.shape[0], 3, 3))
-        got = src >= 0
-        fdat[got] = data[src[got]]
-        fdat[~got] = np.eye(3) * max(scale, 1e-300)
+        fdat = np.empty((fidx.shape[0], 3, 3))
+        # the padding's blocks are the identity, like a held node's (I - Pi with Pi = 0): the
+        # Galerkin products drop exactly that part, so the padding adds nothing to a coarse node
+        # (a scaled identity there would pin the coarse nodes next to it: seam edges, outlines)
+        _pad_copy(src, data, 1.0 if PAD_IDENTITY else max(scale, 1e-300), fdat)
         fpi = np.zeros((self.N, 3, 3))
         fpi[self.emb] = Pi
-        self.mg.setup(fptr, fidx, fdat, fpi)
+        self.mg.setup(fptr, fidx, fdat, fpi, pad_scale=max(scale, 1e-300) if PAD_IDENTITY else None)
 
     def vcycle(self, b):
         bf = np.zeros((self.N, 3))
