@@ -83,17 +83,7 @@ def test_pcg_with_the_seam_smoother_solves_a_sewn_system():
     assert len(lv.mg.mg.pairs[0]) == 4 * 17
     # the Hessian at the flat placed sheet stretched 5 % (every spring in tension), the seams'
     # penalty blocks, the held nodes projected out
-    from clothsim.kernels import seam_assemble
-
-    pos = model.rest_positions * 1.05
-    _assemble(pos, *lv.sargs, lv.kink, lv.slot, lv.K)
-    if model.seam_count:
-        seam_assemble(*model.seam_args(), lv.seam_slot, lv.K)
-    free = ~model.fixed_axes.any(axis=1)
-    lv.Pi[:] = 0.0
-    lv.Pi[free] = np.eye(3)
-    dmean = np.einsum("nii->n", lv.K[lv.diag])[free].mean() / 3
-    _project_system(lv.indptr, lv.indices, lv.K, lv.diag, lv.Pi, 1e-8 * dmean, lv.A)
+    free = _projected_system(model, lv)
     lv.mg.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
     rng = np.random.default_rng(0)
     rhs = rng.normal(size=3 * model.node_count) * np.repeat(free, 3)
