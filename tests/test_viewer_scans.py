@@ -74,6 +74,10 @@ def test_viewer_opens_the_stocking_with_its_up_axis():
         while fab.busy() and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not fab.busy()
+        # the parsed mold is applied to the draft on the update loop's next pass
+        while app.scene_draft.data["mold"].get("up") is not None and time.monotonic() < deadline:
+            app.wait_idle(5)
+            time.sleep(0.05)
         assert app.scene_draft.data["mold"].get("up") is None
         assert app.panels["fabric"].mold_preview.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-9)
     finally:
