@@ -362,23 +362,10 @@ def _mold_distances(pos, has_mold, margs, out):
 
 
 @njit(cache=True)
-def _free_distances(pos, contact, has_mold, margs, out):
-    """``_mold_distances`` for the nodes not in contact (the only ones whose distance the step
-    reads: ``_trial_positions``, ``_block_entering``); contact nodes get 0 (they are on the
-    surface) without a query."""
-    q = np.empty(8)
-    for k in range(pos.shape[0]):
-        if not has_mold:
-            out[k] = np.inf
-        elif contact[k]:
-            out[k] = 0.0
-        else:
-            out[k] = mold_query(margs, pos[k], q)
-
-
-@njit(cache=True)
 def _free_distances_q(contact, has_mold, Q, out):
-    """``_free_distances`` from the mold's answers at the nodes in Q (``_query_nodes``)."""
+    """out (n,) [m]: the signed distance to the mold of each node not in contact (the only ones
+    whose distance the step reads: ``_trial_positions``, ``_block_entering``), from the mold's
+    answers at the nodes in Q (``_query_nodes``); contact nodes get 0 (they are on the surface)."""
     for k in range(contact.shape[0]):
         if not has_mold:
             out[k] = np.inf
@@ -390,25 +377,13 @@ def _free_distances_q(contact, has_mold, Q, out):
 
 @njit(cache=True)
 def _contact_faces_q(contact, has_mold, margs, Q, out):
-    """``_contact_faces`` from the mold's answers at the nodes in Q (``_query_nodes``)."""
+    """out (n,) int64: for a contact node on a mesh mold whose closest feature is a face, that
+    face; -1 otherwise (read by ``_trial_positions``' face-border clip), from the mold's answers at
+    the nodes in Q (``_query_nodes``)."""
     for k in range(contact.shape[0]):
         out[k] = -1
         if has_mold and contact[k] and margs[0][0] == MOLD_MESH and Q[k, 6] == 0.0:
             out[k] = int(Q[k, 7])
-
-
-@njit(cache=True)
-def _contact_faces(pos, contact, has_mold, margs, out):
-    """out (n,) int64: for a contact node on a mesh mold whose closest feature is a face, that
-    face; -1 otherwise (``_trial_positions``' face-border clip reads it instead of querying the
-    same start point again for every trial of a line search)."""
-    q = np.empty(8)
-    for k in range(pos.shape[0]):
-        out[k] = -1
-        if has_mold and contact[k] and margs[0][0] == MOLD_MESH:
-            mold_query(margs, pos[k], q)
-            if q[6] == 0.0:
-                out[k] = int(q[7])
 
 
 @njit(cache=True)
@@ -465,7 +440,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
     contact before the step (a free node whose move is shorter than its distance cannot reach the
     mold and needs no query). clip_faces: on a mesh mold, contact nodes stop at their face's
-    border; face0 (N,) int64: that face (``_contact_faces``; -1: not on a face). Returns the
+    border; face0 (N,) int64: that face (``_contact_faces_q``; -1: not on a face). Returns the
     deepest remaining penetration [m] (0 when none). sd_out (N,) [m]: each node's signed
     distance after its move (0 for a node not queried). reuse (with clip_faces): out,
     contact_out and sd_out hold the pass without the clip at the same pos0, step and alpha, and
