@@ -71,9 +71,9 @@ def _where(x: np.ndarray, edge_m: np.ndarray, k: int) -> dict:
             "from_edge_m": round(float(edge_m[k]), 4)}
 
 
-def band_readings(res, p: np.ndarray, f: np.ndarray, ok: np.ndarray, S: np.ndarray) -> dict:
+def band_readings(res, p: np.ndarray, ok: np.ndarray, S: np.ndarray) -> dict:
     """The calf band's interior readings and where its peaks sit (see the module docstring).
-    p, f (N,) node pressure [Pa] and reaction [N]; ok (N,) bool: contact nodes with a pressure;
+    p (N,) node pressure [Pa]; ok (N,) bool: contact nodes with a pressure;
     S: the sensor reading [Pa] at each of np.nonzero(ok)[0]."""
     m, x = res.model, res.state.positions
     ly = float(res.scene.fabric.size[1])
@@ -117,7 +117,7 @@ def measure(scene, label: dict, profile: bool = False, band: bool = False) -> di
                sensor_radius_m=SENSOR_RADIUS_M, stripe_index=stripe_index(m, p, c),
                total_force_n=float(f[np.isfinite(f)].sum()))
     if band:
-        row.update(band_readings(res, p, f, ok, S))
+        row.update(band_readings(res, p, ok, S))
     if profile and m.topology.is_grid:
         k = int(np.argmax(np.where(ok, p, 0)))
         i, j = m.topology.node_ij[k]
