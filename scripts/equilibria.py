@@ -1,6 +1,7 @@
 """Solve every example scene and record or compare its equilibrium (positions [m], energy [J]).
 
     python scripts/equilibria.py record tests/data/equilibria     # after a change meant to move results
+    python scripts/equilibria.py record tests/data/equilibria configs/x.yaml   # a new example alone
     python scripts/equilibria.py compare tests/data/equilibria    # did a refactor change any result?
 
 A refactor must leave every equilibrium where it was: within 1e-9 m and 1e-9 relative energy on
@@ -97,13 +98,20 @@ def reference_residual(scene: str, positions: np.ndarray) -> tuple[float, float]
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 2 or argv[0] not in ("record", "compare"):
+    if len(argv) < 2 or argv[0] not in ("record", "compare"):
         print(__doc__)
         return 2
     folder = Path(argv[1])
     folder.mkdir(parents=True, exist_ok=True)
+    chosen = scenes()
+    if len(argv) > 2:  # the named scenes alone (e.g. a new example), as paths relative to the repository
+        unknown = [a for a in argv[2:] if a not in chosen]
+        if unknown:
+            print(f"not an example scene: {', '.join(unknown)} (expected paths like configs/sphere_cap.yaml)")
+            return 2
+        chosen = argv[2:]
     bad = 0
-    for scene in scenes():
+    for scene in chosen:
         if argv[0] == "record":
             pos, energy, _ = solve(scene)
             np.savez_compressed(folder / reference_name(scene), positions=pos, energy=energy)
