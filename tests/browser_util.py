@@ -51,8 +51,23 @@ def require_chromium():
     pytest.skip(f"{CHROMIUM} not installed")
 
 
+#: Playwright's timeout for every action of a page [ms] (its default, 30 s, was exceeded by clicks
+#: in a clean-clone CI run at load average 6-8; a passing run never waits for it)
+PAGE_TIMEOUT_MS = 120_000
+
+
 def launch(playwright):
-    return playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+    """Debian's Chromium, headless; its pages wait up to PAGE_TIMEOUT_MS for every action."""
+    browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+    new_page = browser.new_page
+
+    def page_with_timeout(*args, **kwargs):
+        page = new_page(*args, **kwargs)
+        page.set_default_timeout(PAGE_TIMEOUT_MS)
+        return page
+
+    browser.new_page = page_with_timeout
+    return browser
 
 
 def canvas_pixels(page) -> dict:

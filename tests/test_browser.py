@@ -156,7 +156,7 @@ def test_second_tab_and_download(app_page, browser, tmp_path):
     finally:
         other.close()
     page.get_by_role("tab", name="Files").click()
-    with page.expect_download(timeout=30_000) as dl:
+    with page.expect_download(timeout=120_000) as dl:
         page.get_by_role("button", name="Export result (.npz)").click()
     path = tmp_path / "result.npz"
     dl.value.save_as(path)

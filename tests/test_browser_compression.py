@@ -127,7 +127,7 @@ def test_report_and_zip_downloads(sleeve, tmp_path):
     text = path.read_text()
     ankle = app.sim.result().compression()["probes"][0]
     assert text.startswith("<!DOCTYPE html>") and f"{ankle['pressure_mmhg']:.2f}" in text
-    with page.expect_download(timeout=30_000) as dl:
+    with page.expect_download(timeout=120_000) as dl:
         page.get_by_role("button", name="Save scene + files (.zip)").click()
     zpath = tmp_path / "scene.zip"
     dl.value.save_as(zpath)
@@ -153,7 +153,7 @@ def test_open_scene_through_the_page(browser, tmp_path):
         bad = tmp_path / "broken.yaml"
         bad.write_text(CLASS2.read_text().replace("divisions: [34, 16]", "divisions: [0, 16]"))
         page.set_input_files(sel, files=[str(bad)])
-        page.get_by_text(re.compile(r"broken\.yaml:\d+: fabric\.divisions")).first.wait_for(timeout=30_000)
+        page.get_by_text(re.compile(r"broken\.yaml:\d+: fabric\.divisions")).first.wait_for(timeout=120_000)
         assert app.sim.scene.name == "tiny"
         good = tmp_path / "sleeve.zip"
         good.write_bytes(scene_zip_bytes(load_scene(CLASS2)))
@@ -186,7 +186,7 @@ def test_camera_follows_a_stretched_sheet(browser):
         assert look0[0] == pytest.approx(0.05, abs=0.01)
         app.scene_draft.edit("constraints", lambda d: d["constraints"][1].__setitem__("displacement", [0.2, 0, 0]))
         app.start(wait=True)
-        assert app.sim.wait(60) == "converged"
+        assert app.sim.wait(300) == "converged"
         assert poll(lambda: abs(np.array(client.camera.look_at)[0] - 0.15) < 0.01, timeout=30), client.camera.look_at
         dist0 = np.linalg.norm(pos0 - look0)
         dist1 = np.linalg.norm(np.array(client.camera.position) - np.array(client.camera.look_at))

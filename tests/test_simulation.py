@@ -54,7 +54,7 @@ def test_live_edit_of_C_and_e_reaches_the_running_solver():
         time.sleep(0.3)
         assert sim.status == "running"
         sim.set_solver(C=3.0, e=1e-3)
-        status = sim.wait(60)
+        status = sim.wait(300)
         assert sim.settings.C == 3.0
         assert status == "converged"
         assert sim.residual <= 1e-3
@@ -99,7 +99,7 @@ def test_headless_solve_equals_background_run():
     sim = Simulation(scene)
     try:
         sim.start()
-        assert sim.wait(60) == "converged"
+        assert sim.wait(300) == "converged"
         np.testing.assert_allclose(sim.state.positions, a.state.positions, atol=1e-12)
     finally:
         sim.close()

@@ -99,7 +99,7 @@ def test_full_run_converges_and_scene_gets_final_positions(app):
     and the sheet node's GLB, the constrained-node point cloud, the status line and the plot all
     show the final state (the GLB positions are decoded and compared with the solver's)."""
     app.start(wait=True)
-    assert app.sim.wait(120) == "converged"
+    assert app.sim.wait(300) == "converged"
     settle(app)
     sim = app.sim
     assert sim.residual <= sim.settings.e
@@ -293,7 +293,7 @@ def test_concurrent_edits_cannot_crash(app):
     app.reset()
     settle(app)
     app.start(wait=True)
-    assert app.sim.wait(120) == "converged", app.sim.message
+    assert app.sim.wait(300) == "converged", app.sim.message
 
 
 def test_scene_yaml_download_roundtrip(app):
@@ -311,7 +311,7 @@ def test_node_fields_match_result(app):
     from clothsim.viewer.fields import node_field
 
     app.start(wait=True)
-    assert app.sim.wait(120) == "converged"
+    assert app.sim.wait(300) == "converged"
     r = app.sim.result()
     m, s = app.sim.model, app.sim.state
     p = node_field(m, s.positions, s.in_contact, "pressure")
@@ -402,7 +402,7 @@ def test_downloads_build_valid_files(app):
         client = FakeClient()
 
     app.start(wait=True)
-    assert app.sim.wait(120) == "converged"
+    assert app.sim.wait(300) == "converged"
     for kind in ("yaml", "npz", "ply", "csv"):
         app.panels["files"].download(Event(), kind)
     settle(app)
@@ -428,7 +428,7 @@ def test_status_shows_a_gathering_sheet_and_slack_springs():
     try:
         a.wait_idle(20)
         a.start(wait=True)
-        assert a.sim.wait(60) in ("converged", "stalled")
+        assert a.sim.wait(300) in ("converged", "stalled")
         settle(a, 0.5)
         text = a.gui["status"].content
         m = re.search(r"(\d+) of (\d+) springs slack · (\d+) undetermined nodes · narrowest weft extent (\d+)%", text)
@@ -453,7 +453,7 @@ def test_seams_are_drawn_and_close():
         assert pts0.shape == (5, 2, 3)
         assert np.linalg.norm(pts0[:, 0] - pts0[:, 1], axis=1).min() > 0.01  # the seam starts open
         a.start(wait=True)
-        assert a.sim.wait(120) == "converged"
+        assert a.sim.wait(300) == "converged"
         settle(a)
         pos = a.sim.state.positions
         pts = np.array(a.renderer.h_seams.points)
@@ -479,7 +479,7 @@ def test_pattern_panel_scene_opens_lists_its_panels_and_converges():
         assert not a.panels["fabric"].gui["size"].visible
         assert len(a.renderer.glb.faces) == len(a.sim.model.topology.faces)
         a.sim.start()
-        assert a.sim.wait(120) == "converged"
+        assert a.sim.wait(300) == "converged"
     finally:
         a.close()
 
@@ -498,7 +498,7 @@ def test_unequal_seam_threads_and_widest_gap_list():
         assert pts0.shape == (23, 2, 3)
         assert np.linalg.norm(pts0[:, 0] - pts0[:, 1], axis=1).max() > 1e-4  # the eased side starts longer
         a.start(wait=True)
-        assert a.sim.wait(120) == "converged"
+        assert a.sim.wait(300) == "converged"
         settle(a, 0.5)
         pos = a.sim.state.positions
         pts = np.array(a.renderer.h_seams.points)

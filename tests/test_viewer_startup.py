@@ -134,7 +134,7 @@ def test_browser_shows_compiling_note_until_kernels_ready(browser):
         assert page.get_by_text(STARTUP_NOTE).count() >= 1 and not a.ready.is_set()
         gate.set()
         assert a.ready.wait(60)
-        page.get_by_text(STARTUP_NOTE).first.wait_for(state="detached", timeout=30_000)
+        page.get_by_text(STARTUP_NOTE).first.wait_for(state="detached", timeout=120_000)
         close_notifications(page)
         t0 = time.time()
         it = 0
