@@ -1147,14 +1147,23 @@ class AlgebraicMultigrid:
         return self._M @ b
 
 
-def _pcg(matvec, prec, b, tol, maxiter):
-    """Preconditioned conjugate gradients from x = 0; returns (x, iterations, relative residual).
+def _pcg(matvec, prec, b, tol, maxiter, x0=None):
+    """Preconditioned conjugate gradients from x = x0 (None: 0); returns (x, iterations, relative
+    residual), the residual relative to |b|.
 
     Vector operations are numba loops: BLAS calls on short vectors are slow when its threads
     compete for a loaded machine."""
-    x = np.zeros_like(b)
-    r = b.copy()
     bn = math.sqrt(_dot(b, b))
+    if x0 is None:
+        x = np.zeros_like(b)
+        r = b.copy()
+    else:
+        x = x0.copy()
+        r = np.empty_like(b)
+        matvec(x, r)
+        np.subtract(b, r, out=r)
+        if bn > 0.0 and math.sqrt(_dot(r, r)) <= tol * bn:
+            return x, 0, math.sqrt(_dot(r, r)) / bn
     if bn == 0.0:
         return x, 0, 0.0
     z = prec(r)
