@@ -209,3 +209,25 @@ def test_a_start_that_meets_the_tolerance_needs_no_multigrid_set_up(monkeypatch)
     r = np.empty_like(rhs)
     _bsr_matvec(lvl.indptr, lvl.indices, lvl.A, y, r)
     assert np.linalg.norm(rhs - r) <= 1e-6 * np.linalg.norm(rhs)
+
+
+def test_padded_multigrid_lines_without_their_padding_give_the_same_v_cycle(monkeypatch):
+    from clothsim.solvers.newton import linalg as L
+
+    model, state, settings = _circle(64)
+    lvl = I.NewtonLevel(model, kink=1e-3)
+    st = state.copy()
+    v = lvl.residual(st.positions, st.in_contact)
+    lvl.iterate(st, v)
+    out = {}
+    for trim in (False, True):
+        monkeypatch.setattr(L, "TRIM_PADDING", trim)
+        mg = L.PaddedMultigrid(model.topology)
+        mg.setup(lvl.indptr, lvl.indices, lvl.A.copy(), lvl.Pi.copy())
+        b = np.random.default_rng(3).standard_normal(3 * model.node_count)
+        out[trim] = (mg.vcycle(b), mg.mg.spans)
+    assert np.array_equal(out[False][0], out[True][0])
+    # the trimmed lines are shorter (the circle leaves the rectangle's corners empty)
+    full = sum(int((s[:, 1] - s[:, 0]).sum()) for pair in out[False][1] for s in pair)
+    trimmed = sum(int((s[:, 1] - s[:, 0]).sum()) for pair in out[True][1] for s in pair)
+    assert trimmed < 0.9 * full
