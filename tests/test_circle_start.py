@@ -11,7 +11,7 @@ from clothsim.grid import State
 from clothsim.kernels import node_force
 from clothsim.solvers.newton import NewtonSolver, iteration as I, sequencing as S
 from clothsim.solvers.newton.linalg import _bsr_matvec, _pcg
-from clothsim.solvers.newton.rim import node_gauss_seidel, rim_band, settle_rim
+from clothsim.solvers.newton.rim import node_gauss_seidel, rim_band
 from clothsim.solvers.options import newton_options
 
 
