@@ -9,33 +9,36 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
+from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sp
 
 from .active_set import PENETRATION_TOL
 from .iteration import NewtonLevel, _forcing
+from .rim import rim_band, settle_rim
 
 
 from ...grid import FAMILY_SEAM, coarsen_model  # noqa: E402  (the lattice builder at stride 2)
 
 
 RIM_SWEEPS = 4
+# on a cut lattice, the outline band of an interpolated start is settled by node-wise Newton
+# (rim.settle_rim) after _relax_rim's sweeps; False only to compare with the solver before it
+SETTLE_RIM = True
 
 
-def _relax_rim(model, pos, cont):
-    """On a cut lattice, the free nodes beside a held or missing lattice node (the outline's
-    fringe, where the interpolation lost corners) are moved, in ``RIM_SWEEPS`` Jacobi sweeps, to
-    the mean of their warp and weft neighbours: the membrane's equilibrium there to first order.
-    Sewn nodes (ends of seam springs) are left alone.
-    pos (N, 3) [m] is changed in place; contact nodes stay."""
-    topo = model.topology
+def _rim_operator(model):
+    """``_relax_rim``'s averaging operator, which depends on the model alone: (rim (m,) the free
+    nodes beside a held or missing lattice node, not sewn; A (m, n) CSR their warp and weft
+    neighbours; d (m,) how many), or None when there are none."""
     n = model.node_count
     fam = model.spring_family
     lat = fam <= 1  # warp and weft springs
     a, b = model.spring_nodes[lat, 0], model.spring_nodes[lat, 1]
     deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
-    free = ~model.fixed_axes.any(axis=1) & ~cont
+    free = ~model.fixed_axes.any(axis=1)
     held_nb = np.zeros(n, bool)
     held = model.fixed_axes.any(axis=1)
     held_nb[a[held[b]]] = True
@@ -46,12 +49,30 @@ def _relax_rim(model, pos, cont):
     sewn[model.spring_nodes[fam == FAMILY_SEAM].ravel()] = True
     rim = np.nonzero(free & ((deg < 4) | held_nb) & ~sewn)[0]
     if rim.size == 0:
-        return
+        return None
     A = sp.csr_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
     A = A[rim]
     d = np.asarray(A.sum(axis=1)).ravel()
+    return rim, A, d
+
+
+def _relax_rim(model, pos, cont, op=None):
+    """On a cut lattice, the free nodes beside a held or missing lattice node (the outline's
+    fringe, where the interpolation lost corners) are moved, in ``RIM_SWEEPS`` Jacobi sweeps, to
+    the mean of their warp and weft neighbours: the membrane's equilibrium there to first order.
+    Sewn nodes (ends of seam springs) are left alone. op: ``_rim_operator(model)`` when known.
+    pos (N, 3) [m] is changed in place; contact nodes stay."""
+    if op is None:
+        op = _rim_operator(model)
+    if op is None:
+        return
+    rim, A, d = op
+    keep = ~cont[rim]
+    if not keep.any():
+        return
+    rk = rim[keep]
     for _ in range(RIM_SWEEPS):
-        pos[rim] = (A @ pos) / d[:, None]
+        pos[rk] = ((A @ pos) / d[:, None])[keep]
 
 
 def _prolongation(fine_topology, coarse_topology):
@@ -63,19 +84,26 @@ def _prolongation(fine_topology, coarse_topology):
     return fine_topology.lattice_prolongation(ctopo, sub)
 
 
-def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
+def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
-    two contact nodes) onto its surface as contact nodes."""
+    two contact nodes) onto its surface as contact nodes. On a cut or multi-panel lattice the
+    outline's fringe is relaxed (``_relax_rim``) and, when ``kink`` (NewtonOptions.kink) is
+    given, its band of nodes settled by nonlinear Gauss-Seidel (``rim.settle_rim``; ``band``:
+    ``rim.rim_band(fine_model)`` when known). P: the interpolation (``_prolongation``) and rim_op:
+    ``_rim_operator(fine_model)``, when known."""
     from ...mold import mold_query_many
 
-    P = _prolongation(fine_model.topology, coarse_model.topology)
+    if P is None:
+        P = _prolongation(fine_model.topology, coarse_model.topology)
     pos = P @ coarse_state.positions
     cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
     fixed = fine_model.fixed_axes
     pos[fixed] = fine_state.positions[fixed]
     if not fine_model.topology.is_grid:
-        _relax_rim(fine_model, pos, cont)
+        _relax_rim(fine_model, pos, cont, rim_op)
+        if kink is not None and SETTLE_RIM:
+            settle_rim(fine_model, pos, cont, kink, band)
     if fine_model.mold is not None:
         margs = fine_model.mold.kernel_args()
         n = fine_model.node_count
@@ -126,14 +154,62 @@ def sequencing_chain(model, min_nodes: int = 400):
     return chain[::-1]
 
 
+# the levels between the coarsest and the given one are solved to this share of their start residual
+# (3e-2 since issue 11's circle: one iteration fewer on the second finest level of the square,
+# the circle and the four panels, each fine grid's iterations unchanged)
+LEVEL_REL = 3e-2
+
+# the sequencing hierarchies of the last few models (``_hierarchy``), by id(model)
+_HIERARCHIES: OrderedDict = OrderedDict()
+HIERARCHY_CACHE = 2
+
+
+class _Hierarchy:
+    """What grid sequencing builds for one model and reuses on every later solve of it: the chain
+    of coarse models (``sequencing_chain``), the interpolation from each to the next finer one
+    (``_prolongation``), each cut lattice's outline band (``rim.rim_band``; None on full grids)
+    and a NewtonLevel per coarse model (reset before each use)."""
+
+    def __init__(self, model, kink):
+        self.kink = kink
+        chain = sequencing_chain(model)
+        self.P = [None] + [_prolongation(chain[i][0].topology, chain[i - 1][0].topology)
+                           for i in range(1, len(chain))]
+        self.bands = [None if m.topology.is_grid else rim_band(m) for m, _ in chain]
+        self.rim_ops = [None if m.topology.is_grid else _rim_operator(m) for m, _ in chain]
+        self.levels = [NewtonLevel(m, kink=kink) for m, _ in chain[:-1]]
+        # the given model itself is not kept (the cache must not keep it alive)
+        self.chain = chain[:-1] + [(None, None)]
+
+
+def _hierarchy(model, kink):
+    """The model's ``_Hierarchy``, built on its first solve and kept while the model lives (the
+    model and its arrays are not changed in place: a Control makes a new Model). The
+    ``HIERARCHY_CACHE`` most recently used models' are kept."""
+    key = id(model)
+    h = _HIERARCHIES.get(key)
+    if h is not None and h[0]() is model and h[1].kink == kink:
+        _HIERARCHIES.move_to_end(key)
+        return h[1]
+    hier = _Hierarchy(model, kink)
+    if h is None:
+        weakref.finalize(model, _HIERARCHIES.pop, key, None)
+    _HIERARCHIES[key] = (weakref.ref(model), hier)
+    while len(_HIERARCHIES) > HIERARCHY_CACHE:
+        _HIERARCHIES.popitem(last=False)
+    return hier
+
+
 def grid_sequence(model, state, e, kink, deadline):
     """Solve the scene on the coarser grids (coarsest first), each started from the previous
     one's solution, and return the interpolated starting state for ``model`` (or None when the
     grid cannot be coarsened or the interpolation fails). e [N]: the run's convergence limit (no
-    level is solved tighter); kink: NewtonOptions.kink; deadline: a ``time.perf_counter`` value."""
+    level is solved tighter); kink: NewtonOptions.kink; deadline: a ``time.perf_counter`` value.
+    The coarse models, transfers and levels are built once per model (``_hierarchy``)."""
     from ...grid import State
 
-    chain = sequencing_chain(model)
+    hier = _hierarchy(model, kink)
+    chain = hier.chain
     if len(chain) < 2:
         return None
     # restrict the current state down the chain (each level keeps every second node)
@@ -156,16 +232,17 @@ def grid_sequence(model, state, e, kink, deadline):
         if prev_state is not None:
             # the previous level's solution; when it cannot be interpolated (prolong_state then
             # leaves cst alone) this level starts from the restricted state
-            prolong_state(prev_model, prev_state, mdl, cst)
-        lvl = NewtonLevel(mdl, kink=kink)
+            prolong_state(prev_model, prev_state, mdl, cst, hier.P[li], kink, hier.bands[li], hier.rim_ops[li])
+        lvl = hier.levels[li]
+        lvl.reset()
         v0 = lvl.residual(cst.positions, cst.in_contact)
         # the coarsest grid is solved tightly (it fixes the contact set), the others only as far
         # as their discretisation error matters for the next grid's start (1e-2: the fine start's
         # residual is set by the interpolation, not by a tighter coarse solve)
-        rel = 1e-8 if li == 0 else 1e-2
+        rel = 1e-8 if li == 0 else LEVEL_REL
         _solve_level(lvl, cst, max(e, rel * v0), 60, deadline)
         prev_model, prev_state = mdl, cst
     trial = state.copy()
-    if not prolong_state(prev_model, prev_state, model, trial):
+    if not prolong_state(prev_model, prev_state, model, trial, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1]):
         return None
     return trial
