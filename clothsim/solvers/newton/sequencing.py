@@ -12,9 +12,11 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 from .active_set import PENETRATION_TOL
 from .iteration import NewtonLevel, _forcing
+from .linalg import _grid_transfer
 from .settle import settle_start
 
 
@@ -74,15 +76,49 @@ def _prolongation(fine_topology, coarse_topology):
     return fine_topology.lattice_prolongation(ctopo, sub)
 
 
+@njit(cache=True)
+def _interpolate(pidx, pw, xc, cc, out, cout):
+    """out (n, 3) = P xc and cout (n,) = P cc (cc bool (nc,) as 0/1) for the interpolation P
+    whose row k has weights pw[k, t] at coarse nodes pidx[k, t] (-1: none), summed from 0 in
+    that order (as scipy's sparse product sums a row)."""
+    for k in range(pidx.shape[0]):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        c = 0.0
+        for t in range(pidx.shape[1]):
+            d = pidx[k, t]
+            if d < 0:
+                continue
+            w = pw[k, t]
+            a0 += w * xc[d, 0]
+            a1 += w * xc[d, 1]
+            a2 += w * xc[d, 2]
+            c += w * (1.0 if cc[d] else 0.0)
+        out[k, 0] = a0
+        out[k, 1] = a1
+        out[k, 2] = a2
+        cout[k] = c
+
+
 def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
     two contact nodes) onto its surface as contact nodes."""
     from ...mold import mold_query_many
 
-    P = _prolongation(fine_model.topology, coarse_model.topology)
-    pos = P @ coarse_state.positions
-    cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
+    if fine_model.topology.is_grid:
+        # P's rows as the multigrid's transfer holds them (the same weights in the same order as
+        # grid_prolongation's P, so the same sums, without building P)
+        pidx, pw = _grid_transfer(*fine_model.topology.grid_shape)[:2]
+        pos = np.empty((fine_model.node_count, 3))
+        cw = np.empty(fine_model.node_count)
+        _interpolate(pidx, pw, coarse_state.positions, coarse_state.in_contact, pos, cw)
+        cont = cw > 1.0 - 1e-9
+    else:
+        P = _prolongation(fine_model.topology, coarse_model.topology)
+        pos = P @ coarse_state.positions
+        cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
     fixed = fine_model.fixed_axes
     pos[fixed] = fine_state.positions[fixed]
     if not fine_model.topology.is_grid:
@@ -98,7 +134,11 @@ def prolong_state(coarse_model, coarse_state, fine_model, fine_state):
         for a in range(3):
             sel = k[~fixed[k, a]]
             pos[sel, a] = cp[sel, a]
-        mold_query_many(margs, pos, sd, cp, nrm, feat)
+        # only the nodes put on the surface moved: the others' distances stand
+        pk = np.ascontiguousarray(pos[k])
+        sdk = np.empty(k.size)
+        mold_query_many(margs, pk, sdk, np.empty((k.size, 3)), np.empty((k.size, 3)), np.empty((k.size, 2), np.int64))
+        sd[k] = sdk
         inside = sd < -PENETRATION_TOL
         if inside.any():
             return False
