@@ -740,6 +740,7 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
     cidx = np.empty(cip[nc], np.int64)
     cdat = np.zeros((cip[nc], 3, 3))
     slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
+    blk = np.empty((3, 3))
     for c in range(nc):
         # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
         m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
@@ -760,6 +761,13 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
             wk = cw[qc]
             for q in range(indptr[k], indptr[k + 1]):
                 l = indices[q]
+                # the block (less its (I - Pi) part on the diagonal), read once for its parents
+                for r in range(3):
+                    for cc in range(3):
+                        v = data[q, r, cc]
+                        if use_pi and l == k:
+                            v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
+                        blk[r, cc] = v
                 for t in range(pidx.shape[1]):
                     d = pidx[l, t]
                     if d < 0:
@@ -768,10 +776,7 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
                     z = slot[d]
                     for r in range(3):
                         for cc in range(3):
-                            v = data[q, r, cc]
-                            if use_pi and l == k:
-                                v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
-                            cdat[z, r, cc] += w * v
+                            cdat[z, r, cc] += w * blk[r, cc]
     return cip, cidx, cdat
 
 
