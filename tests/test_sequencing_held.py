@@ -16,11 +16,11 @@ def test_coarse_levels_hold_their_nodes_at_the_prescribed_positions(monkeypatch)
     seen = []
     orig = S._solve_level
 
-    def spy(level, st, e, max_iter, deadline):
+    def spy(level, st, e, max_iter, deadline, *rest):
         m = level.model
         held = m.fixed_axes
         seen.append((m.node_count, float(np.abs(st.positions[held] - m.prescribed_positions[held]).max())))
-        return orig(level, st, e, max_iter, deadline)
+        return orig(level, st, e, max_iter, deadline, *rest)
 
     monkeypatch.setattr(S, "_solve_level", spy)
     trial = S.grid_sequence(model, state, 1e-7, 1e-3, time.perf_counter() + 60)

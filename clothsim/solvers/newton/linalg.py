@@ -744,6 +744,7 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
     cidx = np.empty(cip[nc], np.int64)
     cdat = np.zeros((cip[nc], 3, 3))
     slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
+    blk = np.empty((3, 3))
     for c in range(nc):
         # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
         m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
@@ -764,6 +765,13 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
             wk = cw[qc]
             for q in range(indptr[k], indptr[k + 1]):
                 l = indices[q]
+                # the block (less its (I - Pi) part on the diagonal), read once for its parents
+                for r in range(3):
+                    for cc in range(3):
+                        v = data[q, r, cc]
+                        if use_pi and l == k:
+                            v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
+                        blk[r, cc] = v
                 for t in range(pidx.shape[1]):
                     d = pidx[l, t]
                     if d < 0:
@@ -772,10 +780,7 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
                     z = slot[d]
                     for r in range(3):
                         for cc in range(3):
-                            v = data[q, r, cc]
-                            if use_pi and l == k:
-                                v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
-                            cdat[z, r, cc] += w * v
+                            cdat[z, r, cc] += w * blk[r, cc]
     return cip, cidx, cdat
 
 
@@ -839,23 +844,84 @@ class _Transfer:
     """Node-level bilinear interpolation between a grid and its every-second-node coarse grid."""
 
     def __init__(self, topology):
-        coarse, P = topology.grid_prolongation()
-        self.coarse = coarse
-        P.sort_indices()
-        n, nc = P.shape
-        self.pidx = -np.ones((n, 4), np.int64)
-        self.pw = np.zeros((n, 4))
-        cnt = np.diff(P.indptr)
-        pos_in_row = np.arange(P.indices.shape[0]) - np.repeat(P.indptr[:-1], cnt)
-        rows = np.repeat(np.arange(n), cnt)
-        self.pidx[rows, pos_in_row] = P.indices
-        self.pw[rows, pos_in_row] = P.data
-        PT = P.T.tocsr()
-        PT.sort_indices()
-        self.cptr = PT.indptr.astype(np.int64)
-        self.cchild = PT.indices.astype(np.int64)
-        self.cw = PT.data.astype(float)
-        self.nc = nc
+        nx1, ny1 = topology.grid_shape
+        from ...topology import Topology
+
+        self.pidx, self.pw, self.cptr, self.cchild, self.cw, nxc, nyc = _grid_transfer(nx1, ny1)
+        # the coarse grid of Topology.grid_prolongation (every second node of each line and its last)
+        self.coarse = Topology.rectangle(nxc - 1, nyc - 1, topology.names[0])
+        self.nc = nxc * nyc
+
+
+@njit(cache=True)
+def _line_parents(n):
+    """A line of n nodes and its coarse line (every second node and the last): (nc, parent index
+    (n, 2), weight (n, 2)) with -1 / 0 for an unused second parent, parents in increasing order
+    (the 1-d factor of Topology.grid_prolongation's P)."""
+    nc = (n + 1) // 2
+    if (n - 1) % 2 == 1:
+        nc += 1
+    par = -np.ones((n, 2), np.int64)
+    w = np.zeros((n, 2))
+    for i in range(n):
+        if i % 2 == 0:
+            par[i, 0] = i // 2
+            w[i, 0] = 1.0
+        elif i == n - 1:
+            # the last node (odd index) is a coarse node of its own
+            par[i, 0] = nc - 1
+            w[i, 0] = 1.0
+        else:
+            par[i, 0] = (i - 1) // 2
+            par[i, 1] = (i + 1) // 2
+            w[i, 0] = 0.5
+            w[i, 1] = 0.5
+    return nc, par, w
+
+
+@njit(cache=True)
+def _grid_transfer(nx1, ny1):
+    """The bilinear transfer of an nx1 x ny1 node grid (node i * ny1 + j) to its every-second-node
+    coarse grid, as ``_Transfer`` holds it: (pidx (n, 4), pw (n, 4), cptr (nc+1,), cchild,
+    cw, nxc, nyc); the same arrays as built from Topology.grid_prolongation's P (its rows'
+    columns in increasing order, each coarse node's children in increasing order)."""
+    nxc, px, wx = _line_parents(nx1)
+    nyc, py, wy = _line_parents(ny1)
+    n = nx1 * ny1
+    nc = nxc * nyc
+    pidx = -np.ones((n, 4), np.int64)
+    pw = np.zeros((n, 4))
+    cnt = np.zeros(nc + 1, np.int64)
+    for i in range(nx1):
+        for j in range(ny1):
+            k = i * ny1 + j
+            t = 0
+            for a in range(2):
+                if px[i, a] < 0:
+                    continue
+                for b in range(2):
+                    if py[j, b] < 0:
+                        continue
+                    c = px[i, a] * nyc + py[j, b]
+                    pidx[k, t] = c
+                    pw[k, t] = wx[i, a] * wy[j, b]
+                    cnt[c + 1] += 1
+                    t += 1
+    for c in range(nc):
+        cnt[c + 1] += cnt[c]
+    cptr = cnt.copy()
+    fill = cnt[:-1].copy()
+    cchild = np.empty(cptr[nc], np.int64)
+    cw = np.empty(cptr[nc])
+    for k in range(n):
+        for t in range(4):
+            c = pidx[k, t]
+            if c < 0:
+                continue
+            cchild[fill[c]] = k
+            cw[fill[c]] = pw[k, t]
+            fill[c] += 1
+    return pidx, pw, cptr, cchild, cw, nxc, nyc
 
 
 def _full_spans(nx1, ny1):
