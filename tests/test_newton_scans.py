@@ -101,3 +101,54 @@ def test_torso_band_on_the_smooth_scan_converges_in_60_iterations():
     assert status == "converged", (its, status)
     assert its <= 60
     assert worst <= 1e-9
+
+
+def test_node_held_off_the_surface_keeps_its_gap():
+    """A node that ``_block_entering`` holds while it is still a little off the surface (sd0 =
+    2e-11 m above the plane z = 0; contact nodes on it have sd0 = 0) has no normal part in its
+    step: its trial moves it along the plane and it keeps its gap, in contact, instead of being
+    projected onto the plane (a move along the normal that is in no step: next to a seam's
+    zero-length spring it raised the faceted calf band's residual from 6e-7 to 5e-5 N for every
+    step length)."""
+    margs = mold_primitive("plane", {"point": [0, 0, 0], "normal": [0, 0, 1]}).kernel_args()
+    gap = 2e-11
+    pos = np.array([[0.01, 0.02, gap]])
+    step = np.array([1e-9, -2e-9, 0.0])
+    out = np.empty((1, 3))
+    cout = np.empty(1, bool)
+    pen = _trial_positions_sd.py_func(pos, np.array([True]), np.array([gap]), step, 1.0, np.zeros((1, 3), bool),
+                                      True, margs, False, -np.ones(1, np.int64), np.zeros((1, 3)), out, cout,
+                                      np.zeros(1), False)
+    assert pen == 0.0
+    assert out[0, 2] == gap and cout[0]
+    assert np.allclose(out[0, :2], pos[0, :2] + step[:2], rtol=0, atol=1e-15)
+    # a node on the surface (sd0 = 0) is still projected onto it and stays in contact
+    pen = _trial_positions_sd.py_func(pos * [1, 1, 0], np.array([True]), np.zeros(1), step, 1.0,
+                                      np.zeros((1, 3), bool), True, margs, False, -np.ones(1, np.int64),
+                                      np.zeros((1, 3)), out, cout, np.zeros(1), False)
+    assert cout[0] and abs(out[0, 2]) <= 1e-15
+
+
+def test_faceted_calf_band_step_from_its_stall_makes_progress():
+    """The faceted calf band at 80 x 20 (the file's lattice) stalled at 6.3e-7 N (e = 1e-7 N),
+    "no further progress possible": tests/data/calf_band_faceted_80_stall.npz holds that state.
+    Its step releases node 1695 (a seam node 2.3e-11 m off the surface) and holds it again
+    (``_block_entering``); projecting it onto the surface in every trial cost 5e-5 N of residual
+    at its stiff zero-length seam spring, so no step length was accepted. Kept at its gap, one
+    iteration from that state reaches 3.2e-9 N."""
+    from clothsim.simulation import prepare
+    from clothsim.solvers.newton import NewtonLevel
+    from clothsim.solvers.newton.iteration import _forcing
+
+    scene = clothsim.load_scene(ROOT / "configs" / "garments" / "calf_band.yaml", ["mold.surface=faceted"])
+    model, state, _ = prepare(scene)
+    d = np.load(ROOT / "tests" / "data" / "calf_band_faceted_80_stall.npz")
+    state.positions[:] = d["positions"]
+    state.in_contact[:] = d["in_contact"]
+    lev = NewtonLevel(model)
+    lev.lm = 1e-12
+    v0 = lev.residual(state.positions, state.in_contact)
+    assert 6e-7 < v0 < 7e-7
+    v1, _, flag = lev.iterate(state, v0, forcing=_forcing(v0, 1e-7))
+    assert flag == 0 and v1 < 1e-7
+    assert max_penetration(state.positions, model.mold.kernel_args()) <= PENETRATION_TOL
