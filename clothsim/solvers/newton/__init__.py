@@ -22,8 +22,7 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    coupled step moves it into the mold is held on it (``_block_entering``) when, without its
    move, the step would not lower the energy at first order (the stalls on scanned bodies); on
    the smooth surface of a mesh always (``iteration.HOLD_SHARE``: otherwise nodes whose
-   multiplier is about 0 churn in and out of contact); a node held while still off the surface
-   keeps its gap in the line search (``active_set.HELD_KEEP_GAP``), where the slack springs' kink also decays
+   multiplier is about 0 churn in and out of contact), where the slack springs' kink also decays
    after full steps (``iteration.KINK_DECAY``) and held-axis contact nodes are projected onto the
    curved surface along their free axes (``active_set.FIXED_PROJECTION_STEPS``). The mold's
    answers at the nodes are queried once per set of positions (``active_set._query_nodes``).

@@ -35,14 +35,6 @@ FIXED_PROJECTION_STEPS = 6
 FIXED_PROJECTION_EVERYWHERE = True
 # ... until it is within this [m] of the surface
 FIXED_PROJECTION_TOL = 1e-14
-# a contact node farther than HELD_GAP_MIN [m] from the surface (held by ``_block_entering`` while
-# still off it) keeps its gap in the line search's trials (``_trial_positions_sd``: projected onto the
-# surface offset by it) instead of being projected onto the surface (False only to compare with the
-# solver before it). Not below HELD_GAP_MIN: nodes released a rounding error (~1e-17 m) off the surface
-# and held again are projected onto it as before, and the smooth surface's foot points (1e-13 m) stay
-# as they were
-HELD_KEEP_GAP = True
-HELD_GAP_MIN = 1e-12
 
 
 @njit(cache=True)
@@ -378,8 +370,7 @@ def _free_distances_q(contact, has_mold, Q, out):
         if not has_mold:
             out[k] = np.inf
         elif contact[k]:
-            # on the surface, or kept off it by a gap (``_trial_positions_sd``, HELD_GAP_MIN)
-            out[k] = Q[k, 8] if HELD_KEEP_GAP and Q[k, 8] > HELD_GAP_MIN else 0.0
+            out[k] = 0.0
         else:
             out[k] = Q[k, 8]
 
@@ -472,16 +463,6 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 v += d
             p[a] = v
         c = contact0[k]
-        gap = 0.0
-        if c and HELD_KEEP_GAP and sd0[k] > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
-            # a contact node off the surface by sd0 > HELD_GAP_MIN (one that ``_block_entering``
-            # held while still off it, and then kept there; other contact nodes have sd0 = 0): its
-            # step has no normal part, so it keeps its gap, projected onto the surface offset by it.
-            # Projecting it onto the surface itself adds a move of sd0 along the normal that is in
-            # no step: next to a seam's stiff zero-length spring a 2e-11 m move costs 5e-5 N of
-            # residual and a positive energy change for every step length (the faceted calf band's
-            # stall at 6e-7 N)
-            gap = sd0[k]
         sdk = 0.0
         if has_mold and moved and (c or not (sd0[k] > math.sqrt(d2) * (1.0 + 1e-9) + 1e-15)):
             hit = False
@@ -517,7 +498,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 sd, on_foot = _smooth_query_flag(margs, p[0], p[1], p[2], q)
             else:
                 sd = mold_query(margs, p, q)
-            if c and sd > gap + RELEASE_GAP and q[6] != 0.0:
+            if c and sd > RELEASE_GAP and q[6] != 0.0:
                 # a contact node whose move took it off the surface past a convex edge or vertex
                 # (the closest point is on that edge or vertex): it is put back there only if its
                 # resultant pulls it there (R . (p - q) < 0); otherwise it has slid off the
@@ -533,7 +514,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
             if hit or sd < 0.0:
                 for a in range(3):
                     if not fixed[k, a]:
-                        p[a] = q[a] + gap * q[3 + a]
+                        p[a] = q[a]
                 c = True
                 if (margs[0][0] == MOLD_MESH or (on_foot and SMOOTH_FOOT_TRUSTED)) and not fixed[k, 0] and \
                         not fixed[k, 1] and not fixed[k, 2]:
