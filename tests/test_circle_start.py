@@ -11,7 +11,8 @@ from clothsim.grid import State
 from clothsim.kernels import node_force
 from clothsim.solvers.newton import NewtonSolver, iteration as I, sequencing as S
 from clothsim.solvers.newton.linalg import _bsr_matvec, _pcg
-from clothsim.solvers.newton.rim import node_gauss_seidel, rim_band
+from clothsim.solvers.newton.rim import node_gauss_seidel, outline_band
+from clothsim.solvers.newton.settle import spring_kinks
 from clothsim.solvers.options import newton_options
 
 
@@ -32,9 +33,9 @@ def _resultants(model, pos, nodes):
     return r
 
 
-def test_rim_band_is_the_free_nodes_near_the_outline_nearest_first():
+def test_outline_band_is_the_free_nodes_near_the_outline_nearest_first():
     model, state, _ = _circle(40)
-    band = rim_band(model, 2)
+    band = outline_band(model, 2)
     held = model.fixed_axes.any(axis=1)
     assert band.size and not held[band].any()
     # every band node is a lattice neighbour of a held node or of a band node before it
@@ -50,7 +51,7 @@ def test_rim_band_is_the_free_nodes_near_the_outline_nearest_first():
     for k in band:
         assert seen[k] or any(seen[j] for j in nb[k])
         seen[k] = True
-    assert rim_band(model, 1).size < band.size
+    assert outline_band(model, 1).size < band.size
 
 
 def test_node_gauss_seidel_finds_a_single_nodes_equilibrium():
@@ -58,7 +59,7 @@ def test_node_gauss_seidel_finds_a_single_nodes_equilibrium():
     # the node-wise Newton steps converge to it (quadratically once close)
     model, state, _ = _circle(40)
     held = model.fixed_axes.any(axis=1)
-    k = int(rim_band(model, 3)[-1])
+    k = int(outline_band(model, 3)[-1])
     pos = state.positions.copy()
     rng = np.random.default_rng(1)
     pos[k] += 0.3 * model.spacing[0] * rng.standard_normal(3)
@@ -67,13 +68,13 @@ def test_node_gauss_seidel_finds_a_single_nodes_equilibrium():
     r0 = _resultants(model, pos, np.array([k]))[0]
     node_gauss_seidel(pos, np.array([k], np.int64), skip, model.adj_ptr, model.adj_node, model.adj_spring,
                       model.spring_rest_length, model.spring_width, model.spring_table, t.x, t.y, t.cum,
-                      t.start, t.compression, model.external_force, 1e-3, 8)
+                      t.start, t.compression, model.external_force, spring_kinks(model, 1e-3), 8)
     r1 = _resultants(model, pos, np.array([k]))[0]
     assert r0 > 1e-3 and r1 < 1e-12 * max(r0, 1.0), (r0, r1)
     assert not held[k]
 
 
-def test_settle_rim_removes_the_outline_error_of_the_interpolated_start():
+def test_settle_outline_removes_the_outline_error_of_the_interpolated_start():
     # the circle at 112 across: the interpolated fine start carries a force error at the outline's
     # fringe (the coarse grids represent the outline roughly); the settled band's is far smaller
     model, state, settings = _circle(112)
@@ -103,7 +104,7 @@ def test_settle_rim_removes_the_outline_error_of_the_interpolated_start():
     assert np.array_equal(trial.positions[held], plain.positions[held])
 
 
-def test_settle_rim_halves_the_newton_iterations_on_the_circle(monkeypatch):
+def test_settle_outline_halves_the_newton_iterations_on_the_circle(monkeypatch):
     model, state, settings = _circle(112)
 
     def iterations(settle):

@@ -86,7 +86,8 @@ Layout (one module per job): ``linalg`` (BSR pattern and assembly, multigrid, PC
 ``active_set`` (projectors, ridge faces, blocking constraints, trial positions at the surface),
 ``iteration`` (``NewtonLevel``: the step, line search, acceptance), ``sequencing`` (coarse grids,
 prolongation, ``grid_sequence``), ``settle`` (the contact rim of an interpolated start settled
-node by node), ``solver`` (``NewtonSolver`` and the settings wrapper ``solve``).
+node by node; the node's spring block both settlements use), ``rim`` (a cut lattice's outline band
+of an interpolated start settled node by node), ``solver`` (``NewtonSolver`` and the settings wrapper ``solve``).
 """
 
 # the private kernels are re-exported for the tests that drive one step by hand

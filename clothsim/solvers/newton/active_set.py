@@ -128,6 +128,31 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
     return _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, Q)
 
 
+@njit(cache=True, inline="always")
+def orthonormal_rows(Q, nq):
+    """Gram-Schmidt on the first nq rows of Q (3, 3) in place: the rows that are independent (a
+    remainder of norm 1e-6 or more) become orthonormal and move to the front; returns how many
+    (at most 3)."""
+    kept = 0
+    for t in range(nq):
+        v0, v1, v2 = Q[t, 0], Q[t, 1], Q[t, 2]
+        for u in range(kept):
+            d = v0 * Q[u, 0] + v1 * Q[u, 1] + v2 * Q[u, 2]
+            v0 -= d * Q[u, 0]
+            v1 -= d * Q[u, 1]
+            v2 -= d * Q[u, 2]
+        nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        if nv < 1e-6:
+            continue
+        Q[kept, 0] = v0 / nv
+        Q[kept, 1] = v1 / nv
+        Q[kept, 2] = v2 / nv
+        kept += 1
+        if kept == 3:
+            break
+    return kept
+
+
 @njit(cache=True)
 def _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, QA):
     """``_projectors`` with the mold's answers at the nodes read from QA (n, 9) (``_query_nodes``)."""
@@ -166,23 +191,7 @@ def _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, QA):
         for r in range(3):
             for c in range(3):
                 Pi[k, r, c] = 1.0 if r == c else 0.0
-        kept = 0
-        for t in range(nq):
-            v0, v1, v2 = Q[t, 0], Q[t, 1], Q[t, 2]
-            for u in range(kept):
-                d = v0 * Q[u, 0] + v1 * Q[u, 1] + v2 * Q[u, 2]
-                v0 -= d * Q[u, 0]
-                v1 -= d * Q[u, 1]
-                v2 -= d * Q[u, 2]
-            nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-            if nv < 1e-6:
-                continue
-            Q[kept, 0] = v0 / nv
-            Q[kept, 1] = v1 / nv
-            Q[kept, 2] = v2 / nv
-            kept += 1
-            if kept == 3:
-                break
+        kept = orthonormal_rows(Q, nq)
         for u in range(kept):
             for r in range(3):
                 for c in range(3):

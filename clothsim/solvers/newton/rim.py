@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
-from ...kernels import LENGTH_EPS, first_slope, table_eval
+from .settle import node_spring_block, spring_kinks
 
 # rows of nodes from a held node or a node with a missing lattice neighbour that are settled
 RIM_BAND = 6
@@ -26,7 +26,7 @@ RIM_BAND = 6
 RIM_GS_SWEEPS = 6
 
 
-def rim_band(model, depth: int | None = None) -> np.ndarray:
+def outline_band(model, depth: int | None = None) -> np.ndarray:
     """(m,) int64: the free nodes of ``model`` within ``depth`` (None: ``RIM_BAND``) lattice steps
     (warp/weft springs) of a held node or of a node with fewer than four lattice neighbours,
     ordered by that distance (nearest first). Nodes of seam springs or seam elements are left out (their other side is in
@@ -68,59 +68,28 @@ def node_gauss_seidel(pos, nodes, skip, ptr, nbr, sid, rest, width, table, x, y,
                       sweeps):
     """Nonlinear Gauss-Seidel on the nodes ``nodes`` (m,) of pos (n,3) [m], in place: each node in
     turn moves by the Newton step H^-1 R of its own springs, the other nodes held (R its resultant
-    [N], as ``kernels.node_force``; H the sum of its springs' stiffness blocks [N/m], as
-    ``kernels.spring_hessian_block``, a slack tension-only spring stiffened by ``kink`` times its
-    table's first slope); ``sweeps`` forward-then-backward passes. ptr (n+1,), nbr, sid: the node
-    adjacency (``Model.adj_ptr``, ``adj_node``, ``adj_spring``); the spring and table arrays as in
-    ``kernels.forces_and_energy``; ext (n,3) [N]. Nodes with skip[k] set are passed over; a step
-    longer than half the node's shortest rest length is shortened to it. Returns the largest
-    |R| [N] met in the last pass (before the node's own move)."""
+    [N] and H the sum of its springs' stiffness blocks [N/m], ``settle.node_spring_block``; kink
+    (S,) [N/m]: each spring's kink stiffness, ``settle.spring_kinks``); ``sweeps``
+    forward-then-backward passes. ptr (n+1,), nbr, sid: the node adjacency (``Model.adj_ptr``,
+    ``adj_node``, ``adj_spring``); the spring and table arrays as in ``kernels.forces_and_energy``;
+    ext (n,3) [N]. Nodes with skip[k] set are passed over; a step longer than half the node's
+    shortest rest length is shortened to it. Returns the largest |R| [N] met in the last pass
+    (before the node's own move)."""
     rmax = 0.0
     m = nodes.shape[0]
+    f = np.empty(3)
+    H = np.empty((3, 3))
     for sw in range(2 * sweeps):
         rmax = 0.0
         for q in range(m):
             k = nodes[q] if sw % 2 == 0 else nodes[m - 1 - q]
             if skip[k]:
                 continue
-            f0 = ext[k, 0]
-            f1 = ext[k, 1]
-            f2 = ext[k, 2]
-            h00 = h11 = h22 = h01 = h02 = h12 = 0.0
-            lmin = 1e300
-            for e in range(ptr[k], ptr[k + 1]):
-                s = sid[e]
-                j = nbr[e]
-                dx = pos[j, 0] - pos[k, 0]
-                dy = pos[j, 1] - pos[k, 1]
-                dz = pos[j, 2] - pos[k, 2]
-                length = np.sqrt(dx * dx + dy * dy + dz * dz)
-                l0 = rest[s]
-                if l0 < lmin:
-                    lmin = l0
-                if length < LENGTH_EPS:
-                    continue
-                t = table[s]
-                T, dT, W = table_eval(x, y, cum, start, comp, t, length / l0 - 1.0)
-                if length <= l0 and comp[t] == 0:
-                    dT = kink * first_slope(x, y, start, t)
-                w = width[s]
-                c = T * w / length
-                f0 += c * dx
-                f1 += c * dy
-                f2 += c * dz
-                u0 = dx / length
-                u1 = dy / length
-                u2 = dz / length
-                ka = w / l0 * dT
-                kt = c if c > 0.0 else 0.0
-                kd = ka - kt
-                h00 += kd * u0 * u0 + kt
-                h11 += kd * u1 * u1 + kt
-                h22 += kd * u2 * u2 + kt
-                h01 += kd * u0 * u1
-                h02 += kd * u0 * u2
-                h12 += kd * u1 * u2
+            lmin = node_spring_block(k, pos, ptr, sid, nbr, rest, width, table, x, y, cum, start, comp, kink, ext,
+                                     f, H)
+            f0, f1, f2 = f[0], f[1], f[2]
+            h00, h11, h22 = H[0, 0], H[1, 1], H[2, 2]
+            h01, h02, h12 = H[0, 1], H[0, 2], H[1, 2]
             r = max(abs(f0), abs(f1), abs(f2))
             if r > rmax:
                 rmax = r
@@ -155,17 +124,17 @@ def node_gauss_seidel(pos, nodes, skip, ptr, nbr, sid, rest, width, table, x, y,
     return rmax
 
 
-def settle_rim(model, pos, cont, kink: float, band: np.ndarray | None = None, sweeps: int | None = None):
-    """Settle the outline band (``rim_band``) of the cut lattice ``model`` at pos (n,3) [m] in
+def settle_outline(model, pos, cont, kink: float, band: np.ndarray | None = None, sweeps: int | None = None):
+    """Settle the outline band (``outline_band``) of the cut lattice ``model`` at pos (n,3) [m] in
     place by ``node_gauss_seidel`` (``sweeps``; None: ``RIM_GS_SWEEPS``); contact nodes (cont (n,)
     bool) stay. kink: NewtonOptions.kink.
     Returns the largest resultant [N] of the band in the last pass."""
     if band is None:
-        band = rim_band(model)
+        band = outline_band(model)
     if band.size == 0:
         return 0.0
     t = model.tables
     return node_gauss_seidel(pos, band, np.ascontiguousarray(cont), model.adj_ptr, model.adj_node,
                              model.adj_spring, model.spring_rest_length, model.spring_width, model.spring_table,
-                             t.x, t.y, t.cum, t.start, t.compression, model.external_force, float(kink),
-                             int(RIM_GS_SWEEPS if sweeps is None else sweeps))
+                             t.x, t.y, t.cum, t.start, t.compression, model.external_force,
+                             spring_kinks(model, kink), int(RIM_GS_SWEEPS if sweeps is None else sweeps))

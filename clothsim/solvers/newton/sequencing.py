@@ -19,7 +19,7 @@ from numba import njit
 from .active_set import PENETRATION_TOL
 from .iteration import NewtonLevel, _forcing
 from .linalg import _grid_transfer
-from .rim import rim_band, settle_rim
+from .rim import outline_band, settle_outline
 from .settle import settle_start
 
 
@@ -28,7 +28,7 @@ from ...grid import FAMILY_SEAM, coarsen_model  # noqa: E402  (the lattice build
 
 RIM_SWEEPS = 4
 # on a cut lattice, the outline band of an interpolated start is settled by node-wise Newton
-# (rim.settle_rim) after _relax_rim's sweeps; False only to compare with the solver before it
+# (rim.settle_outline) after _relax_rim's sweeps; False only to compare with the solver before it
 SETTLE_RIM = True
 # every interpolated start (the sequencing's levels and the fine grid's) has its contact rim
 # settled node by node before its Newton iterations (settle.settle_start); False: as before
@@ -124,8 +124,8 @@ def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
     two contact nodes) onto its surface as contact nodes. On a cut or multi-panel lattice the
     outline's fringe is relaxed (``_relax_rim``) and, when ``kink`` (NewtonOptions.kink) is
-    given, its band of nodes settled by nonlinear Gauss-Seidel (``rim.settle_rim``; ``band``:
-    ``rim.rim_band(fine_model)`` when known). P: the interpolation (``_prolongation``) and rim_op:
+    given, its band of nodes settled by nonlinear Gauss-Seidel (``rim.settle_outline``; ``band``:
+    ``rim.outline_band(fine_model)`` when known). P: the interpolation (``_prolongation``) and rim_op:
     ``_rim_operator(fine_model)``, when known."""
     from ...mold import mold_query_many
 
@@ -147,7 +147,7 @@ def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
     if not fine_model.topology.is_grid:
         _relax_rim(fine_model, pos, cont, rim_op)
         if kink is not None and SETTLE_RIM:
-            settle_rim(fine_model, pos, cont, kink, band)
+            settle_outline(fine_model, pos, cont, kink, band)
     if fine_model.mold is not None:
         margs = fine_model.mold.kernel_args()
         n = fine_model.node_count
@@ -221,7 +221,7 @@ HIERARCHY_CACHE = 2
 class _Hierarchy:
     """What grid sequencing builds for one model and reuses on every later solve of it: the chain
     of coarse models (``sequencing_chain``), the interpolation from each to the next finer one
-    (``_prolongation``), each cut lattice's outline band (``rim.rim_band``; None on full grids)
+    (``_prolongation``), each cut lattice's outline band (``rim.outline_band``; None on full grids)
     and a NewtonLevel per coarse model (reset before each use)."""
 
     def __init__(self, model, kink):
@@ -229,7 +229,7 @@ class _Hierarchy:
         chain = sequencing_chain(model)
         self.P = [None] + [_prolongation(chain[i][0].topology, chain[i - 1][0].topology)
                            for i in range(1, len(chain))]
-        self.bands = [None if m.topology.is_grid else rim_band(m) for m, _ in chain]
+        self.bands = [None if m.topology.is_grid else outline_band(m) for m, _ in chain]
         self.rim_ops = [None if m.topology.is_grid else _rim_operator(m) for m, _ in chain]
         self.levels = [NewtonLevel(m, kink=kink) for m, _ in chain[:-1]]
         # the given model itself is not kept (the cache must not keep it alive)

@@ -26,6 +26,7 @@ from numba import njit
 from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
 from ...kernels import LENGTH_EPS, table_eval
 from ...mold import contact_normals_from_query, mold_query
+from .active_set import orthonormal_rows
 
 # band half-width around the rim [lattice hops] and the number of sweeps over it
 SETTLE_WIDTH = 3
@@ -33,7 +34,7 @@ SETTLE_SWEEPS = 8
 
 
 @njit(cache=True)
-def rim_band(contact, ptr, oth, width):
+def contact_rim_band(contact, ptr, oth, width):
     """Nodes within ``width`` spring hops of the contact rim (a contact node with a free
     neighbour, or a free node with a contact neighbour), in node order; int64 (m,)."""
     n = contact.shape[0]
@@ -95,7 +96,76 @@ def _solve3(H, f, out):
 
 
 @njit(cache=True)
-def settle_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width, table, x, y, cum, start, comp, kink,
+def node_spring_block(k, pos, ptr, sp, oth, rest, width, table, x, y, cum, start, comp, kink, ext, f, H):
+    """Node k's resultant f (3,) [N] (its springs' forces plus ext[k]) and the sum H (3, 3) [N/m]
+    of its springs' stiffness blocks (``kernels.spring_hessian_block``; a slack tension-only
+    spring at its kink stiffness kink (S,) [N/m], as the Newton matrix has it), its neighbours
+    held; both written in place. ptr, oth, sp: the node adjacency (``Model.adj_ptr``,
+    ``adj_node``, ``adj_spring``); the spring and table arrays as in ``kernels.forces_and_energy``.
+    Returns the shortest rest length [m] of its springs."""
+    f[0] = ext[k, 0]
+    f[1] = ext[k, 1]
+    f[2] = ext[k, 2]
+    for r in range(3):
+        for c in range(3):
+            H[r, c] = 0.0
+    lmin = 1e300
+    for e in range(ptr[k], ptr[k + 1]):
+        s = sp[e]
+        j = oth[e]
+        d0 = pos[j, 0] - pos[k, 0]
+        d1 = pos[j, 1] - pos[k, 1]
+        d2 = pos[j, 2] - pos[k, 2]
+        l0 = rest[s]
+        if l0 < lmin:
+            lmin = l0
+        length = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if length < LENGTH_EPS:
+            continue
+        w = width[s]
+        tb = table[s]
+        st = length / l0 - 1.0
+        T, dT, W = table_eval(x, y, cum, start, comp, tb, st)
+        if st <= 0.0 and comp[tb] == 0 and kink[s] > 0.0:
+            dT = kink[s]
+        fs = T * w / length
+        f[0] += fs * d0
+        f[1] += fs * d1
+        f[2] += fs * d2
+        u0 = d0 / length
+        u1 = d1 / length
+        u2 = d2 / length
+        ka = w / l0 * dT
+        kt = w * T / length
+        if kt < 0.0:
+            kt = 0.0
+        kd = ka - kt
+        H[0, 0] += kd * u0 * u0 + kt
+        H[1, 1] += kd * u1 * u1 + kt
+        H[2, 2] += kd * u2 * u2 + kt
+        H[0, 1] += kd * u0 * u1
+        H[0, 2] += kd * u0 * u2
+        H[1, 2] += kd * u1 * u2
+    H[1, 0] = H[0, 1]
+    H[2, 0] = H[0, 2]
+    H[2, 1] = H[1, 2]
+    return lmin
+
+
+def spring_kinks(model, kink: float) -> np.ndarray:
+    """(S,) [N/m]: each spring's kink stiffness, ``kink`` (NewtonOptions.kink) times its table's
+    first slope, as NewtonLevel has them (zeros when kink is 0)."""
+    from ...kernels import first_slope
+
+    if not kink > 0:
+        return np.zeros(model.spring_count)
+    t = model.tables
+    slopes = np.array([kink * first_slope(t.x, t.y, t.start, int(tb)) for tb in range(len(t.start) - 1)])
+    return np.ascontiguousarray(slopes[model.spring_table], float)
+
+
+@njit(cache=True)
+def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width, table, x, y, cum, start, comp, kink,
                margs, sweeps):
     """``sweeps`` Gauss-Seidel sweeps over the nodes ``band`` (int64 (m,)): each node's 3x3
     Newton step for its springs' energy with its neighbours held (slack tension-only springs at
@@ -122,49 +192,7 @@ def settle_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width, table,
             k = band[t]
             if fixed[k, 0] and fixed[k, 1] and fixed[k, 2]:
                 continue
-            f[0] = ext[k, 0]
-            f[1] = ext[k, 1]
-            f[2] = ext[k, 2]
-            for r in range(3):
-                for c in range(3):
-                    H[r, c] = 0.0
-            for e in range(ptr[k], ptr[k + 1]):
-                s = sp[e]
-                j = oth[e]
-                d0 = pos[j, 0] - pos[k, 0]
-                d1 = pos[j, 1] - pos[k, 1]
-                d2 = pos[j, 2] - pos[k, 2]
-                length = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                if length < LENGTH_EPS:
-                    continue
-                l0 = rest[s]
-                w = width[s]
-                tb = table[s]
-                st = length / l0 - 1.0
-                T, dT, W = table_eval(x, y, cum, start, comp, tb, st)
-                if st <= 0.0 and comp[tb] == 0 and kink[s] > 0.0:
-                    dT = kink[s]
-                fs = T * w / length
-                f[0] += fs * d0
-                f[1] += fs * d1
-                f[2] += fs * d2
-                u0 = d0 / length
-                u1 = d1 / length
-                u2 = d2 / length
-                ka = w / l0 * dT
-                kt = w * T / length
-                if kt < 0.0:
-                    kt = 0.0
-                kd = ka - kt
-                H[0, 0] += kd * u0 * u0 + kt
-                H[1, 1] += kd * u1 * u1 + kt
-                H[2, 2] += kd * u2 * u2 + kt
-                H[0, 1] += kd * u0 * u1
-                H[0, 2] += kd * u0 * u2
-                H[1, 2] += kd * u1 * u2
-            H[1, 0] = H[0, 1]
-            H[2, 0] = H[0, 2]
-            H[2, 1] = H[1, 2]
+            node_spring_block(k, pos, ptr, sp, oth, rest, width, table, x, y, cum, start, comp, kink, ext, f, H)
             # constraint directions: held axes, then the active contact normals
             nq = 0
             for a in range(3):
@@ -192,21 +220,7 @@ def settle_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width, table,
                             Q[nq, 2] = nbuf[act[u], 2]
                             nq += 1
             # orthonormalise; the step solves (P H P + (I - P)) dx = P f with P = I - sum q q^T
-            kept = 0
-            for u in range(nq):
-                v0, v1, v2 = Q[u, 0], Q[u, 1], Q[u, 2]
-                for z in range(kept):
-                    dd = v0 * Q[z, 0] + v1 * Q[z, 1] + v2 * Q[z, 2]
-                    v0 -= dd * Q[z, 0]
-                    v1 -= dd * Q[z, 1]
-                    v2 -= dd * Q[z, 2]
-                nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-                if nv < 1e-6:
-                    continue
-                Q[kept, 0] = v0 / nv
-                Q[kept, 1] = v1 / nv
-                Q[kept, 2] = v2 / nv
-                kept += 1
+            kept = orthonormal_rows(Q, nq)
             if kept == 3:
                 continue
             for r in range(3):
@@ -247,13 +261,12 @@ def settle_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width, table,
 
 
 def settle_start(model, state, kink, width=None, sweeps=None):
-    """``settle_rim`` on the nodes within ``width`` (default SETTLE_WIDTH) spring hops of
+    """``settle_contact_rim`` on the nodes within ``width`` (default SETTLE_WIDTH) spring hops of
     ``state``'s contact rim, ``sweeps`` (default SETTLE_SWEEPS) sweeps at most; state's
     positions (n, 3) [m] and in_contact (n,) are changed in place. kink: NewtonOptions.kink
     (times each table's first slope, as in NewtonLevel). Nodes of seam elements are left out.
     Returns the contact changes of the last sweep (0: settled), or -1 without a mold."""
     from ..common import model_mold_args
-    from ...kernels import first_slope
 
     has_mold, margs = model_mold_args(model)
     if not has_mold:
@@ -262,18 +275,14 @@ def settle_start(model, state, kink, width=None, sweeps=None):
     sweeps = SETTLE_SWEEPS if sweeps is None else sweeps
     n = model.node_count
     ptr, oth, sp = model.adj_ptr, model.adj_node, model.adj_spring
-    band = rim_band(state.in_contact, ptr, oth, width)
+    band = contact_rim_band(state.in_contact, ptr, oth, width)
     if model.seam_count:
         # a seam element's forces are not the springs': its nodes are left to Newton
         keep = np.ones(n, bool)
         keep[model.seam_nodes.ravel()] = False
         band = np.ascontiguousarray(band[keep[band]])
     t = model.tables
-    if kink > 0:
-        slopes = np.array([kink * first_slope(t.x, t.y, t.start, int(tb)) for tb in range(len(t.start) - 1)])
-        kk = np.ascontiguousarray(slopes[model.spring_table], float)
-    else:
-        kk = np.zeros(model.spring_count)
-    return settle_rim(state.positions, state.in_contact, model.fixed_axes, model.external_force, band, ptr, sp, oth,
+    kk = spring_kinks(model, kink)
+    return settle_contact_rim(state.positions, state.in_contact, model.fixed_axes, model.external_force, band, ptr, sp, oth,
                       model.spring_rest_length, model.spring_width, model.spring_table, t.x, t.y, t.cum, t.start,
                       t.compression, kk, margs, sweeps)
