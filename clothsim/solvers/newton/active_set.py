@@ -129,8 +129,23 @@ def _projectors(pos, F, fixed, in_contact, has_mold, margs, Pi, probe=0.0):
 
 
 @njit(cache=True, inline="always")
+def held_axis_rows(fixed, k, Q):
+    """Node k's held axes (fixed (n, 3) bool) as unit rows at the front of Q (m >= 3, 3), in axis
+    order; returns how many."""
+    nq = 0
+    for a in range(3):
+        if fixed[k, a]:
+            Q[nq, 0] = 0.0
+            Q[nq, 1] = 0.0
+            Q[nq, 2] = 0.0
+            Q[nq, a] = 1.0
+            nq += 1
+    return nq
+
+
+@njit(cache=True, inline="always")
 def orthonormal_rows(Q, nq):
-    """Gram-Schmidt on the first nq rows of Q (3, 3) in place: the rows that are independent (a
+    """Gram-Schmidt on the first nq rows of Q (m, 3) in place: the rows that are independent (a
     remainder of norm 1e-6 or more) become orthonormal and move to the front; returns how many
     (at most 3)."""
     kept = 0
@@ -162,14 +177,7 @@ def _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, QA):
     Q = np.empty((6, 3))
     released = 0
     for k in range(pos.shape[0]):
-        nq = 0
-        for a in range(3):
-            if fixed[k, a]:
-                Q[nq, 0] = 0.0
-                Q[nq, 1] = 0.0
-                Q[nq, 2] = 0.0
-                Q[nq, a] = 1.0
-                nq += 1
+        nq = held_axis_rows(fixed, k, Q)
         if in_contact[k] and has_mold and nq < 3:
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]

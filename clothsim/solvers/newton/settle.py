@@ -26,7 +26,7 @@ from numba import njit
 from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
 from ...kernels import LENGTH_EPS, table_eval
 from ...mold import contact_normals_from_query, mold_query
-from .active_set import orthonormal_rows
+from .active_set import held_axis_rows, orthonormal_rows
 
 # band half-width around the rim [lattice hops] and the number of sweeps over it
 SETTLE_WIDTH = 3
@@ -194,14 +194,7 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
                 continue
             node_spring_block(k, pos, ptr, sp, oth, rest, width, table, x, y, cum, start, comp, kink, ext, f, H)
             # constraint directions: held axes, then the active contact normals
-            nq = 0
-            for a in range(3):
-                if fixed[k, a]:
-                    Q[nq, 0] = 0.0
-                    Q[nq, 1] = 0.0
-                    Q[nq, 2] = 0.0
-                    Q[nq, a] = 1.0
-                    nq += 1
+            nq = held_axis_rows(fixed, k, Q)
             if contact[k]:
                 mold_query(margs, pos[k], q)
                 for a in range(3):
