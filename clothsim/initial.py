@@ -29,12 +29,14 @@ def initial_state(model: Model, initial, file: Path | None = None) -> State:
         flat[:, :2] += _spread_in_plane(model)
     if ini.lift:
         # the dome lifts along the sheet's normal (+z flat; outward when wrapped)
-        dome = np.empty(model.node_count)
-        for p in range(topo.panel_count):
-            nx1, ny1 = topo.panel_shape(p)
-            sel = topo.node_panel == p
-            ii, jj = topo.node_ij[sel, 0], topo.node_ij[sel, 1]
-            dome[sel] = np.sin(np.pi * ii / max(nx1 - 1, 1)) * np.sin(np.pi * jj / max(ny1 - 1, 1))
+        dome = _joined_dome(model)
+        if dome is None:
+            dome = np.empty(model.node_count)
+            for p in range(topo.panel_count):
+                nx1, ny1 = topo.panel_shape(p)
+                sel = topo.node_panel == p
+                ii, jj = topo.node_ij[sel, 0], topo.node_ij[sel, 1]
+                dome[sel] = np.sin(np.pi * ii / max(nx1 - 1, 1)) * np.sin(np.pi * jj / max(ny1 - 1, 1))
         flat[:, 2] += ini.lift * dome
     pos = model.placement.apply(flat)
     if file is not None:
@@ -99,12 +101,15 @@ def _read_positions(path, shape: tuple) -> np.ndarray:
 
 def _spread_in_plane(model: Model) -> np.ndarray:
     """In-plane displacement (N,2) [m] of every node in the sheet's own coordinates: the
-    constrained nodes' stretch (and, on a flat sheet, their in-plane displacement) held, the rest
-    harmonic (discrete Laplace on the grid), so a strip pulled at one end starts uniformly
-    stretched and a wrapped band pulled round starts evenly pulled. Zero when nothing moves."""
+    constrained nodes' stretch (and their in-plane displacement, on a flat sheet or a rigidly
+    placed panel) held, the rest harmonic (discrete Laplace on the lattice), so a strip pulled at
+    one end starts uniformly stretched and a wrapped band pulled round starts evenly pulled. The
+    two sides of a seam that already meet where the panels are placed (``_closed_seam_rows``)
+    move together (a stiff coupling of weight ``SEAM_SPREAD_WEIGHT``), so panels sewn edge to
+    edge spread as the one sheet they make. Zero when nothing moves."""
     held = model.fixed_axes.any(axis=1)
     rest = model.rest_positions
-    target = model.prescribed_positions if model.placement.identity else model.prescribed_flat
+    target = model.prescribed_positions if model.placement.identity else _held_flat_target(model)
     u_held = (target[:, :2] - rest[:, :2])[held]
     if not held.any() or not np.any(np.abs(u_held) > 0) or held.all():
         return np.zeros((model.node_count, 2))
@@ -116,6 +121,9 @@ def _spread_in_plane(model: Model) -> np.ndarray:
     n = model.node_count
     W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
     L = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+    B = _closed_seam_rows(model)
+    if B is not None:
+        L = (L + SEAM_SPREAD_WEIGHT * (B.T @ B)).tocsr()
     free = ~held
     Lff = L[free][:, free].tocsc()
     Lfh = L[free][:, held]
@@ -125,6 +133,110 @@ def _spread_in_plane(model: Model) -> np.ndarray:
     for c in range(2):
         u[free, c] = solve(-(Lfh @ u_held[:, c]))
     return u
+
+
+#: weight of a closed seam's coupling in the start's spread, relative to a lattice link's 1: the
+#: two sides move together to about 1 / SEAM_SPREAD_WEIGHT of the displacement across one link
+SEAM_SPREAD_WEIGHT = 1e6
+
+
+def _held_flat_target(model: Model) -> np.ndarray:
+    """(N,3) [m]: the constrained nodes' targets in their panels' own (flat) coordinates: the
+    stretch (``Model.prescribed_flat``), plus on a rigidly placed panel the displacement in space
+    turned back into the panel's plane (a wrapped or hull-laid panel: the stretch only)."""
+    flat = np.array(model.prescribed_flat, float)
+    pl = model.placement
+    parts = getattr(pl, "parts", None) or ((0, model.node_count, pl),)
+    for a, b, p in parts:
+        if p.wrap is not None or p.hull is not None:
+            continue
+        shift = model.prescribed_positions[a:b] - p.apply(flat[a:b])
+        R = np.eye(3) if p.rotation is None else np.asarray(p.rotation, float)
+        flat[a:b] += shift @ R  # R^T shift, row-wise
+    return flat
+
+
+def _joined_dome(model: Model):
+    """(N,) the ``lift`` dome's shape over panels sewn edge to edge where they are placed (a
+    seam closed in the placement, ``_closed_seam_rows``): the discrete Poisson bubble -L z = 1
+    on the lattice with the closed seams' sides moving together, zero on the joined sheet's
+    outline (nodes with fewer than four warp/weft neighbours that are not sewn there), scaled to
+    a largest value of 1; so the sewn panels start as one dome, as the one-panel sheet does,
+    instead of a dome each with their seams left on the mold. None for a single panel or
+    without closed seams (each panel then gets its own sine dome)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    if model.topology.panel_count < 2:
+        return None
+    B = _closed_seam_rows(model)
+    if B is None:
+        return None
+    n = model.node_count
+    pairs = np.concatenate([model.topology.warp, model.topology.weft])
+    a, b = pairs[:, 0], pairs[:, 1]
+    W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
+    deg = np.asarray(W.sum(axis=1)).ravel()
+    sewn = np.asarray(abs(B).sum(axis=0)).ravel() > 0
+    edge = (deg < 4) & ~sewn
+    if edge.all() or not edge.any():
+        return None
+    L = (sp.diags(deg) - W + SEAM_SPREAD_WEIGHT * (B.T @ B)).tocsr()
+    inner = ~edge
+    z = np.zeros(n)
+    z[inner] = spla.spsolve(L[inner][:, inner].tocsc(), np.ones(int(inner.sum())))
+    top = z.max()
+    return z / top if top > 0 else None
+
+
+def _closed_seam_rows(model: Model):
+    """B (Q, N) scipy CSR: one row per seam spring or seam element whose two sides meet where the
+    panels are placed (their placed rest positions within 1e-9 of the sheet's size, and the
+    placement turning both sides' planes alike): the gap's coefficients (1 and -1 for a seam
+    spring, ``Model.seam_weight`` for a seam element). None when there is none. A seam that is
+    open in the placement (a flat sheet whose edges are sewn round a limb) is left out: its
+    sides are far apart in the panel's plane."""
+    import scipy.sparse as sp
+
+    from .grid import FAMILY_SEAM
+
+    n = model.node_count
+    sel = model.spring_family == FAMILY_SEAM
+    if not sel.any() and not model.seam_count:
+        return None
+    rest = model.rest_positions
+    size = float(np.ptp(rest, axis=0).max()) or 1.0
+    place = model.placement.apply
+    step = 1e-3 * size
+    moved = [place(rest)] + [place(rest + d) for d in (np.array([step, 0.0, 0.0]), np.array([0.0, step, 0.0]))]
+
+    def meet(q, w):
+        """(Q,) bool: the combination sum_k w[:, k] x[q[:, k]] vanishes for the placed rest
+        positions and for their in-plane derivatives."""
+        ok = np.ones(q.shape[0], bool)
+        for t, pts in enumerate(moved):
+            g = (w[:, :, None] * (pts[q] if t == 0 else pts[q] - moved[0][q])).sum(axis=1)
+            ok &= np.linalg.norm(g, axis=1) <= (1e-9 * size if t == 0 else 1e-6 * step)
+        return ok
+
+    rows = []
+    sn = model.spring_nodes[sel]
+    if sn.size:
+        w = np.tile([1.0, -1.0], (sn.shape[0], 1))
+        ok = meet(sn, w)
+        rows.append((sn[ok], w[ok]))
+    if model.seam_count:
+        q, w = model.seam_nodes, model.seam_weight
+        ok = meet(q, w)
+        rows.append((q[ok], w[ok]))
+    rows = [(q, w) for q, w in rows if q.shape[0]]
+    if not rows:
+        return None
+    mats = []
+    for q, w in rows:
+        r = np.repeat(np.arange(q.shape[0]), q.shape[1])
+        mats.append(sp.csr_matrix((w.ravel(), (r, q.ravel())), shape=(q.shape[0], n)))
+    return sp.vstack(mats).tocsr()
 
 
 def _check_clearance(ini, model: Model, state: State) -> None:
