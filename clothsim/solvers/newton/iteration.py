@@ -20,7 +20,7 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible_q,
+from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _apply_pi, _gap_closure, _curvature_blocks, _block_entering, _block_infeasible_q,
                          _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
                          _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
@@ -166,6 +166,7 @@ class NewtonLevel:
         self.Q = np.zeros((n, 9))
         self._q_pos = None
         self.sd0 = np.full(n, np.inf)
+        self.gap = np.zeros(3 * n)  # the step's prescribed gap closure [m] (_gap_closure)
         self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
         self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
@@ -299,7 +300,7 @@ class NewtonLevel:
         Q = self.queries(pos)
         _projectors_q(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe, Q)
         # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
-        _free_distances_q(contact, self.has_mold, Q, self.sd0)
+        _free_distances_q(contact, self.has_mold, Q, m.fixed_axes, self.sd0)
         v_base = self.residual(pos, contact, F) if not _same(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
@@ -349,6 +350,21 @@ class NewtonLevel:
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
             slope = -_dot(rhs, dx)  # directional derivative of E (negative for a descent direction)
+            if HELD_KEEP_GAP and self.has_mold and _gap_closure(contact, m.fixed_axes, self.sd0, Q, self.gap):
+                # contact nodes still off the surface (held by _block_entering a little off it, or
+                # left there by a step cut short): the step closes their gaps g, a prescribed move
+                # the others' step answers (A y = Pi (f - K g), the step y + g)
+                Kg = np.empty(3 * self.n)
+                _bsr_matvec(self.indptr, self.indices, self.K, self.gap, Kg)
+                PKg = np.empty(3 * self.n)
+                _apply_pi(self.Pi, Kg, PKg)
+                dy, cg_it = self._solve_linear(rhs - PKg, mu_abs, tol, None if self.direct else dx)
+                cg_spent += cg_it
+                if not _all_finite(dy):
+                    self.lm = max(self.lm * 100.0, 1e-8)
+                    continue
+                dx = dy + self.gap
+                slope = -_dot(rhs, dy) - _dot(f, self.gap)
             if not (slope < 0.0):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
