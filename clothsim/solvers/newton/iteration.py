@@ -20,8 +20,8 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _apply_pi, _gap_closure, _curvature_blocks, _block_entering, _block_infeasible_q,
-                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible_q,
+                         _curvature_blocks, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
                          _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
@@ -303,7 +303,8 @@ class NewtonLevel:
         contact_before = contact.copy()
         Q = self.queries(pos)
         _projectors_q(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe, Q)
-        # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
+        # distances of the nodes not in contact (after the releases; contact nodes are on the surface,
+        # but for a gap the step is to close, HELD_KEEP_GAP)
         _free_distances_q(contact, self.has_mold, Q, m.fixed_axes, self.sd0)
         v_base = self.residual(pos, contact, F) if not _same(contact, contact_before) else vinf_now
         f = F.reshape(-1)
