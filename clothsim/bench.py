@@ -172,6 +172,17 @@ SCAN_BODIES = (
 SCAN_DIRS = (ROOT / "static" / "bodies",)
 SCAN_MAX_ITERATIONS = 400
 SCAN_TIME_LIMIT = 120.0
+#: ... for a garment of the campaign [s] (wall clock: the 28 x 60 stocking took 43-53 s of CPU and
+#: up to 117 s of wall time on the loaded 2-core machine)
+SCAN_GARMENT_TIME_LIMIT = 600.0
+#: the garments of the campaign (issue 12 names the garment issue's stocking): (row name, body
+#: file stem (its file from SCAN_DIRS is the mold), config, overrides, contact surface; None: the
+#: campaign's), newton alone to TARGET_E like the bands
+SCAN_GARMENTS = (
+    ("stocking 14 x 30", "smpl_man", "configs/garments/stocking.yaml", (), None),
+    ("stocking 28 x 60", "smpl_man", "configs/garments/stocking.yaml",
+     ("panels.0.divisions=[28,60]", "panels.1.divisions=[28,60]"), "smooth"),
+)
 
 
 def scan_body_path(stem: str) -> Path | None:
@@ -203,52 +214,77 @@ def scan_band_overrides(path: Path, height: float, surface: str = "faceted") -> 
             f"start_angle: {start:.6f}}}"]
 
 
+def _scan_row(case: Case, body: str, height, surface: str, time_limit: float = SCAN_TIME_LIMIT) -> dict:
+    """One campaign run: newton alone to TARGET_E from the case's start (kernels compiled by a
+    one-iteration run first); a JSON-able row."""
+    from .solvers import solve
+
+    model, state, settings = _load(case, "newton", TARGET_E, time_limit, SCAN_MAX_ITERATIONS)
+    solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
+    ref_s = reference_pass_time(model, state.positions)
+    c0 = time.process_time()
+    res = solve(model, state, settings)
+    cpu = time.process_time() - c0
+    return {"body": body, "height": height, "surface": surface, "nodes": int(model.node_count),
+            "status": res.status, "iterations": int(res.iterations), "residual": float(res.residual),
+            "wall_s": float(res.wall_time_s), "cpu_s": cpu, "ref_pass_s": ref_s,
+            "wu": cpu / ref_s, "contact": int(state.in_contact.sum()),
+            "ms_per_iteration": 1e3 * cpu / max(res.iterations, 1)}
+
+
 def run_scan_body(stem: str, heights, surface: str = "faceted") -> list[dict]:
     """The campaign's runs on one body (in one process: the kernels compile once): newton alone
     to e = TARGET_E from each height's wrapped start; returns one JSON-able row per height."""
-    from .solvers import solve
-
     path = scan_body_path(stem)
     rows = []
     for h in heights:
         case = Case(f"{stem} y={h:.2f}", "configs/torso_band.yaml", scan_band_overrides(path, h, surface),
                     ("newton",), {"newton": SCAN_TIME_LIMIT}, group="scans")
-        model, state, settings = _load(case, "newton", TARGET_E, SCAN_TIME_LIMIT, SCAN_MAX_ITERATIONS)
-        solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
-        ref_s = reference_pass_time(model, state.positions)
-        c0 = time.process_time()
-        res = solve(model, state, settings)
-        cpu = time.process_time() - c0
-        rows.append({"body": stem, "height": h, "surface": surface, "nodes": int(model.node_count),
-                     "status": res.status, "iterations": int(res.iterations), "residual": float(res.residual),
-                     "wall_s": float(res.wall_time_s), "cpu_s": cpu, "ref_pass_s": ref_s,
-                     "wu": cpu / ref_s, "contact": int(state.in_contact.sum()),
-                     "ms_per_iteration": 1e3 * cpu / max(res.iterations, 1)})
+        rows.append(_scan_row(case, stem, h, surface))
     return rows
 
 
+def run_scan_garment(name: str, stem: str, config: str, overrides, surface: str) -> list[dict]:
+    """One garment of the campaign (``SCAN_GARMENTS``) on the ``surface`` of the body ``stem``:
+    one row (height None)."""
+    ov = list(overrides) + [f"mold.path={scan_body_path(stem)}"] + \
+        ([] if surface == "faceted" else [f"mold.surface={surface}"])
+    case = Case(name, config, ov, ("newton",), {"newton": SCAN_GARMENT_TIME_LIMIT}, group="scans")
+    return [_scan_row(case, name, None, surface, SCAN_GARMENT_TIME_LIMIT)]
+
+
 def run_scans(surface: str = "faceted", log=None) -> list[dict]:
-    """The whole scan campaign (each body in a child process); bodies whose file is missing are
-    skipped with a message."""
-    rows = []
+    """The whole scan campaign (each body and each garment in a child process); bodies whose file
+    is missing are skipped with a message."""
+    jobs = []
     for stem, heights in SCAN_BODIES:
         if scan_body_path(stem) is None:
             if log:
                 log(f"scan campaign: {stem}.stl not found in {', '.join(str(d) for d in SCAN_DIRS)}: skipped")
             continue
+        jobs.append((stem, run_scan_body, (stem, heights, surface)))
+    for name, stem, config, overrides, surf in SCAN_GARMENTS:
+        if scan_body_path(stem) is not None:
+            jobs.append((name, run_scan_garment, (name, stem, config, overrides, surf or surface)))
+    rows = []
+    for label, fn, args in jobs:
         try:
-            got = _in_child(run_scan_body, stem, heights, surface)
+            got = _in_child(fn, *args)
         except Exception as exc:
             if log:
-                log(f"scan campaign: {stem}: failed: {exc}")
+                log(f"scan campaign: {label}: failed: {exc}")
             continue
         for r in got:
             if log:
-                log(f"{r['body']:13s} y={r['height']:.2f} {r['surface']:8s} {r['status']:10s} it {r['iterations']:4d} "
-                    f"res {r['residual']:.1e}  {r['wall_s']:.2f} s  {r['wu']:.0f} WU  "
+                log(f"{r['body']:16s} {_fmt_height(r['height']):6s} {r['surface']:8s} {r['status']:10s} "
+                    f"it {r['iterations']:4d} res {r['residual']:.1e}  {r['wall_s']:.2f} s  {r['wu']:.0f} WU  "
                     f"{r['ms_per_iteration']:.1f} ms/it")
         rows += got
     return rows
+
+
+def _fmt_height(h) -> str:
+    return "-" if h is None else f"{h:.2f}"
 
 
 def scan_table(rows: list[dict]) -> list[str]:
@@ -260,7 +296,9 @@ def scan_table(rows: list[dict]) -> list[str]:
     lines = ["## Scan campaign: the torso band on scanned bodies (newton alone)", "",
              "configs/torso_band.yaml (0.5 x 0.2 m band, 40 x 10 divisions, ends pulled round to the back "
              "with stretch 1.75, held in x and y, free along the body axis) on each body at each height "
-             "(`bench.scan_band_overrides`), newton to 1e-9 N, at most "
+             "(`bench.scan_band_overrides`), and the garments of `bench.SCAN_GARMENTS` "
+             "(configs/garments/stocking.yaml on smpl_man's leg, its panels' 14 x 30 divisions on the "
+             "campaign's surface and 28 x 60 on the smooth one; height -), newton to 1e-9 N, at most "
              f"{SCAN_MAX_ITERATIONS} iterations. `WU` = process CPU time of the solve / one reference "
              "pass; `ms/it` = CPU ms per iteration; `contact` = contact nodes at the end. "
              f"Converged {len(ok)} of {len(rows)}"
@@ -268,7 +306,7 @@ def scan_table(rows: list[dict]) -> list[str]:
              "| body | surface | height m | nodes | status | iters | final residual N | s | WU | ms/it | contact |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['body']} | {r['surface']} | {r['height']:.2f} | {r['nodes']} | {r['status']} | "
+        lines.append(f"| {r['body']} | {r['surface']} | {_fmt_height(r['height'])} | {r['nodes']} | {r['status']} | "
                      f"{r['iterations']} | {r['residual']:.1e} | {r['wall_s']:.2f} | {r['wu']:.0f} | "
                      f"{r['ms_per_iteration']:.1f} | {r['contact']} |")
     return lines + [""]

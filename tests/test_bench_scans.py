@@ -49,3 +49,6 @@ def test_scan_table_counts_and_flags():
     text = "\n".join(bench.scan_table(rows))
     assert "Converged 2 of 3; iterations 41-42" in text
     assert text.count("| b | faceted |") == 3 and "| stalled |" in text
+    # a garment's row (bench.SCAN_GARMENTS) has no height
+    text = "\n".join(bench.scan_table([{**rows[1], "body": "stocking 14 x 30", "height": None}]))
+    assert "| stocking 14 x 30 | faceted | - | 451 | converged |" in text

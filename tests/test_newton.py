@@ -248,3 +248,28 @@ def test_band_cholesky_solve_matches_sparse_lu():
     assert np.abs(x - ref).max() <= 1e-9 * np.abs(ref).max()
     bad = -lvl.A
     assert not la._band_cholesky_solve(lvl.indptr, lvl.indices, bad, inv, bw, b, np.empty((n3, 3 * bw + 3)), x)
+
+
+def test_trapezoid_energy_change_below_the_energys_resolution():
+    """``iteration._trapezoid_change`` (-1/2 (F0 + F1) . (x1 - x0)) is the energy change of a
+    step too small for E1 - E0 to resolve (below ENERGY_RESOLUTION of E): on the stretched
+    uniaxial strip it equals the second-order expansion -F0 . d + 1/2 d K d to 1e-6 relative."""
+    from clothsim.solvers.newton.iteration import ENERGY_RESOLUTION, _trapezoid_change
+    import scipy.sparse as sp
+
+    scene, model, state, settings = _setup("uniaxial_strip.yaml")
+    pos = model.rest_positions.copy()
+    pos[:, 0] *= 1.2
+    d = np.random.default_rng(5).normal(0, 1e-15, pos.shape)
+    F0 = np.empty_like(pos)
+    F1 = np.empty_like(pos)
+    E0 = forces_and_energy(pos, *model.spring_args(), model.external_force, F0)
+    forces_and_energy(pos + d, *model.spring_args(), model.external_force, F1)
+    lvl = nw.NewtonLevel(model, kink=0.0)
+    nw._assemble(pos, *model.spring_args(), lvl.kink, lvl.slot, lvl.K)
+    n = model.node_count
+    K = sp.bsr_matrix((lvl.K, lvl.indices, lvl.indptr), shape=(3 * n, 3 * n))
+    dv = d.reshape(-1)
+    expect = -F0.reshape(-1) @ dv + 0.5 * dv @ (K @ dv)
+    assert abs(expect) < ENERGY_RESOLUTION * abs(E0)
+    assert _trapezoid_change(pos, pos + d, F0, F1) == pytest.approx(expect, rel=1e-6)

@@ -24,7 +24,8 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    the smooth surface of a mesh always (``iteration.HOLD_SHARE``: otherwise nodes whose
    multiplier is about 0 churn in and out of contact), where the slack springs' kink also decays
    after full steps (``iteration.KINK_DECAY``) and held-axis contact nodes are projected onto the
-   curved surface along their free axes (``active_set.FIXED_PROJECTION_STEPS``). The mold's
+   curved surface along their free axes (``active_set.FIXED_PROJECTION_STEPS``). A node held while
+   still a little off the surface closes its gap in the step (``active_set.HELD_KEEP_GAP``). The mold's
    answers at the nodes are queried once per set of positions (``active_set._query_nodes``).
 2. Linear system: (Pi K Pi + mu Pi + (I - Pi)) dx = Pi f, where K = d^2E/dx^2 is assembled from
    ``kernels.spring_hessian_block`` (transverse term clamped >= 0 so K is positive semi-definite;
@@ -47,7 +48,8 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    stopped at their face's border (so a node whose equilibrium is on an edge lands on it) is
    tried too. Backtracking (Armijo, halving). When the energy
    difference is below float64 resolution (close to the solution) the step is accepted if it
-   lowers the residual instead; when neither can be lowered even with a large Levenberg shift,
+   lowers the residual instead, or if the trapezoid rule's energy change -1/2 (F0 + F1).(x1 - x0)
+   meets the Armijo rule (``iteration.TRAPEZOID_ENERGY``); when none holds even with a large Levenberg shift,
    the step reports ``StepStatus.NO_PROGRESS`` (run status ``stalled``), keeping the best state.
 4. Grid sequencing (``NewtonOptions.sequencing``): when the grid's divisions are even and large, the
    scene is first solved on the grid with every second node (recursively), and the result is

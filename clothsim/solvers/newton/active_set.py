@@ -35,6 +35,18 @@ FIXED_PROJECTION_STEPS = 6
 FIXED_PROJECTION_EVERYWHERE = True
 # ... until it is within this [m] of the surface
 FIXED_PROJECTION_TOL = 1e-14
+# a contact node farther than HELD_GAP_MIN [m] from the surface (``_block_entering`` held it while
+# it was still a little off it) closes its gap in the step instead of being projected onto the
+# surface by the line search: the gap is a prescribed normal move in the Newton system
+# (``_gap_closure``), so the step of its neighbours answers it (a seam's stiff zero-length spring),
+# and the trial at step length alpha keeps (1 - alpha) of the gap (``_trial_positions_sd``). The
+# projection was a move along the normal that was in no step: next to a seam's spring a 2e-11 m
+# move cost 5e-5 N of residual at every step length (the faceted calf band's stall at 6e-7 N).
+# Not below HELD_GAP_MIN: nodes released a rounding error (~1e-17 m) off the surface and held
+# again, and the smooth surface's foot points (1e-13 m), are projected onto it as before. False
+# only to compare with the solver before it
+HELD_KEEP_GAP = True
+HELD_GAP_MIN = 1e-12
 
 
 @njit(cache=True)
@@ -379,17 +391,41 @@ def _mold_distances(pos, has_mold, margs, out):
 
 
 @njit(cache=True)
-def _free_distances_q(contact, has_mold, Q, out):
+def _free_distances_q(contact, has_mold, Q, fixed, out):
     """out (n,) [m]: the signed distance to the mold of each node not in contact (the only ones
     whose distance the step reads: ``_trial_positions``, ``_block_entering``), from the mold's
-    answers at the nodes in Q (``_query_nodes``); contact nodes get 0 (they are on the surface)."""
+    answers at the nodes in Q (``_query_nodes``); contact nodes get 0 (they are on the surface),
+    except a contact node without held axes still farther than HELD_GAP_MIN off it (a gap kept
+    by a step cut short, ``HELD_KEEP_GAP``): its distance, which the next step closes."""
     for k in range(contact.shape[0]):
         if not has_mold:
             out[k] = np.inf
         elif contact[k]:
-            out[k] = 0.0
+            if HELD_KEEP_GAP and Q[k, 8] > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
+                out[k] = Q[k, 8]
+            else:
+                out[k] = 0.0
         else:
             out[k] = Q[k, 8]
+
+
+@njit(cache=True)
+def _gap_closure(contact, fixed, sd0, Q, g):
+    """The prescribed part g (3n,) [m] of the Newton step (``HELD_KEEP_GAP``): -sd0 n for every
+    contact node without held axes whose signed distance sd0 (n,) [m] exceeds HELD_GAP_MIN (n
+    the mold's outward normal at the node, Q from ``_query_nodes``), 0 elsewhere. Returns how
+    many nodes have a gap to close."""
+    count = 0
+    for k in range(contact.shape[0]):
+        d = sd0[k]
+        if contact[k] and d > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
+            for a in range(3):
+                g[3 * k + a] = -d * Q[k, 3 + a]
+            count += 1
+        else:
+            for a in range(3):
+                g[3 * k + a] = 0.0
+    return count
 
 
 @njit(cache=True)
@@ -480,6 +516,12 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 v += d
             p[a] = v
         c = contact0[k]
+        # a contact node off the surface by a gap to close (``HELD_KEEP_GAP``): its step closes it
+        # (``_gap_closure``), the trial keeps the part (1 - alpha) not yet closed
+        gap = 0.0
+        if c and HELD_KEEP_GAP and sd0[k] > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
+            gap = sd0[k]
+        frac = alpha
         sdk = 0.0
         if has_mold and moved and (c or not (sd0[k] > math.sqrt(d2) * (1.0 + 1e-9) + 1e-15)):
             hit = False
@@ -496,6 +538,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                         t = _face_exit(margs, face0[k], pos0[k], dd)
                         if t < 1.0:
                             clipped = True
+                            frac = alpha * t
                             for a in range(3):
                                 if not fixed[k, a]:
                                     p[a] = pos0[k, a] + t * dd[a]
@@ -515,7 +558,9 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 sd, on_foot = _smooth_query_flag(margs, p[0], p[1], p[2], q)
             else:
                 sd = mold_query(margs, p, q)
-            if c and sd > RELEASE_GAP and q[6] != 0.0:
+            if gap > 0.0:
+                gap = (1.0 - frac) * gap if frac < 1.0 else 0.0
+            if c and sd > gap + RELEASE_GAP and q[6] != 0.0:
                 # a contact node whose move took it off the surface past a convex edge or vertex
                 # (the closest point is on that edge or vertex): it is put back there only if its
                 # resultant pulls it there (R . (p - q) < 0); otherwise it has slid off the
@@ -531,7 +576,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
             if hit or sd < 0.0:
                 for a in range(3):
                     if not fixed[k, a]:
-                        p[a] = q[a]
+                        p[a] = q[a] + gap * q[3 + a]
                 c = True
                 if (margs[0][0] == MOLD_MESH or (on_foot and SMOOTH_FOOT_TRUSTED)) and not fixed[k, 0] and \
                         not fixed[k, 1] and not fixed[k, 2]:

@@ -20,8 +20,8 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible_q,
-                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible_q,
+                         _curvature_blocks, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
                          _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
@@ -34,6 +34,10 @@ ENERGY_RESOLUTION = 1e-13
 # shifts (flag 3). A work budget, not a time budget: the same scene takes the same path on a
 # quiet machine and a loaded one (a 1 s wall-clock budget made results depend on the load)
 ITERATE_BUDGET_CG = 400
+# a trial whose energy change is below the energy's resolution and whose residual is not below the
+# start's is judged by the trapezoid rule's energy change -1/2 (F0 + F1) . (x1 - x0) (exact for
+# a quadratic energy, no cancellation) against the Armijo rule
+TRAPEZOID_ENERGY = True
 
 
 # released nodes on the surface whose step enters the mold are held on it (_block_entering);
@@ -166,6 +170,7 @@ class NewtonLevel:
         self.Q = np.zeros((n, 9))
         self._q_pos = None
         self.sd0 = np.full(n, np.inf)
+        self.gap = np.zeros(3 * n)  # the step's prescribed gap closure [m] (_gap_closure)
         self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
         self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
@@ -298,8 +303,9 @@ class NewtonLevel:
         contact_before = contact.copy()
         Q = self.queries(pos)
         _projectors_q(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe, Q)
-        # distances of the nodes not in contact (after the releases; contact nodes are on the surface)
-        _free_distances_q(contact, self.has_mold, Q, self.sd0)
+        # distances of the nodes not in contact (after the releases; contact nodes are on the surface,
+        # but for a gap the step is to close, HELD_KEEP_GAP)
+        _free_distances_q(contact, self.has_mold, Q, m.fixed_axes, self.sd0)
         v_base = self.residual(pos, contact, F) if not _same(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
@@ -349,6 +355,21 @@ class NewtonLevel:
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
             slope = -_dot(rhs, dx)  # directional derivative of E (negative for a descent direction)
+            if HELD_KEEP_GAP and self.has_mold and _gap_closure(contact, m.fixed_axes, self.sd0, Q, self.gap):
+                # contact nodes still off the surface (held by _block_entering a little off it, or
+                # left there by a step cut short): the step closes their gaps g, a prescribed move
+                # the others' step answers (A y = Pi (f - K g), the step y + g)
+                Kg = np.empty(3 * self.n)
+                _bsr_matvec(self.indptr, self.indices, self.K, self.gap, Kg)
+                PKg = np.empty(3 * self.n)
+                _apply_pi(self.Pi, Kg, PKg)
+                dy, cg_it = self._solve_linear(rhs - PKg, mu_abs, tol, None if self.direct else dx)
+                cg_spent += cg_it
+                if not _all_finite(dy):
+                    self.lm = max(self.lm * 100.0, 1e-8)
+                    continue
+                dx = dy + self.gap
+                slope = -_dot(rhs, dy) - _dot(f, self.gap)
             if not (slope < 0.0):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
@@ -406,6 +427,12 @@ class NewtonLevel:
                     v1 = self.residual(self.trial, self.trial_contact, Ft)
                     if v1 < v_base:
                         return self._accept(state, E1, v1, Ft)
+                    if TRAPEZOID_ENERGY:
+                        # the energy change by the trapezoid rule, which does not cancel: the
+                        # Armijo rule decides below the energy's resolution
+                        dE = _trapezoid_change(pos, self.trial, self.F, Ft)
+                        if dE <= 1e-4 * alpha * slope:
+                            return self._accept(state, E1, v1, Ft)
             alpha *= 0.5
             if alpha * np.abs(dx).max() < 1e-17:
                 break
@@ -422,6 +449,17 @@ class NewtonLevel:
         if not math.isfinite(v1):
             return v1, E1, 2
         return v1, E1, 0
+
+
+@njit(cache=True)
+def _trapezoid_change(x0, x1, F0, F1):
+    """-1/2 sum (F0 + F1) . (x1 - x0) [J]: the energy change from x0 to x1 (n, 3) [m] by the
+    trapezoid rule with the forces F0, F1 (n, 3) [N] at both ends."""
+    s = 0.0
+    for k in range(x0.shape[0]):
+        for a in range(3):
+            s += (F0[k, a] + F1[k, a]) * (x1[k, a] - x0[k, a])
+    return -0.5 * s
 
 
 @njit(cache=True)
