@@ -113,14 +113,10 @@ def _spread_in_plane(model: Model) -> np.ndarray:
     u_held = (target[:, :2] - rest[:, :2])[held]
     if not held.any() or not np.any(np.abs(u_held) > 0) or held.all():
         return np.zeros((model.node_count, 2))
-    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    pairs = np.concatenate([model.topology.warp, model.topology.weft])
-    a, b = pairs[:, 0], pairs[:, 1]
     n = model.node_count
-    W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
-    L = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+    L, _ = _lattice_laplacian(model)
     B = _closed_seam_rows(model)
     if B is not None:
         L = (L + SEAM_SPREAD_WEIGHT * (B.T @ B)).tocsr()
@@ -138,6 +134,19 @@ def _spread_in_plane(model: Model) -> np.ndarray:
 #: weight of a closed seam's coupling in the start's spread, relative to a lattice link's 1: the
 #: two sides move together to about 1 / SEAM_SPREAD_WEIGHT of the displacement across one link
 SEAM_SPREAD_WEIGHT = 1e6
+
+
+def _lattice_laplacian(model: Model):
+    """(L (N, N) scipy CSR, deg (N,)): the graph Laplacian of the warp and weft links (each of
+    weight 1) and each node's number of links."""
+    import scipy.sparse as sp
+
+    pairs = np.concatenate([model.topology.warp, model.topology.weft])
+    a, b = pairs[:, 0], pairs[:, 1]
+    n = model.node_count
+    W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
+    deg = np.asarray(W.sum(axis=1)).ravel()
+    return (sp.diags(deg) - W).tocsr(), deg
 
 
 def _held_flat_target(model: Model) -> np.ndarray:
@@ -164,7 +173,6 @@ def _joined_dome(model: Model):
     a largest value of 1; so the sewn panels start as one dome, as the one-panel sheet does,
     instead of a dome each with their seams left on the mold. None for a single panel or
     without closed seams (each panel then gets its own sine dome)."""
-    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
     if model.topology.panel_count < 2:
@@ -173,15 +181,12 @@ def _joined_dome(model: Model):
     if B is None:
         return None
     n = model.node_count
-    pairs = np.concatenate([model.topology.warp, model.topology.weft])
-    a, b = pairs[:, 0], pairs[:, 1]
-    W = sp.coo_matrix((np.ones(2 * a.size), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)).tocsr()
-    deg = np.asarray(W.sum(axis=1)).ravel()
+    L, deg = _lattice_laplacian(model)
     sewn = np.asarray(abs(B).sum(axis=0)).ravel() > 0
     edge = (deg < 4) & ~sewn
     if edge.all() or not edge.any():
         return None
-    L = (sp.diags(deg) - W + SEAM_SPREAD_WEIGHT * (B.T @ B)).tocsr()
+    L = (L + SEAM_SPREAD_WEIGHT * (B.T @ B)).tocsr()
     inner = ~edge
     z = np.zeros(n)
     z[inner] = spla.spsolve(L[inner][:, inner].tocsc(), np.ones(int(inner.sum())))
