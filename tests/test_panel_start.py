@@ -99,3 +99,26 @@ def test_a_rotated_panel_pulled_at_one_end_starts_uniformly_stretched():
     a, b = model.spring_nodes[warp].T
     length = np.linalg.norm(state.positions[b] - state.positions[a], axis=1)
     np.testing.assert_allclose(length, 1.3 * 0.01, rtol=1e-12)
+
+
+def test_outline_band_of_sewn_panels_follows_the_outline_not_the_seams():
+    """The outline band the sequencing settles (``rim.outline_band``) starts at held nodes and at
+    unsewn nodes short of lattice neighbours: on four quarters sewn edge to edge and held on their
+    outer edges it is the rows along the held edges, none along the seams (a sewn node's missing
+    neighbours are across its seam). Each band node is within RIM_BAND lattice steps of a held
+    node of its panel, and the band holds every free unsewn node that is."""
+    from clothsim.solvers.newton import rim
+
+    model, _ = _four_panels(d=20)
+    band = rim.outline_band(model)
+    topo = model.topology
+    held = np.nonzero(model.fixed_axes.any(axis=1))[0]
+    sewn = np.zeros(model.node_count, bool)
+    sewn[model.spring_nodes[model.spring_family == FAMILY_SEAM].ravel()] = True
+    ij = topo.node_ij
+    near = np.zeros(model.node_count, bool)
+    for k in range(model.node_count):
+        same = held[topo.node_panel[held] == topo.node_panel[k]]
+        near[k] = np.abs(ij[same] - ij[k]).sum(axis=1).min() <= rim.RIM_BAND
+    want = np.nonzero(near & ~model.fixed_axes.any(axis=1) & ~sewn)[0]
+    np.testing.assert_array_equal(np.sort(band), want)
