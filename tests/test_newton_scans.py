@@ -14,7 +14,7 @@ from clothsim import bench
 from clothsim.contact import max_penetration
 from clothsim.mold import mold_primitive, mold_query
 from clothsim.solvers.newton import PENETRATION_TOL, NewtonSolver
-from clothsim.solvers.newton.active_set import _trial_positions_sd, near_faces
+from clothsim.solvers.newton.active_set import _trial_positions_sd
 from clothsim.solvers.newton import active_set
 from clothsim.solvers.options import newton_options
 
@@ -36,8 +36,7 @@ def _sphere_trial(steps):
         active_set.FIXED_PROJECTION_STEPS = steps
         active_set.FIXED_PROJECTION_EVERYWHERE = True
         pen = _trial_positions_sd.py_func(pos, np.array([True]), np.zeros(1), step, 1.0, fixed, True, margs, False,
-                                          -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False,
-                                          near_faces(1, 0.0))
+                                          -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False)
     finally:
         active_set.FIXED_PROJECTION_STEPS, active_set.FIXED_PROJECTION_EVERYWHERE = old
     return pen, out[0], cout[0], rho0, z0, margs

@@ -244,116 +244,6 @@ def _mesh_closest(margs, px, py, pz):
 
 
 @njit(cache=True)
-def mesh_gather(margs, x, y, z, R, out):
-    """The faces within R [m] of x (exact triangle distance below R), in BVH order, written to
-    out (int64); returns how many, or -1 when out is too small."""
-    V = margs.vertices
-    F = margs.faces
-    bmin = margs.bvh_min
-    bmax = margs.bvh_max
-    child = margs.bvh_child
-    rng = margs.bvh_range
-    order = margs.bvh_faces
-    if bmin.shape[0] == 0:
-        return 0
-    R2 = R * R
-    stack = np.empty(64, dtype=np.int64)
-    stack[0] = 0
-    sp = 1
-    nc = 0
-    while sp > 0:
-        sp -= 1
-        n = stack[sp]
-        if _box_d2(bmin, bmax, n, x, y, z) >= R2:
-            continue
-        if child[n, 0] >= 0:
-            if sp + 2 > stack.shape[0]:
-                return -1  # cannot happen for the median-split trees built here
-            stack[sp] = child[n, 0]
-            stack[sp + 1] = child[n, 1]
-            sp += 2
-            continue
-        for k in range(rng[n, 0], rng[n, 0] + rng[n, 1]):
-            f = order[k]
-            ia = F[f, 0]
-            ib = F[f, 1]
-            ic = F[f, 2]
-            cx, cy, cz, reg = _tri_closest(x, y, z, V[ia, 0], V[ia, 1], V[ia, 2], V[ib, 0], V[ib, 1], V[ib, 2],
-                                           V[ic, 0], V[ic, 1], V[ic, 2])
-            if (x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2 >= R2:
-                continue
-            if nc == out.shape[0]:
-                return -1
-            out[nc] = f
-            nc += 1
-    return nc
-
-
-@njit(cache=True)
-def mesh_query_near(margs, p, out, cand, nc, x0, R):
-    """``mold_query`` on a mesh mold from the faces cand[:nc] that ``mesh_gather`` found within R
-    [m] of x0 (3,) [m], when that settles the answer: the closest of them is closer than every
-    other (by a relative 1e-9 in d^2) and than R - |p - x0| (so no face left out can be as
-    close). The BVH search then finds the same face and computes the same point, so the answer
-    is the same, bit for bit. Returns (signed distance [m], 0) with out filled, or (0, 1) when
-    the faces do not settle it (a near tie, or no face: out untouched), or (0, 2) when p is too
-    far from x0 for them to (out untouched)."""
-    px = p[0]
-    py = p[1]
-    pz = p[2]
-    ex = px - x0[0]
-    ey = py - x0[1]
-    ez = pz - x0[2]
-    room = R * (1.0 - 1e-9) - math.sqrt(ex * ex + ey * ey + ez * ez)
-    if not (room > 0.0):
-        return 0.0, 2
-    if nc <= 0:
-        return 0.0, 1
-    V = margs.vertices
-    F = margs.faces
-    best = np.inf
-    second = np.inf
-    fb = -1
-    rb = -1
-    bx = 0.0
-    by = 0.0
-    bz = 0.0
-    for i in range(nc):
-        f = cand[i]
-        ia = F[f, 0]
-        ib = F[f, 1]
-        ic = F[f, 2]
-        cx, cy, cz, reg = _tri_closest(px, py, pz, V[ia, 0], V[ia, 1], V[ia, 2], V[ib, 0], V[ib, 1], V[ib, 2],
-                                       V[ic, 0], V[ic, 1], V[ic, 2])
-        d2 = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
-        if d2 < best:
-            second = best
-            best = d2
-            fb = f
-            rb = reg
-            bx = cx
-            by = cy
-            bz = cz
-        elif d2 < second:
-            second = d2
-    lim = best * (1.0 + 1e-9)
-    if not (room * room > lim):
-        return 0.0, 2
-    if not (second > lim):
-        return 0.0, 1
-    if rb == 0:
-        code = 0
-        idx = fb
-    elif rb <= 3:
-        code = 2
-        idx = F[fb, rb - 1]
-    else:
-        code = 1
-        idx = margs.face_edges[fb, rb - 4]
-    return _mesh_answer(margs, px, py, pz, bx, by, bz, code, idx, best, out), 0
-
-
-@njit(cache=True)
 def _feature_normal(margs, code, idx):
     if code == 0:
         N = margs.face_normals
@@ -368,12 +258,6 @@ def _feature_normal(margs, code, idx):
 def _mesh_query(margs, px, py, pz, out):
     """Signed distance to a mesh mold; fills out[0:8] (see mold_query)."""
     cx, cy, cz, code, idx, d2 = _mesh_closest(margs, px, py, pz)
-    return _mesh_answer(margs, px, py, pz, cx, cy, cz, code, idx, d2, out)
-
-
-@njit(cache=True, inline="always")
-def _mesh_answer(margs, px, py, pz, cx, cy, cz, code, idx, d2, out):
-    """``_mesh_query``'s answer from the closest point c, its feature and d2 = |p - c|^2."""
     if code < 0:
         out[:] = 0.0
         out[5] = 1.0

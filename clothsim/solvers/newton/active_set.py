@@ -17,7 +17,6 @@ from numba import njit
 from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, free_axis_normals, stop_at_surface
 from ...mold import (MOLD_MESH, MOLD_SMOOTH, contact_normals_from_query, mold_contact_normals, mold_query,
                      smooth_shape_operator)
-from ...mold.queries import mesh_gather, mesh_query_near
 from ...mold.smooth import _smooth_query_flag
 
 # after a projection onto the mold, a node may be inside by at most this [m]
@@ -86,56 +85,6 @@ def _query_nodes(pos, has_mold, margs, Q):
             Q[k, 8] = mold_query(margs, pos[k], Q[k])
         else:
             Q[k, 8] = np.inf
-
-
-# faces kept per node for its queries near where it was (``_node_query``)
-NEAR_FACES = 48
-
-
-@njit(cache=True)
-def _node_query(margs, p, q, k, near):
-    """``mold_query`` for node k at p (3,) [m] (answer in q, returns the signed distance [m]),
-    the same answer bit for bit. On a faceted mesh mold, near = (faces (n, NEAR_FACES) int64,
-    counts (n,) int64, centres (n, 3) [m], radius R (1,) [m]) holds for each node the faces within
-    R of a point it was at (``mesh_gather``): a node that has moved less than about R from it
-    is answered from those few faces (``mesh_query_near``) instead of the BVH search; otherwise
-    its faces are gathered again where it is now and answer (the BVH when they do not settle
-    it). A node whose faces do not
-    settle the answer although it is near (on an edge or vertex two faces tie; no face within
-    R) keeps them and the BVH answers. R = 0: always the BVH (``mold_query``)."""
-    faces, counts, centres, R = near
-    if R[0] > 0.0 and margs.info[0] == MOLD_MESH:
-        sd, status = mesh_query_near(margs, p, q, faces[k], counts[k], centres[k], R[0])
-        if status == 0:
-            return sd
-        if status == 1 and counts[k] >= 0:
-            return mold_query(margs, p, q)
-        counts[k] = mesh_gather(margs, p[0], p[1], p[2], R[0], faces[k])
-        centres[k, 0] = p[0]
-        centres[k, 1] = p[1]
-        centres[k, 2] = p[2]
-        sd, status = mesh_query_near(margs, p, q, faces[k], counts[k], centres[k], R[0])
-        if status == 0:
-            return sd
-    return mold_query(margs, p, q)
-
-
-@njit(cache=True)
-def _query_nodes_near(pos, has_mold, margs, Q, near):
-    """``_query_nodes`` through ``_node_query`` (the same answers)."""
-    for k in range(pos.shape[0]):
-        if has_mold:
-            Q[k, 8] = _node_query(margs, pos[k], Q[k], k, near)
-        else:
-            Q[k, 8] = np.inf
-
-
-@njit(cache=True)
-def near_faces(n, R):
-    """An empty per-node face store for ``_node_query`` (n nodes, radius R [m]; R = 0: none)."""
-    rr = np.empty(1)
-    rr[0] = R
-    return np.zeros((n, NEAR_FACES), np.int64), np.zeros(n, np.int64), np.zeros((n, 3)), rr
 
 
 @njit(cache=True)
@@ -497,12 +446,12 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
     """``_trial_positions_sd`` without the per-node distances and the reuse of an earlier pass."""
     sd_out = np.empty(pos0.shape[0])
     return _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0,
-                               out, contact_out, sd_out, False, near_faces(pos0.shape[0], 0.0))
+                               out, contact_out, sd_out, False)
 
 
 @njit(cache=True)
 def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
-                        contact_out, sd_out, reuse, near):
+                        contact_out, sd_out, reuse):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
     are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
@@ -513,8 +462,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     distance after its move (0 for a node not queried). reuse (with clip_faces): out,
     contact_out and sd_out hold the pass without the clip at the same pos0, step and alpha, and
     the nodes that the clip does not stop (their position is the same) keep that pass's answers
-    instead of being queried again: the same result, bit for bit. near: the nodes' face store of
-    ``_node_query`` (``near_faces``)."""
+    instead of being queried again: the same result, bit for bit."""
     q = np.empty(8)
     p = np.empty(3)
     dd = np.empty(3)
@@ -566,7 +514,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
             if margs[0][0] == MOLD_SMOOTH:
                 sd, on_foot = _smooth_query_flag(margs, p[0], p[1], p[2], q)
             else:
-                sd = _node_query(margs, p, q, k, near)
+                sd = mold_query(margs, p, q)
             if c and sd > RELEASE_GAP and q[6] != 0.0:
                 # a contact node whose move took it off the surface past a convex edge or vertex
                 # (the closest point is on that edge or vertex): it is put back there only if its
@@ -592,7 +540,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                     # PENETRATION_TOL): no query needed to know that it is not inside
                     sd = 0.0
                 else:
-                    sd = _node_query(margs, p, q, k, near)
+                    sd = mold_query(margs, p, q)
                     # a node with constrained axes moved onto the foot point along its free axes
                     # only is still inside where the surface curves (by about its constrained
                     # offset times the curvature): the line search then rejects any step longer
@@ -613,7 +561,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                         for a in range(3):
                             if not fixed[k, a]:
                                 p[a] -= sd * q[3 + a] / nf2
-                        sd = _node_query(margs, p, q, k, near)
+                        sd = mold_query(margs, p, q)
             sdk = sd
             if -sd > worst:
                 worst = -sd

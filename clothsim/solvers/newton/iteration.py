@@ -21,8 +21,8 @@ from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
 from .active_set import (PENETRATION_TOL, _apply_pi, _curvature_blocks, _block_entering, _block_infeasible_q,
-                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes_near, _residual_q,
-                         _trial_positions_sd, near_faces)
+                         _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+                         _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
@@ -60,12 +60,6 @@ SCAN_RULES_ON_FACETS = True
 # them on the surface and the residual stayed at 5e-3 N for two iterations: the 225-across circle
 # took 5-6 fine iterations, 3 with 0; the square and the four panels are unchanged)
 HOLD_SHARE_EVERYWHERE = True
-
-# the nodes' queries on a faceted mesh answered from the faces near where each node was
-# (active_set._node_query; the same answers, bit for bit); False: every query searches the BVH
-NEAR_QUERIES = True
-# ... the radius of the faces kept, in median edge lengths of the mesh
-NEAR_EDGES = 1.0
 
 # after blocking constraints were added, the system is solved again from the previous step
 # projected onto the new active set (a local correction: issue 11's circular blank, whose second fine
@@ -171,11 +165,6 @@ class NewtonLevel:
         # blocking rules and face clips read them instead of querying the same points again
         self.Q = np.zeros((n, 9))
         self._q_pos = None
-        # each node's faces near where it was (active_set._node_query): its queries while it stays
-        # near there read a few faces instead of searching the BVH (the same answers). Radius:
-        # half the faceted mesh's median edge (none on other molds)
-        kind = self.margs[0][0] if self.has_mold else -1
-        self._near = near_faces(n, NEAR_EDGES * _median_edge(self.margs) if kind == MOLD_MESH and NEAR_QUERIES else 0.0)
         self.sd0 = np.full(n, np.inf)
         self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
         self._face0 = -np.ones(n, np.int64)
@@ -223,7 +212,7 @@ class NewtonLevel:
         """The mold's answers at the nodes at pos (n,3) [m] (``_query_nodes``: Q (n, 9)), queried
         once per set of positions."""
         if self._q_pos is None or not _same(self._q_pos, pos):
-            _query_nodes_near(pos, self.has_mold, self.margs, self.Q, self._near)
+            _query_nodes(pos, self.has_mold, self.margs, self.Q)
             if self._q_pos is None:
                 self._q_pos = pos.copy()
             else:
@@ -403,8 +392,7 @@ class NewtonLevel:
                 # the clipped pass re-queries only the nodes the clip stops (the others' answers
                 # from the pass just before, at the same alpha, stand)
                 pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                          clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip,
-                                          self._near)
+                                          clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip)
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
@@ -468,15 +456,6 @@ def _all_finite(x):
         if not math.isfinite(x[i]):
             return False
     return True
-
-
-def _median_edge(margs):
-    """The median edge length [m] of a mesh mold's arguments (0 without edges)."""
-    V = np.asarray(margs.vertices)
-    E = np.asarray(margs.edges)
-    if E.shape[0] == 0:
-        return 0.0
-    return float(np.median(np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)))
 
 
 def _coupled_pairs(model):
