@@ -145,7 +145,12 @@ def _box_d2(bmin, bmax, n, px, py, pz):
 
 @njit(cache=True)
 def _mesh_closest(margs, px, py, pz):
-    """BVH search for the closest point: returns (cx, cy, cz, feature_code, feature_id, d2)."""
+    """BVH search for the closest point: returns (cx, cy, cz, feature_code, feature_id, d2).
+
+    Depth first, the nearer child first; a node's box distance is computed once (kept on the
+    stack beside it) and a child already farther than the best answer so far is not pushed
+    (the best only decreases, so it would be skipped when popped): the leaves are visited in
+    the same order as by testing every node when popped, and the answer is the same."""
     V = margs.vertices
     F = margs.faces
     face_edges = margs.face_edges
@@ -162,60 +167,79 @@ def _mesh_closest(margs, px, py, pz):
     bidx = -1
     if bmin.shape[0] == 0:
         return bx, by, bz, bcode, bidx, best
-    stack = np.empty(128, dtype=np.int64)
+    stack = np.empty(64, dtype=np.int64)
+    sd2 = np.empty(64)
     stack[0] = 0
+    sd2[0] = _box_d2(bmin, bmax, 0, px, py, pz)
     sp = 1
     while sp > 0:
         sp -= 1
         n = stack[sp]
-        if _box_d2(bmin, bmax, n, px, py, pz) > best * (1.0 + 1e-12):
+        if sd2[sp] > best * (1.0 + 1e-12):
             continue
-        if child[n, 0] < 0:
-            start = rng[n, 0]
-            for k in range(start, start + rng[n, 1]):
-                f = order[k]
-                ia = F[f, 0]
-                ib = F[f, 1]
-                ic = F[f, 2]
-                cx, cy, cz, reg = _tri_closest(px, py, pz, V[ia, 0], V[ia, 1], V[ia, 2],
-                                               V[ib, 0], V[ib, 1], V[ib, 2],
-                                               V[ic, 0], V[ic, 1], V[ic, 2])
-                d2 = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
-                if reg == 0:
-                    code = 0
-                elif reg <= 3:
-                    code = 2
-                else:
-                    code = 1
-                if d2 < best * (1.0 - 1e-12) or (d2 <= best * (1.0 + 1e-12) and code > bcode):
-                    best = d2
-                    bx = cx
-                    by = cy
-                    bz = cz
-                    bcode = code
-                    if reg == 0:
-                        bidx = f
-                    elif reg <= 3:
-                        bidx = F[f, reg - 1]
-                    else:
-                        bidx = face_edges[f, reg - 4]
-        else:
+        # descend to a leaf along the nearer children, pushing the farther ones
+        while child[n, 0] >= 0:
             l = child[n, 0]
             r = child[n, 1]
             dl = _box_d2(bmin, bmax, l, px, py, pz)
             dr = _box_d2(bmin, bmax, r, px, py, pz)
-            if sp + 2 > stack.shape[0]:
-                # cannot happen for the median-split trees built here (depth ~ log2 F)
-                bigger = np.empty(stack.shape[0] * 2, dtype=np.int64)
-                bigger[:sp] = stack[:sp]
-                stack = bigger
-            if dl <= dr:  # push the farther child first so the nearer one is searched first
-                stack[sp] = r
-                stack[sp + 1] = l
+            lim = best * (1.0 + 1e-12)
+            if dl <= dr:
+                near = l
+                far = r
+                dn = dl
+                dfar = dr
             else:
-                stack[sp] = l
-                stack[sp + 1] = r
-            sp += 2
+                near = r
+                far = l
+                dn = dr
+                dfar = dl
+            if dfar <= lim:
+                if sp >= stack.shape[0]:
+                    # cannot happen for the median-split trees built here (depth ~ log2 F)
+                    bigger = np.empty(2 * stack.shape[0], dtype=np.int64)
+                    bigger[:sp] = stack[:sp]
+                    stack = bigger
+                    bigger2 = np.empty(stack.shape[0])
+                    bigger2[:sp] = sd2[:sp]
+                    sd2 = bigger2
+                stack[sp] = far
+                sd2[sp] = dfar
+                sp += 1
+            if dn > lim:
+                n = -1
+                break
+            n = near
+        if n < 0:
+            continue
+        start = rng[n, 0]
+        for k in range(start, start + rng[n, 1]):
+            f = order[k]
+            ia = F[f, 0]
+            ib = F[f, 1]
+            ic = F[f, 2]
+            cx, cy, cz, reg = _tri_closest(px, py, pz, V[ia, 0], V[ia, 1], V[ia, 2],
+                                           V[ib, 0], V[ib, 1], V[ib, 2],
+                                           V[ic, 0], V[ic, 1], V[ic, 2])
+            d2 = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
+            if reg == 0:
+                code = 0
+            elif reg <= 3:
+                code = 2
+            else:
+                code = 1
+            if d2 < best * (1.0 - 1e-12) or (d2 <= best * (1.0 + 1e-12) and code > bcode):
+                best = d2
+                bx = cx
+                by = cy
+                bz = cz
+                bcode = code
+                if reg == 0:
+                    bidx = f
+                elif reg <= 3:
+                    bidx = F[f, reg - 1]
+                else:
+                    bidx = face_edges[f, reg - 4]
     return bx, by, bz, bcode, bidx, best
 
 

@@ -60,6 +60,157 @@ from .queries import _box_d2, _mesh_query
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
 _FOOT_ITERS = 30
+# the foot iteration's and the shape operator's vertices are gathered once within this many
+# median smoothing radii of the start point (``_gather``); steps within half of it reuse them
+_GATHER_MARGIN = 0.25
+
+
+@njit(cache=True)
+def _gather(margs, x, y, z, margin, stack, cand):
+    """The vertices whose support reaches within ``margin`` [m] of x (|x - v| < r_v + margin), in
+    the order the BVH visits them (the order ``_blend`` sums them in), written to cand (int64,
+    grown when full: the possibly new array is returned with the count). Points within
+    ``margin`` of x have every vertex their blend sums among them, in the same order, so
+    ``_blend_from`` gives the same bits as ``_blend`` there. stack: int64 scratch (>= 128)."""
+    V = margs.vertices
+    F = margs.faces
+    J = margs.vertex_jets
+    owner_ptr = margs.vertex_face_ptr
+    owner_idx = margs.vertex_face_idx
+    bmin = margs.bvh_min
+    bmax = margs.bvh_max
+    child = margs.bvh_child
+    rng = margs.bvh_range
+    order = margs.bvh_faces
+    reach = margs.bvh_reach
+    nc = 0
+    if bmin.shape[0] == 0 or J.shape[0] != V.shape[0] or reach.shape[0] != bmin.shape[0]:
+        return cand, -1
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        n = stack[sp]
+        rr = reach[n] + margin
+        if _box_d2(bmin, bmax, n, x, y, z) >= rr * rr:
+            continue
+        if child[n, 0] >= 0:
+            if sp + 2 > stack.shape[0]:
+                return cand, -1  # cannot happen for the median-split trees built here
+            stack[sp] = child[n, 0]
+            stack[sp + 1] = child[n, 1]
+            sp += 2
+            continue
+        start = rng[n, 0]
+        for k in range(start, start + rng[n, 1]):
+            f = order[k]
+            for j in range(3):
+                v = F[f, j]
+                if owner_idx[owner_ptr[v]] != f:
+                    continue  # each vertex is visited once: from the first face of its ring
+                dx = x - V[v, 0]
+                dy = y - V[v, 1]
+                dz = z - V[v, 2]
+                rv = J[v, 15] + margin
+                if dx * dx + dy * dy + dz * dz >= rv * rv:
+                    continue
+                if nc == cand.shape[0]:
+                    bigger = np.empty(2 * cand.shape[0], np.int64)
+                    bigger[:nc] = cand[:nc]
+                    cand = bigger
+                cand[nc] = v
+                nc += 1
+    return cand, nc
+
+
+@njit(cache=True, inline="always")
+def _blend_vertex(margs, v, x, y, z):
+    """Vertex v's terms of the blend at x: (inside its support, w, w s, grad w (3), w grad s +
+    s grad w (3)), the weight w and jet s of the module docstring."""
+    V = margs.vertices
+    VN = margs.vertex_normals
+    J = margs.vertex_jets
+    dx = x - V[v, 0]
+    dy = y - V[v, 1]
+    dz = z - V[v, 2]
+    d2 = dx * dx + dy * dy + dz * dz
+    rv = J[v, 15]
+    if d2 >= rv * rv:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    t = math.sqrt(d2) / rv
+    om = 1.0 - t
+    om3 = om * om * om
+    k4 = J[v, 16]
+    w = k4 * om3 * om * (4.0 * t + 1.0)
+    # grad w = k4 psi'(t)/rv * (x - v)/|x - v| = -20 k4 (1 - t)^3 (x - v) / rv^2
+    a = -20.0 * k4 * om3 / (rv * rv)
+    wx = a * dx
+    wy = a * dy
+    wz = a * dz
+    # the vertex's jet: s = (x - v).n - h(x1, x2), x1, x2 its tangent coordinates
+    nx = VN[v, 0]
+    ny = VN[v, 1]
+    nz = VN[v, 2]
+    x1 = dx * J[v, 0] + dy * J[v, 1] + dz * J[v, 2]
+    x2 = dx * J[v, 3] + dy * J[v, 4] + dz * J[v, 5]
+    ca = J[v, 6]
+    cb = J[v, 7]
+    cc = J[v, 8]
+    cd = J[v, 9]
+    ce = J[v, 10]
+    cf = J[v, 11]
+    cg = J[v, 12]
+    ck = J[v, 13]
+    cl = J[v, 14]
+    q11 = x1 * x1
+    q12 = x1 * x2
+    q22 = x2 * x2
+    hv = (ca * x1 + cb * x2 + 0.5 * cc * q11 + cd * q12 + 0.5 * ce * q22
+          + cf * q11 * x1 / 6.0 + 0.5 * cg * q11 * x2 + 0.5 * ck * x1 * q22
+          + cl * q22 * x2 / 6.0)
+    s = dx * nx + dy * ny + dz * nz - hv
+    h1 = ca + cc * x1 + cd * x2 + 0.5 * cf * q11 + cg * q12 + 0.5 * ck * q22
+    h2 = cb + cd * x1 + ce * x2 + 0.5 * cg * q11 + ck * q12 + 0.5 * cl * q22
+    sx = nx - h1 * J[v, 0] - h2 * J[v, 3]
+    sy = ny - h1 * J[v, 1] - h2 * J[v, 4]
+    sz = nz - h1 * J[v, 2] - h2 * J[v, 5]
+    return True, w, w * s, wx, wy, wz, w * sx + s * wx, w * sy + s * wy, w * sz + s * wz
+
+
+@njit(cache=True)
+def _blend_from(margs, x, y, z, cand, nc, g):
+    """``_blend`` at x summing over the candidates cand[:nc] of a ``_gather`` made within its
+    margin of x (the same vertices in the same order: the same bits)."""
+    W = 0.0
+    S = 0.0
+    gw0 = 0.0
+    gw1 = 0.0
+    gw2 = 0.0
+    gs0 = 0.0
+    gs1 = 0.0
+    gs2 = 0.0
+    g[0] = 0.0
+    g[1] = 0.0
+    g[2] = 0.0
+    for i in range(nc):
+        ok, w, ws, wx, wy, wz, t0, t1, t2 = _blend_vertex(margs, cand[i], x, y, z)
+        if not ok:
+            continue
+        W += w
+        S += ws
+        gw0 += wx
+        gw1 += wy
+        gw2 += wz
+        gs0 += t0
+        gs1 += t1
+        gs2 += t2
+    if not (W > 0.0):
+        return 0.0, 0.0
+    phi = S / W
+    g[0] = (gs0 - phi * gw0) / W
+    g[1] = (gs1 - phi * gw1) / W
+    g[2] = (gs2 - phi * gw2) / W
+    return phi, W
 
 
 @njit(cache=True)
@@ -69,7 +220,6 @@ def _blend(margs, x, y, z, r, g, stack):
     radii apply; kept for the call signature). stack: int64 scratch (>= 128)."""
     V = margs.vertices
     F = margs.faces
-    VN = margs.vertex_normals
     J = margs.vertex_jets
     owner_ptr = margs.vertex_face_ptr
     owner_idx = margs.vertex_face_idx
@@ -113,58 +263,17 @@ def _blend(margs, x, y, z, r, g, stack):
                 v = F[f, j]
                 if owner_idx[owner_ptr[v]] != f:
                     continue  # each vertex is visited once: from the first face of its ring
-                dx = x - V[v, 0]
-                dy = y - V[v, 1]
-                dz = z - V[v, 2]
-                d2 = dx * dx + dy * dy + dz * dz
-                rv = J[v, 15]
-                if d2 >= rv * rv:
+                ok, w, ws, wx, wy, wz, t0, t1, t2 = _blend_vertex(margs, v, x, y, z)
+                if not ok:
                     continue
-                t = math.sqrt(d2) / rv
-                om = 1.0 - t
-                om3 = om * om * om
-                k4 = J[v, 16]
-                w = k4 * om3 * om * (4.0 * t + 1.0)
-                # grad w = k4 psi'(t)/rv * (x - v)/|x - v| = -20 k4 (1 - t)^3 (x - v) / rv^2
-                a = -20.0 * k4 * om3 / (rv * rv)
-                wx = a * dx
-                wy = a * dy
-                wz = a * dz
-                # the vertex's jet: s = (x - v).n - h(x1, x2), x1, x2 its tangent coordinates
-                nx = VN[v, 0]
-                ny = VN[v, 1]
-                nz = VN[v, 2]
-                x1 = dx * J[v, 0] + dy * J[v, 1] + dz * J[v, 2]
-                x2 = dx * J[v, 3] + dy * J[v, 4] + dz * J[v, 5]
-                ca = J[v, 6]
-                cb = J[v, 7]
-                cc = J[v, 8]
-                cd = J[v, 9]
-                ce = J[v, 10]
-                cf = J[v, 11]
-                cg = J[v, 12]
-                ck = J[v, 13]
-                cl = J[v, 14]
-                q11 = x1 * x1
-                q12 = x1 * x2
-                q22 = x2 * x2
-                hv = (ca * x1 + cb * x2 + 0.5 * cc * q11 + cd * q12 + 0.5 * ce * q22
-                      + cf * q11 * x1 / 6.0 + 0.5 * cg * q11 * x2 + 0.5 * ck * x1 * q22
-                      + cl * q22 * x2 / 6.0)
-                s = dx * nx + dy * ny + dz * nz - hv
-                h1 = ca + cc * x1 + cd * x2 + 0.5 * cf * q11 + cg * q12 + 0.5 * ck * q22
-                h2 = cb + cd * x1 + ce * x2 + 0.5 * cg * q11 + ck * q12 + 0.5 * cl * q22
-                sx = nx - h1 * J[v, 0] - h2 * J[v, 3]
-                sy = ny - h1 * J[v, 1] - h2 * J[v, 4]
-                sz = nz - h1 * J[v, 2] - h2 * J[v, 5]
                 W += w
-                S += w * s
+                S += ws
                 gw0 += wx
                 gw1 += wy
                 gw2 += wz
-                gs0 += w * sx + s * wx
-                gs1 += w * sy + s * wy
-                gs2 += w * sz + s * wz
+                gs0 += t0
+                gs1 += t1
+                gs2 += t2
     if not (W > 0.0):
         return 0.0, 0.0
     phi = S / W
@@ -200,11 +309,28 @@ def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
     (phi(c) = 0, p - c parallel to g); it converges quadratically onto the surface and, along it,
     linearly with the factor |sd| x curvature (fast for the near-surface points of contact).
     Stops when the step is below 1e-13 m (then |phi(c)| / |g| and the tangential residual are
-    too); a growing step is halved; no convergence in 30 steps: ok False."""
+    too); a growing step is halved; no convergence in 30 steps: ok False.
+
+    The vertices near the start are gathered once (``_gather``, within ``_GATHER_MARGIN``
+    median smoothing radii) and the steps within half that of it sum over them alone, instead
+    of searching the BVH at every step: the same vertices in the same order, the same bits."""
     prev = np.inf
     damp = 1.0
+    margin = _GATHER_MARGIN * margs.params[14]
+    cand = np.empty(64, np.int64)
+    cand, nc = _gather(margs, cx, cy, cz, margin, stack, cand)
+    x0 = cx
+    y0 = cy
+    z0 = cz
+    lim = 0.25 * margin * margin
     for _ in range(_FOOT_ITERS):
-        phi, W = _blend(margs, cx, cy, cz, 0.0, g, stack)
+        ex = cx - x0
+        ey = cy - y0
+        ez = cz - z0
+        if nc >= 0 and ex * ex + ey * ey + ez * ez <= lim:
+            phi, W = _blend_from(margs, cx, cy, cz, cand, nc, g)
+        else:
+            phi, W = _blend(margs, cx, cy, cz, 0.0, g, stack)
         if not (W > 0.0):
             break
         gg = g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
@@ -299,7 +425,26 @@ def smooth_shape_operator(margs, px, py, pz, h, n_out, S_out):
     for a in range(3):
         for b in range(3):
             S_out[a, b] = 0.0
-    _, W = _blend(margs, px, py, pz, 0.0, g0, stack)
+    # the three points are within h of p: one gather serves them (the same bits as _blend)
+    margin = max(_GATHER_MARGIN * margs.params[14], 4.0 * h)
+    cand, nc = _gather(margs, px, py, pz, margin, stack, np.empty(64, np.int64))
+    if nc < 0 or not (h <= 0.5 * margin):
+        return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, -1)
+    return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, nc)
+
+
+@njit(cache=True)
+def _blend_at(margs, x, y, z, g, stack, cand, nc):
+    """``_blend`` at x, over the gathered candidates when nc >= 0."""
+    if nc >= 0:
+        return _blend_from(margs, x, y, z, cand, nc, g)
+    return _blend(margs, x, y, z, 0.0, g, stack)
+
+
+@njit(cache=True)
+def _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, nc):
+    """The body of ``smooth_shape_operator`` (cand[:nc]: the vertices gathered at p, nc < 0: none)."""
+    _, W = _blend_at(margs, px, py, pz, g0, stack, cand, nc)
     gl = math.sqrt(g0[0] * g0[0] + g0[1] * g0[1] + g0[2] * g0[2])
     if not (W > 0.0 and gl > 0.0):
         return False
@@ -325,8 +470,8 @@ def smooth_shape_operator(margs, px, py, pz, h, n_out, S_out):
     t2x = ny * t1z - nz * t1y
     t2y = nz * t1x - nx * t1z
     t2z = nx * t1y - ny * t1x
-    _, W1 = _blend(margs, px + h * t1x, py + h * t1y, pz + h * t1z, 0.0, g1, stack)
-    _, W2 = _blend(margs, px + h * t2x, py + h * t2y, pz + h * t2z, 0.0, g2, stack)
+    _, W1 = _blend_at(margs, px + h * t1x, py + h * t1y, pz + h * t1z, g1, stack, cand, nc)
+    _, W2 = _blend_at(margs, px + h * t2x, py + h * t2y, pz + h * t2z, g2, stack, cand, nc)
     if not (W1 > 0.0 and W2 > 0.0):
         return False
     s = 1.0 / (h * gl)
