@@ -177,6 +177,32 @@ def _blend_vertex(margs, v, x, y, z):
     return True, w, w * s, wx, wy, wz, w * sx + s * wx, w * sy + s * wy, w * sz + s * wz
 
 
+@njit(cache=True, inline="always")
+def _blend_add(margs, v, x, y, z, W, S, gw0, gw1, gw2, gs0, gs1, gs2):
+    """The blend's eight running sums (W, S, grad W, grad S) with vertex v's terms at x added
+    (``_blend_vertex``; unchanged when x is outside its support)."""
+    ok, w, ws, wx, wy, wz, t0, t1, t2 = _blend_vertex(margs, v, x, y, z)
+    if not ok:
+        return W, S, gw0, gw1, gw2, gs0, gs1, gs2
+    return W + w, S + ws, gw0 + wx, gw1 + wy, gw2 + wz, gs0 + t0, gs1 + t1, gs2 + t2
+
+
+@njit(cache=True, inline="always")
+def _blend_finish(W, S, gw0, gw1, gw2, gs0, gs1, gs2, g):
+    """(phi, W) from the blend's sums, and its gradient into g (3,); (0, 0) and g = 0 where no
+    vertex reaches."""
+    g[0] = 0.0
+    g[1] = 0.0
+    g[2] = 0.0
+    if not (W > 0.0):
+        return 0.0, 0.0
+    phi = S / W
+    g[0] = (gs0 - phi * gw0) / W
+    g[1] = (gs1 - phi * gw1) / W
+    g[2] = (gs2 - phi * gw2) / W
+    return phi, W
+
+
 @njit(cache=True)
 def _blend_from(margs, x, y, z, cand, nc, g):
     """``_blend`` at x summing over the candidates cand[:nc] of a ``_gather`` made within its
@@ -189,28 +215,10 @@ def _blend_from(margs, x, y, z, cand, nc, g):
     gs0 = 0.0
     gs1 = 0.0
     gs2 = 0.0
-    g[0] = 0.0
-    g[1] = 0.0
-    g[2] = 0.0
     for i in range(nc):
-        ok, w, ws, wx, wy, wz, t0, t1, t2 = _blend_vertex(margs, cand[i], x, y, z)
-        if not ok:
-            continue
-        W += w
-        S += ws
-        gw0 += wx
-        gw1 += wy
-        gw2 += wz
-        gs0 += t0
-        gs1 += t1
-        gs2 += t2
-    if not (W > 0.0):
-        return 0.0, 0.0
-    phi = S / W
-    g[0] = (gs0 - phi * gw0) / W
-    g[1] = (gs1 - phi * gw1) / W
-    g[2] = (gs2 - phi * gw2) / W
-    return phi, W
+        W, S, gw0, gw1, gw2, gs0, gs1, gs2 = _blend_add(margs, cand[i], x, y, z, W, S, gw0, gw1, gw2, gs0, gs1,
+                                                        gs2)
+    return _blend_finish(W, S, gw0, gw1, gw2, gs0, gs1, gs2, g)
 
 
 @njit(cache=True)
@@ -263,24 +271,9 @@ def _blend(margs, x, y, z, r, g, stack):
                 v = F[f, j]
                 if owner_idx[owner_ptr[v]] != f:
                     continue  # each vertex is visited once: from the first face of its ring
-                ok, w, ws, wx, wy, wz, t0, t1, t2 = _blend_vertex(margs, v, x, y, z)
-                if not ok:
-                    continue
-                W += w
-                S += ws
-                gw0 += wx
-                gw1 += wy
-                gw2 += wz
-                gs0 += t0
-                gs1 += t1
-                gs2 += t2
-    if not (W > 0.0):
-        return 0.0, 0.0
-    phi = S / W
-    g[0] = (gs0 - phi * gw0) / W
-    g[1] = (gs1 - phi * gw1) / W
-    g[2] = (gs2 - phi * gw2) / W
-    return phi, W
+                W, S, gw0, gw1, gw2, gs0, gs1, gs2 = _blend_add(margs, v, x, y, z, W, S, gw0, gw1, gw2, gs0, gs1,
+                                                                gs2)
+    return _blend_finish(W, S, gw0, gw1, gw2, gs0, gs1, gs2, g)
 
 
 @njit(cache=True)
