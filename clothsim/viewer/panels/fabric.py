@@ -266,7 +266,7 @@ class FabricPanel(Panel):
         self.app._wake.set()
 
     def busy(self) -> bool:
-        """An upload is being parsed."""
+        """An upload or a mold file is being parsed, or its result not yet applied."""
         return self.job is not None
 
     def poll_upload(self) -> None:
@@ -281,7 +281,15 @@ class FabricPanel(Panel):
                 self._job_shown = now
                 self._show_progress(job)
             return
-        self.job = None
+        # the job stays this panel's until its result is applied (``busy`` is True until then)
+        try:
+            self._apply_job(job)
+        finally:
+            if self.job is job:  # (an upload's set_mold may have started the next job)
+                self.job = None
+
+    def _apply_job(self, job: MoldUploadJob) -> None:
+        """A finished parse (on the update loop): the draft's new mold, or why not (raises)."""
         self._hide_progress()
         name = job.name[:60]
         if (job.cancelled or job.error is not None) and job.restore:
