@@ -123,7 +123,11 @@ def test_settle_outline_halves_the_newton_iterations_on_the_circle(monkeypatch):
 def test_hold_rule_on_the_sphere_settles_the_contact_rim_of_the_bench_circle(monkeypatch):
     # the benchmark's circle (225 across): with the hold rule of HOLD_SHARE on the analytic sphere
     # the fine grid needs 3 Newton iterations after the sequencing; without it nodes at the contact
-    # rim are released and stopped on the surface again, and the residual stalls for two
+    # rim are released and stopped on the surface again, and the residual stalls for two. (Measured
+    # from the flat guessed holds: with the placed holds, sequencing.HOLD_FIT, the fine start is
+    # close enough that both take the same iterations.)
+    monkeypatch.setattr(S, "HOLD_FIT", False)
+    S._HIERARCHIES.clear()
     model, state, settings = _circle(224)
 
     def iterations(everywhere):
