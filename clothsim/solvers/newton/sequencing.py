@@ -44,19 +44,20 @@ COARSEST_REL = 1e-2
 # (0.1-0.3 mm on the benchmark's circle), and a boundary offset moves the whole free sheet: the
 # fine start then needed a third Newton iteration. The guesses are therefore placed where the
 # sheet puts them (``_HoldFit``): on each level from the sheet interpolated from the coarser one,
-# on the coarsest again after its solve (HOLD_REFIT_COARSEST times), and on the last coarse level
-# by HOLD_BAND_CYCLES cycles of: its solution interpolated onto the fine lattice with the outline
-# band settled there against the true held outline, the guesses moved to those fine nodes, the
-# level solved again. On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
-# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). HOLD_FIT False: the flat guesses, as
-# before; a count of 0 turns that stage off.
+# on the coarsest again after a first solve (HOLD_REFIT_COARSEST times), and on the last coarse
+# level, once solved, at their fine nodes' places when its solution is interpolated onto the fine
+# lattice and the outline band settled there against the true held outline; that level is then
+# solved again (HOLD_BAND). On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
+# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). HOLD_FIT False: the flat guesses, as before.
 HOLD_FIT = True
 HOLD_FIT_NEIGHBOURS = 4
 HOLD_REFIT_COARSEST = 1
-HOLD_BAND_CYCLES = 1
-# the band cycle settles this many node rows from the outline, by this many sweeps
-HOLD_BAND_DEPTH = 6
-HOLD_BAND_SWEEPS = 6
+# the coarsest grid's first solve (before its refit) goes to this share of its start residual
+# (one Newton iteration fewer than to its contact set's settling, the same fine start)
+HOLD_FIRST_REL = 1e-2
+HOLD_BAND = True
+# the re-solve after HOLD_BAND starts afresh (True) or keeps the level's multigrid hierarchy
+HOLD_RESET = False
 
 
 class _HoldFit:
@@ -204,12 +205,10 @@ def _interpolate(pidx, pw, xc, cc, out, cout):
         cout[k] = c
 
 
-def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None,
-                  sweeps=None):
+def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None):
     """The interpolation of ``prolong_state`` without its mold query: (pos (n, 3) [m], cont (n,)
     bool: interpolated contact) with the fine held coordinates kept and, on a cut lattice, the
-    outline's fringe relaxed and its band settled (``sweeps``: rim.settle_outline's; nodes may be
-    left inside the mold)."""
+    outline's fringe relaxed and its band settled (nodes may be left inside the mold)."""
     if fine_model.topology.is_grid:
         # P's rows as the multigrid's transfer holds them (the same weights in the same order as
         # grid_prolongation's P, so the same sums, without building P)
@@ -228,7 +227,7 @@ def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
     if not fine_model.topology.is_grid:
         _relax_rim(fine_model, pos, cont, rim_op)
         if kink is not None and SETTLE_RIM:
-            settle_outline(fine_model, pos, cont, kink, band, sweeps)
+            settle_outline(fine_model, pos, cont, kink, band)
     return pos, cont
 
 
@@ -340,7 +339,6 @@ class _Hierarchy:
                 fit = _HoldFit(m, model, idx)
                 fit = fit if fit.g.size else None
             self.fits.append(fit)
-        self.hold_band = outline_band(model, HOLD_BAND_DEPTH) if any(f is not None for f in self.fits) else None
         # the given model itself is not kept (the cache must not keep it alive)
         self.chain = chain[:-1] + [(None, None)]
 
@@ -363,14 +361,18 @@ def _hierarchy(model, kink):
     return hier
 
 
-def _solve_coarse(level: NewtonLevel, state, coarsest: bool, e, deadline):
-    """Solve one level of the sequencing from its reset: the coarsest grid until its contact set
-    is settled, the others only as far as their discretisation error matters for the next grid's
-    start (LEVEL_REL: the fine start's residual is set by the interpolation, not by a tighter
-    coarse solve)."""
-    level.reset()
+def _solve_coarse(level: NewtonLevel, state, coarsest: bool, e, deadline, rel=None, reset=True):
+    """Solve one level of the sequencing: the coarsest grid until its contact set is settled, the
+    others only as far as their discretisation error matters for the next grid's start (LEVEL_REL:
+    the fine start's residual is set by the interpolation, not by a tighter coarse solve); rel:
+    to this share of the start residual instead. reset: start the level afresh (False: keep its
+    multigrid hierarchy, Levenberg shift and forcing history from the last solve)."""
+    if reset:
+        level.reset()
     v0 = level.residual(state.positions, state.in_contact)
-    if coarsest:
+    if rel is not None:
+        _solve_level(level, state, max(e, rel * v0), 60, deadline)
+    elif coarsest:
         _solve_level(level, state, max(e, 1e-8 * v0), 60, deadline, max(e, COARSEST_REL * v0))
     else:
         _solve_level(level, state, max(e, LEVEL_REL * v0), 60, deadline)
@@ -416,19 +418,19 @@ def grid_sequence(model, state, e, kink, deadline):
                     and SETTLE_CONTACT_RIM):
                 settle_start(mdl, cst, kink)
         lvl = hier.levels[li]
-
-        _solve_coarse(lvl, cst, li == 0, e, deadline)
-        for _ in range(HOLD_REFIT_COARSEST if li == 0 and fit is not None else 0):
+        refits = HOLD_REFIT_COARSEST if li == 0 and fit is not None else 0
+        _solve_coarse(lvl, cst, li == 0, e, deadline, HOLD_FIRST_REL if refits else None)
+        for _ in range(refits):
             # the guessed holds where the solved sheet puts them, and the level solved again
             fit.place(cst.positions, cst.positions)
-            _solve_coarse(lvl, cst, li == 0, e, deadline)
-        for _ in range(HOLD_BAND_CYCLES if li == len(chain) - 2 and fit is not None else 0):
-            # the solution on the fine lattice with its outline band settled against the true
-            # held outline: the guessed holds go to their fine nodes' places there
-            fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.hold_band, hier.rim_ops[-1],
-                                    HOLD_BAND_SWEEPS)
+            _solve_coarse(lvl, cst, True, e, deadline)
+        if HOLD_BAND and li == len(chain) - 2 and fit is not None:
+            # the last coarse level's solution on the fine lattice, its outline band settled there
+            # against the true held outline: the guessed holds take their fine nodes' places, and
+            # the level is solved again (its multigrid kept: the same matrix pattern and active set)
+            fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1])
             fit.take(fpos, cst.positions)
-            _solve_coarse(lvl, cst, li == 0, e, deadline)
+            _solve_coarse(lvl, cst, li == 0, e, deadline, reset=HOLD_RESET)
         prev_model, prev_state = mdl, cst
     trial = state.copy()
     if not prolong_state(prev_model, prev_state, model, trial, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1]):
