@@ -258,7 +258,10 @@ class NewtonLevel:
                 return x0.copy(), 0
         if not (reuse and self._mg_pi is not None and self._mg_mu == mu_abs) and self._mg_stale(mu_abs):
             self._mg_pi = self.Pi.copy()
-            self.mg.setup(self.indptr, self.indices, self.A.copy(), self._mg_pi)
+            # (a preconditioner that keeps the matrix gets a copy: A is rewritten by the next
+            # _project_system; the padded multigrid copies it into its rectangle itself)
+            A = self.A if getattr(self.mg, "copies_matrix", False) else self.A.copy()
+            self.mg.setup(self.indptr, self.indices, A, self._mg_pi)
             self._mg_age = 0
         self._mg_age += 1
         indptr, indices, A = self.indptr, self.indices, self.A

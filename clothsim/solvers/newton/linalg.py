@@ -1167,6 +1167,9 @@ class PaddedMultigrid:
     Shapes: the lattice's n nodes map to rows ``emb`` (n,) of the rectangle's N nodes; the
     embedding is increasing, so every row keeps its sorted block columns."""
 
+    # setup copies the lattice's blocks into the rectangle's and keeps no reference to them
+    copies_matrix = True
+
     def __init__(self, topology, seam_pairs=None):
         """seam_pairs (m,2): the lattice's sewn node pairs (zero-length seam springs), relaxed
         jointly on every level where both nodes are grid nodes (:func:`coarse_pairs`)."""
