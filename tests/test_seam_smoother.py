@@ -175,6 +175,30 @@ def test_padded_coarse_operators_are_the_lattice_galerkin_products(monkeypatch):
         assert np.abs(got - want).max() <= 1e-12 * scale
 
 
+def test_a_second_setup_on_the_same_pattern_equals_a_fresh_one():
+    """Multigrid.setup keeps the coarse patterns and line slots of its last set-up while the fine
+    pattern is the same arrays: a set-up on new values then builds, bit for bit, the hierarchy a
+    new multigrid builds (values, patterns, line slots, the coarsest LU's solution)."""
+    model, state = _small_garment(16)
+    lv = NewtonLevel(model, use_multigrid=True)
+    _projected_system(model, lv)
+    first = lv.A.copy()
+    reused = lv.mg
+    reused.setup(lv.indptr, lv.indices, first, lv.Pi)
+    second = first * 1.3 + 0.01 * np.eye(3)  # other values on the same pattern
+    reused.setup(lv.indptr, lv.indices, second, lv.Pi)
+    assert reused.mg._sym is not None and len(reused.mg._sym[2]) == len(reused.mg.transfers)
+    fresh = NewtonLevel(model, use_multigrid=True).mg
+    fresh.setup(lv.indptr, lv.indices, second.copy(), lv.Pi)
+    for a, b in zip(reused.mg.levels, fresh.mg.levels):
+        assert np.array_equal(a.indptr, b.indptr) and np.array_equal(a.indices, b.indices)
+        assert np.array_equal(a.data, b.data)
+        if hasattr(a, "ds"):
+            assert np.array_equal(a.ds, b.ds) and np.array_equal(a.ps, b.ps) and np.array_equal(a.ns, b.ns)
+    b = np.random.default_rng(0).normal(size=3 * model.node_count)
+    assert np.array_equal(reused.vcycle(b), fresh.vcycle(b))
+
+
 def test_padded_layout_starts_panels_on_aligned_columns():
     """Four 17 x 17 panels: each starts on a column that is a multiple of PANEL_ALIGN (4: columns
     0, 20, 40, 60), the rectangle ends at the last panel's last column (77 x 17); a node (i, j) of

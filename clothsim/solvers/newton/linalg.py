@@ -728,13 +728,10 @@ def _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, stamp, rowbuf):
 
 
 @njit(cache=True)
-def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi):
-    """Coarse operator A_c = P^T A P for a node-level interpolation P (fine node k has parents
-    pidx[k, :] with weights pw[k, :], -1 unused; coarse node c has children cchild[cptr[c]:...]
-    with weights cw) acting blockwise as weight x I3. With ``use_pi`` the fine matrix is
-    A = Pi K Pi + mu Pi + (I - Pi) and the prolongation is Pi P: then P^T Pi A Pi P equals
-    P^T (A - (I - Pi)) P, so the (I - Pi) part is left out of the diagonal blocks.
-    Returns the coarse BSR arrays (indptr, indices, data (nb,3,3)) with sorted rows."""
+def _galerkin_pattern(indptr, indices, pidx, cptr, cchild, nc):
+    """The block pattern of the coarse operator P^T A P (see :func:`_galerkin`): (cip (nc+1,),
+    cidx) with sorted rows. It depends on the fine pattern and the interpolation alone, so a
+    hierarchy rebuilt on the same pattern computes it once (:class:`Multigrid`)."""
     marker = -np.ones(nc, np.int64)
     rowbuf = np.empty(nc, np.int64)
     # symbolic pass: count the coarse row lengths
@@ -742,9 +739,6 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
     for c in range(nc):
         cip[c + 1] = cip[c] + _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, c, rowbuf)
     cidx = np.empty(cip[nc], np.int64)
-    cdat = np.zeros((cip[nc], 3, 3))
-    slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
-    blk = np.empty((3, 3))
     for c in range(nc):
         # collect and sort the row's columns (a second stamp, nc + c, on the same marker)
         m = _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, nc + c, rowbuf)
@@ -759,7 +753,19 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
         base = cip[c]
         for t in range(m):
             cidx[base + t] = rowbuf[t]
-            slot[rowbuf[t]] = base + t
+    return cip, cidx
+
+
+@njit(cache=True)
+def _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi, cip, cidx):
+    """The blocks cdat (nb, 3, 3) of P^T A P on its pattern (cip, cidx) from
+    :func:`_galerkin_pattern` (see :func:`_galerkin`)."""
+    cdat = np.zeros((cip[nc], 3, 3))
+    slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
+    blk = np.empty((3, 3))
+    for c in range(nc):
+        for t in range(cip[c], cip[c + 1]):
+            slot[cidx[t]] = t
         for qc in range(cptr[c], cptr[c + 1]):
             k = cchild[qc]
             wk = cw[qc]
@@ -781,7 +787,18 @@ def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi)
                     for r in range(3):
                         for cc in range(3):
                             cdat[z, r, cc] += w * blk[r, cc]
-    return cip, cidx, cdat
+    return cdat
+
+
+def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi):
+    """Coarse operator A_c = P^T A P for a node-level interpolation P (fine node k has parents
+    pidx[k, :] with weights pw[k, :], -1 unused; coarse node c has children cchild[cptr[c]:...]
+    with weights cw) acting blockwise as weight x I3. With ``use_pi`` the fine matrix is
+    A = Pi K Pi + mu Pi + (I - Pi) and the prolongation is Pi P: then P^T Pi A Pi P equals
+    P^T (A - (I - Pi)) P, so the (I - Pi) part is left out of the diagonal blocks.
+    Returns the coarse BSR arrays (indptr, indices, data (nb,3,3)) with sorted rows."""
+    cip, cidx = _galerkin_pattern(indptr, indices, pidx, cptr, cchild, nc)
+    return cip, cidx, _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi, cip, cidx)
 
 
 @njit(cache=True)
@@ -984,6 +1001,7 @@ class Multigrid:
         # nodes (bool (n_l,), or None), set by PaddedMultigrid; the full lines by default
         self.spans = [_full_spans(nx, ny) for nx, ny in self.shapes]
         self.pad = [None] * len(self.shapes)
+        self._sym = None  # (fine indptr, fine indices, coarse patterns, line slots) of the last set-up
 
     def setup(self, indptr, indices, data, Pi, pad_scale=None):
         """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
@@ -996,10 +1014,19 @@ class Multigrid:
         L.indptr, L.indices, L.data = indptr, indices, data
         L.n = indptr.shape[0] - 1
         levels.append(L)
+        # the coarse patterns and line slots depend on the fine pattern alone: kept from the last
+        # set-up while the fine pattern is the same arrays (a Newton level's set-ups share it)
+        same = self._sym is not None and self._sym[0] is indptr and self._sym[1] is indices
+        if not same:
+            self._sym = (indptr, indices, [], [])
+        pats, slots = self._sym[2], self._sym[3]
         for lv, tr in enumerate(self.transfers):
             F = levels[-1]
-            cip, cidx, cdat = _galerkin(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild,
-                                        tr.cw, tr.nc, Pi, lv == 0)
+            if lv == len(pats):
+                pats.append(_galerkin_pattern(F.indptr, F.indices, tr.pidx, tr.cptr, tr.cchild, tr.nc))
+            cip, cidx = pats[lv]
+            cdat = _galerkin_values(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
+                                    tr.nc, Pi, lv == 0, cip, cidx)
             C = _Level()
             C.indptr, C.indices, C.data = cip, cidx, cdat
             C.n = tr.nc
@@ -1010,7 +1037,9 @@ class Multigrid:
                 _fill_empty_diagonal(C.indptr, C.indices, C.data, pad_scale)
         for lv, L in enumerate(levels[:-1]):
             nx1, ny1 = self.shapes[lv]
-            L.ds, L.ps, L.ns = _line_slots(L.indptr, L.indices, nx1, ny1)
+            if lv == len(slots):
+                slots.append(_line_slots(L.indptr, L.indices, nx1, ny1))
+            L.ds, L.ps, L.ns = slots[lv]
         if self.pairs is not None:
             self._pslots = [None if pr is None else seam_chains(L.indptr, L.indices, pr)
                             for L, pr in zip(levels, self.pairs)]
