@@ -2,6 +2,7 @@
 positions on every coarse level; the nodes held only on a coarse grid (free fine nodes beside the
 held outline, the "guessed holds") are placed where the sheet puts them (sequencing._HoldFit)."""
 
+import copy
 import time
 
 import numpy as np
@@ -47,7 +48,7 @@ def test_the_hold_fit_reproduces_an_affine_sheet_exactly():
     model, state, _ = _circle(64)
     hier = S._hierarchy(model, 1e-3)
     li = next(i for i, f in enumerate(hier.fits) if f is not None)
-    fit, m = hier.fits[li], hier.levels[li].model
+    fit, m = copy.copy(hier.fits[li]), hier.levels[li].model  # (the cached hierarchy's fit left alone)
     assert fit.g.size > 20 and fit.ok.all()
     A = np.array([[1.1, 0.05, 0.0], [-0.02, 0.95, 0.0], [0.3, -0.4, 1.0]])
     t = np.array([0.01, -0.02, 0.005])
@@ -56,6 +57,21 @@ def test_the_hold_fit_reproduces_an_affine_sheet_exactly():
     dst = np.zeros_like(src)
     fit.place(src, dst)
     assert np.abs(dst[fit.g] - src[fit.g]).max() < 1e-12
+
+
+def test_a_hold_placed_inside_the_mold_falls_back_to_its_flat_guess():
+    model, state, _ = _circle(64)
+    hier = S._hierarchy(model, 1e-3)
+    li = next(i for i, f in enumerate(hier.fits) if f is not None)
+    fit, m = hier.fits[li], hier.levels[li].model
+    pos = m.prescribed_positions.copy()
+    pos[fit.g] += [0.0, 0.0, 0.002]  # placed 2 mm above the flat guess: outside the sphere
+    inside = fit.g[:5]
+    pos[inside] = [0.05, 0.05, -0.02]  # the sphere's centre
+    fit.outside(m, pos)
+    assert np.array_equal(pos[inside], m.prescribed_positions[inside])
+    rest = fit.g[5:]
+    assert np.array_equal(pos[rest], m.prescribed_positions[rest] + [0.0, 0.0, 0.002])
 
 
 def test_guessed_holds_end_near_the_fine_solution(monkeypatch):

@@ -48,9 +48,13 @@ COARSEST_REL = 1e-2
 # level, once solved, at their fine nodes' places when its solution is interpolated onto the fine
 # lattice and the outline band settled there against the true held outline; that level is then
 # solved again (HOLD_BAND). On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
-# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). HOLD_FIT False: the flat guesses, as before.
+# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). HOLD_FIT False: the flat guesses, as before
+# (read when a model's hierarchy is built: clear _HIERARCHIES after changing it). A placed hold
+# that would be inside the mold falls back to its flat guess (``_outside``).
 HOLD_FIT = True
 HOLD_FIT_NEIGHBOURS = 4
+# the anchor and the neighbours of a fit lie within this many of the level's spacings
+HOLD_FIT_REACH = 3.0
 HOLD_REFIT_COARSEST = 1
 # the coarsest grid's first solve (before its refit) and its solve after the refit go to these
 # shares of their start residuals (on the 225-across circle 6 coarsest iterations instead of 8
@@ -91,15 +95,25 @@ class _HoldFit:
         pan, pan_f = level_model.topology.node_panel, fine_model.topology.node_panel
         free = np.nonzero(~held)[0]
         o = self.o
+        # the anchor is held on (at least) g's axes and the neighbours are near: within
+        # HOLD_FIT_REACH level spacings (a notch or slit wider than that is not reached across)
+        h = float(max(level_model.spacing))
+        reach = HOLD_FIT_REACH * h
         for p in np.unique(pan[g]):
-            kg = np.nonzero(pan[g] == p)[0]
-            hp = np.nonzero(fine_held & (pan_f == p))[0]
             fp = free[pan[free] == p]
-            if hp.size == 0 or fp.size < K:
+            if fp.size < K:
                 continue
-            o[kg] = hp[cKDTree(rf[hp]).query(r[g[kg]])[1]]
-            self.nb[kg] = fp[cKDTree(r[fp]).query(r[g[kg]], k=K)[1]]
-            self.ok[kg] = True
+            tree_f = cKDTree(r[fp])
+            for ax in np.unique(self.axes[pan[g] == p], axis=0):
+                kg = np.nonzero((pan[g] == p) & (self.axes == ax).all(axis=1))[0]
+                hp = np.nonzero((fine_model.fixed_axes[:, ax].all(axis=1)) & (pan_f == p))[0]
+                if hp.size == 0:
+                    continue
+                da, ia = cKDTree(rf[hp]).query(r[g[kg]])
+                dn_, inb = tree_f.query(r[g[kg]], k=K)
+                o[kg] = hp[ia]
+                self.nb[kg] = fp[inb]
+                self.ok[kg] = (da <= reach) & (dn_.max(axis=1) <= reach)
         if not self.ok.any():
             return
         dn = r[self.nb] - rf[o][:, None, :]  # (m, K, 3) rest offsets of the neighbours
@@ -124,6 +138,24 @@ class _HoldFit:
     def take(self, fine_pos, dst):
         """dst[g] (their held axes) = their fine nodes' places in fine_pos (N, 3) [m]."""
         dst[self.g] = np.where(self.axes, fine_pos[self.fine], dst[self.g])
+
+    def outside(self, level_model, dst):
+        """Put back at their flat guesses (the level's prescribed positions) the placed holds of
+        dst (n, 3) [m] that are inside the level's mold (a held node is never moved onto it)."""
+        if level_model.mold is None or self.g.size == 0:
+            return
+        from ...mold import mold_query_many
+
+        g = self.g
+        pts = np.ascontiguousarray(dst[g])
+        m = g.size
+        sd = np.empty(m)
+        mold_query_many(level_model.mold.kernel_args(), pts, sd, np.empty((m, 3)), np.empty((m, 3)),
+                        np.empty((m, 2), np.int64))
+        bad = sd < 0.0
+        if bad.any():
+            gb = g[bad]
+            dst[gb] = np.where(self.axes[bad], level_model.prescribed_positions[gb], dst[gb])
 
 
 
@@ -414,6 +446,7 @@ def grid_sequence(model, state, e, kink, deadline):
             if fit is not None:
                 # the guessed holds where the sheet interpolated from the coarser level puts them
                 fit.place(hier.P[li] @ prev_state.positions, cst.positions)
+                fit.outside(mdl, cst.positions)
             # the previous level's solution; when it cannot be interpolated (prolong_state then
             # leaves cst alone) this level starts from the restricted state
             if (prolong_state(prev_model, prev_state, mdl, cst, hier.P[li], kink, hier.bands[li], hier.rim_ops[li])
@@ -425,6 +458,7 @@ def grid_sequence(model, state, e, kink, deadline):
         for _ in range(refits):
             # the guessed holds where the solved sheet puts them, and the level solved again
             fit.place(cst.positions, cst.positions)
+            fit.outside(mdl, cst.positions)
             _solve_coarse(lvl, cst, True, e, deadline, HOLD_REFIT_REL)
         if HOLD_BAND and li == len(chain) - 2 and fit is not None:
             # the last coarse level's solution on the fine lattice, its outline band settled there
@@ -432,6 +466,7 @@ def grid_sequence(model, state, e, kink, deadline):
             # the level is solved again (its multigrid kept: the same matrix pattern and active set)
             fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1])
             fit.take(fpos, cst.positions)
+            fit.outside(mdl, cst.positions)
             _solve_coarse(lvl, cst, li == 0, e, deadline, reset=HOLD_RESET)
         prev_model, prev_state = mdl, cst
     trial = state.copy()
