@@ -50,7 +50,7 @@ COARSEST_REL = 1e-2
 # solved again (HOLD_BAND). On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
 # iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). HOLD_FIT False: the flat guesses, as before
 # (read when a model's hierarchy is built: clear _HIERARCHIES after changing it). A placed hold
-# that would be inside the mold falls back to its flat guess (``_outside``).
+# that would be inside the mold falls back to its flat guess (``_HoldFit.outside``).
 HOLD_FIT = True
 HOLD_FIT_NEIGHBOURS = 4
 # the anchor and the neighbours of a fit lie within this many of the level's spacings
@@ -156,7 +156,6 @@ class _HoldFit:
         if bad.any():
             gb = g[bad]
             dst[gb] = np.where(self.axes[bad], level_model.prescribed_positions[gb], dst[gb])
-
 
 
 def _rim_operator(model):
@@ -463,7 +462,7 @@ def grid_sequence(model, state, e, kink, deadline):
         if HOLD_BAND and li == len(chain) - 2 and fit is not None:
             # the last coarse level's solution on the fine lattice, its outline band settled there
             # against the true held outline: the guessed holds take their fine nodes' places, and
-            # the level is solved again (its multigrid kept: the same matrix pattern and active set)
+            # the level is solved again (its multigrid kept while its active set is the same)
             fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1])
             fit.take(fpos, cst.positions)
             fit.outside(mdl, cst.positions)
