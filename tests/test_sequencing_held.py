@@ -8,7 +8,6 @@ import time
 import numpy as np
 
 from clothsim.bench import Case, _load
-from clothsim.grid import State
 from clothsim.solvers.newton import NewtonSolver, sequencing as S
 from clothsim.solvers.options import newton_options
 
