@@ -199,6 +199,33 @@ def test_a_second_setup_on_the_same_pattern_equals_a_fresh_one():
     assert np.array_equal(reused.vcycle(b), fresh.vcycle(b))
 
 
+def test_padded_multigrids_on_one_topology_share_its_layout_and_set_up_alike():
+    """The padded rectangle's layout (embedding, levels, spans, seam pairs, BSR pattern, coarse
+    patterns) is built once per topology: a second multigrid on it shares it, other seam pairs
+    get their own, and a set-up on the shared layout equals, bit for bit, one built afresh."""
+    from clothsim.solvers.newton import linalg
+
+    model, state = _small_garment(16)
+    lv = NewtonLevel(model, use_multigrid=True)
+    _projected_system(model, lv)
+    pairs = lv.mg._layout.pairs
+    assert pairs is not None
+    lv.mg.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
+    again = NewtonLevel(model, use_multigrid=True).mg
+    assert again._layout is lv.mg._layout and again.mg is not lv.mg.mg
+    assert PaddedMultigrid(model.topology, None)._layout is not lv.mg._layout  # no seam pairs
+    again.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
+    linalg._LAYOUTS.clear()
+    fresh = NewtonLevel(model, use_multigrid=True).mg
+    assert fresh._layout is not lv.mg._layout
+    fresh.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
+    for a, b in zip(again.mg.levels, fresh.mg.levels):
+        assert np.array_equal(a.indptr, b.indptr) and np.array_equal(a.indices, b.indices)
+        assert np.array_equal(a.data, b.data)
+    b = np.random.default_rng(1).normal(size=3 * model.node_count)
+    assert np.array_equal(again.vcycle(b), fresh.vcycle(b))
+
+
 def test_padded_layout_starts_panels_on_aligned_columns():
     """Four 17 x 17 panels: each starts on a column that is a multiple of PANEL_ALIGN (4: columns
     0, 20, 40, 60), the rectangle ends at the last panel's last column (77 x 17); a node (i, j) of

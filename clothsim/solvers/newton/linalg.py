@@ -9,6 +9,8 @@ Shapes: n nodes, S springs, nb stored 3x3 blocks; vectors are flat (3n,) in node
 from __future__ import annotations
 
 import math
+import weakref
+from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sp
@@ -1003,6 +1005,22 @@ class Multigrid:
         self.pad = [None] * len(self.shapes)
         self._sym = None  # (fine indptr, fine indices, coarse patterns, line slots) of the last set-up
 
+    @classmethod
+    def from_levels(cls, shapes, transfers, spans, pad, pairs=None):
+        """A multigrid on levels already built (shapes, transfers, smoother spans, padding masks
+        and seam pairs of another instance's __init__; read, never changed), without a set-up."""
+        mg = cls.__new__(cls)
+        mg.shapes = list(shapes)
+        mg.transfers = list(transfers)
+        mg.levels = []
+        mg.Pi = None
+        mg.pairs = pairs
+        mg._pslots = None
+        mg.spans = list(spans)
+        mg.pad = list(pad)
+        mg._sym = None
+        return mg
+
     def setup(self, indptr, indices, data, Pi, pad_scale=None):
         """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
         a coarse node whose diagonal block the Galerkin product leaves zero (no lattice node
@@ -1184,6 +1202,74 @@ def coarse_pairs(pairs, transfers):
     return out
 
 
+class _PaddedLayout:
+    """What a PaddedMultigrid builds from its topology alone (see its docstring): full (the
+    rectangle's Topology), emb (n,), N, the rectangle multigrid's shapes, transfers, spans, padding
+    masks and seam pairs, and, once known, the BSR pattern (``pattern``: (lattice indptr, lattice
+    indices, (fptr, fidx, src))) and the coarse patterns of a set-up on it (``sym``, Multigrid._sym)."""
+
+    def __init__(self, topology, seam_pairs):
+        from ...topology import Topology
+
+        shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
+        height = max(s[1] for s in shapes)
+        # each panel starts on a column that is a multiple of PANEL_ALIGN (at least one empty
+        # column before it): its first column then stays a grid node on the first coarse levels
+        # instead of being interpolated from the previous panel's last column
+        al = PANEL_ALIGN
+        offs = np.cumsum([0] + [-(-(s[0] + 1) // al) * al for s in shapes])
+        width = int(offs[-2]) + shapes[-1][0]
+        self.full = Topology.rectangle(width - 1, height - 1)
+        I = offs[topology.node_panel] + topology.node_ij[:, 0]
+        self.emb = (I * height + topology.node_ij[:, 1]).astype(np.int64)
+        self.N = width * height
+        mg = Multigrid(self.full)
+        if TRIM_PADDING:
+            # the padding on every level: a coarse node all of whose children are padding
+            pad = np.ones(self.N, bool)
+            pad[self.emb] = False
+            for lv, (nx1, ny1) in enumerate(mg.shapes):
+                mg.pad[lv] = pad
+                mg.spans[lv] = _trimmed_spans(pad, nx1, ny1)
+                if lv < len(mg.transfers):
+                    tr = mg.transfers[lv]
+                    live = np.zeros(tr.nc, bool)
+                    ch = np.repeat(np.arange(tr.nc), np.diff(tr.cptr))
+                    np.logical_or.at(live, ch, (~pad[tr.cchild]) & (tr.cw != 0.0))
+                    pad = ~live
+        if seam_pairs is not None and len(seam_pairs) and PAIR_SMOOTHING:
+            mg.pairs = coarse_pairs(self.emb[np.asarray(seam_pairs, np.int64)], mg.transfers)
+        self.shapes, self.transfers, self.spans, self.pad, self.pairs = mg.shapes, mg.transfers, mg.spans, mg.pad, mg.pairs
+        self.pattern = None
+        self.sym = None
+
+
+# the layouts of the last few topologies (_padded_layout): (weakref to the topology, seam pairs'
+# bytes and switches, layout) by id(topology)
+_LAYOUTS: OrderedDict = OrderedDict()
+LAYOUT_CACHE = 4
+
+
+def _padded_layout(topology, seam_pairs=None) -> _PaddedLayout:
+    """The topology's _PaddedLayout, built on first use and kept while the topology lives (a
+    Topology is not changed in place); the LAYOUT_CACHE most recently used are kept."""
+    # (the switches the layout reads are part of its key)
+    sp_key = (None if seam_pairs is None else np.asarray(seam_pairs, np.int64).tobytes(), TRIM_PADDING,
+              PAIR_SMOOTHING, PANEL_ALIGN)
+    key = id(topology)
+    got = _LAYOUTS.get(key)
+    if got is not None and got[0]() is topology and got[1] == sp_key:
+        _LAYOUTS.move_to_end(key)
+        return got[2]
+    lay = _PaddedLayout(topology, seam_pairs)
+    if got is None:
+        weakref.finalize(topology, _LAYOUTS.pop, key, None)
+    _LAYOUTS[key] = (weakref.ref(topology), sp_key, lay)
+    while len(_LAYOUTS) > LAYOUT_CACHE:
+        _LAYOUTS.popitem(last=False)
+    return lay
+
+
 class PaddedMultigrid:
     """The line-smoothed geometric multigrid for any lattice: its panels laid side by side (one
     empty column between two) on one rectangle, the rectangle's nodes that are not lattice nodes
@@ -1201,41 +1287,22 @@ class PaddedMultigrid:
 
     def __init__(self, topology, seam_pairs=None):
         """seam_pairs (m,2): the lattice's sewn node pairs (zero-length seam springs), relaxed
-        jointly on every level where both nodes are grid nodes (:func:`coarse_pairs`)."""
-        from ...topology import Topology
-
-        shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
-        height = max(s[1] for s in shapes)
-        # each panel starts on a column that is a multiple of PANEL_ALIGN (at least one empty
-        # column before it): its first column then stays a grid node on the first coarse levels
-        # instead of being interpolated from the previous panel's last column
-        al = PANEL_ALIGN
-        offs = np.cumsum([0] + [-(-(s[0] + 1) // al) * al for s in shapes])
-        width = int(offs[-2]) + shapes[-1][0]
-        self.full = Topology.rectangle(width - 1, height - 1)
-        I = offs[topology.node_panel] + topology.node_ij[:, 0]
-        self.emb = (I * height + topology.node_ij[:, 1]).astype(np.int64)
-        self.N = width * height
-        self.mg = Multigrid(self.full)
+        jointly on every level where both nodes are grid nodes (:func:`coarse_pairs`). The
+        layout (rectangle, embedding, levels, spans, pairs, BSR pattern) depends on the topology
+        alone and is built once per topology (:func:`_padded_layout`)."""
+        lay = _padded_layout(topology, seam_pairs)
+        self._layout = lay
+        self.full, self.emb, self.N = lay.full, lay.emb, lay.N
+        self.mg = Multigrid.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, lay.pairs)
         self._pattern = None
-        if TRIM_PADDING:
-            # the padding on every level: a coarse node all of whose children are padding
-            pad = np.ones(self.N, bool)
-            pad[self.emb] = False
-            for lv, (nx1, ny1) in enumerate(self.mg.shapes):
-                self.mg.pad[lv] = pad
-                self.mg.spans[lv] = _trimmed_spans(pad, nx1, ny1)
-                if lv < len(self.mg.transfers):
-                    tr = self.mg.transfers[lv]
-                    live = np.zeros(tr.nc, bool)
-                    ch = np.repeat(np.arange(tr.nc), np.diff(tr.cptr))
-                    np.logical_or.at(live, ch, (~pad[tr.cchild]) & (tr.cw != 0.0))
-                    pad = ~live
-        if seam_pairs is not None and len(seam_pairs) and PAIR_SMOOTHING:
-            self.mg.pairs = coarse_pairs(self.emb[np.asarray(seam_pairs, np.int64)], self.mg.transfers)
 
     def prepare(self, indptr, indices):
-        """The rectangle's BSR pattern and, per block, the lattice block it copies (-1: identity)."""
+        """The rectangle's BSR pattern and, per block, the lattice block it copies (-1: identity);
+        kept in the layout for the next multigrid on the same lattice pattern."""
+        got = self._layout.pattern
+        if got is not None and np.array_equal(got[0], indptr) and np.array_equal(got[1], indices):
+            self._pattern = got[2]
+            return
         n = indptr.shape[0] - 1
         inv = -np.ones(self.N, np.int64)
         inv[self.emb] = np.arange(n)
@@ -1253,6 +1320,8 @@ class PaddedMultigrid:
         fidx[dest] = self.emb[indices]
         src[dest] = q
         self._pattern = (fptr, fidx, src)
+        self._layout.pattern = (indptr.copy(), indices.copy(), self._pattern)
+        self._layout.sym = None
 
     def setup(self, indptr, indices, data, Pi):
         if self._pattern is None:
@@ -1266,7 +1335,10 @@ class PaddedMultigrid:
         _pad_copy(src, data, 1.0 if PAD_IDENTITY else max(scale, 1e-300), fdat)
         fpi = np.zeros((self.N, 3, 3))
         fpi[self.emb] = Pi
+        if self.mg._sym is None:
+            self.mg._sym = self._layout.sym  # the coarse patterns of an earlier multigrid, if any
         self.mg.setup(fptr, fidx, fdat, fpi, pad_scale=max(scale, 1e-300) if PAD_IDENTITY else None)
+        self._layout.sym = self.mg._sym
 
     def vcycle(self, b):
         bf = np.zeros((self.N, 3))
