@@ -731,7 +731,7 @@ def _coarse_row(c, cptr, cchild, indptr, indices, pidx, marker, stamp, rowbuf):
 
 @njit(cache=True)
 def _galerkin_pattern(indptr, indices, pidx, cptr, cchild, nc):
-    """The block pattern of the coarse operator P^T A P (see :func:`_galerkin`): (cip (nc+1,),
+    """The block pattern of the coarse operator P^T A P (see :func:`_galerkin_values`): (cip (nc+1,),
     cidx) with sorted rows. It depends on the fine pattern and the interpolation alone, so a
     hierarchy rebuilt on the same pattern computes it once (:class:`Multigrid`)."""
     marker = -np.ones(nc, np.int64)
@@ -760,8 +760,12 @@ def _galerkin_pattern(indptr, indices, pidx, cptr, cchild, nc):
 
 @njit(cache=True)
 def _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi, cip, cidx):
-    """The blocks cdat (nb, 3, 3) of P^T A P on its pattern (cip, cidx) from
-    :func:`_galerkin_pattern` (see :func:`_galerkin`)."""
+    """Coarse operator A_c = P^T A P for a node-level interpolation P (fine node k has parents
+    pidx[k, :] with weights pw[k, :], -1 unused; coarse node c has children cchild[cptr[c]:...]
+    with weights cw) acting blockwise as weight x I3: its blocks cdat (nb, 3, 3) on its pattern
+    (cip, cidx) from :func:`_galerkin_pattern`. With ``use_pi`` the fine matrix is
+    A = Pi K Pi + mu Pi + (I - Pi) and the prolongation is Pi P: then P^T Pi A Pi P equals
+    P^T (A - (I - Pi)) P, so the (I - Pi) part is left out of the diagonal blocks."""
     cdat = np.zeros((cip[nc], 3, 3))
     slot = np.empty(nc, np.int64)  # coarse column -> its block in row c (set per row before use)
     blk = np.empty((3, 3))
@@ -790,17 +794,6 @@ def _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, 
                         for cc in range(3):
                             cdat[z, r, cc] += w * blk[r, cc]
     return cdat
-
-
-def _galerkin(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi):
-    """Coarse operator A_c = P^T A P for a node-level interpolation P (fine node k has parents
-    pidx[k, :] with weights pw[k, :], -1 unused; coarse node c has children cchild[cptr[c]:...]
-    with weights cw) acting blockwise as weight x I3. With ``use_pi`` the fine matrix is
-    A = Pi K Pi + mu Pi + (I - Pi) and the prolongation is Pi P: then P^T Pi A Pi P equals
-    P^T (A - (I - Pi)) P, so the (I - Pi) part is left out of the diagonal blocks.
-    Returns the coarse BSR arrays (indptr, indices, data (nb,3,3)) with sorted rows."""
-    cip, cidx = _galerkin_pattern(indptr, indices, pidx, cptr, cchild, nc)
-    return cip, cidx, _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, use_pi, cip, cidx)
 
 
 @njit(cache=True)
@@ -984,42 +977,39 @@ class Multigrid:
     def __init__(self, topology):
         """topology: a full-rectangle Topology (``is_grid``): the lines the smoother relaxes
         and the stride-2 levels come from it."""
-        self.shapes = [topology.grid_shape]
-        self.transfers: list[_Transfer] = []
+        shapes = [topology.grid_shape]
+        transfers: list[_Transfer] = []
         nx1, ny1 = topology.grid_shape
         while nx1 * ny1 > COARSEST_NODES and nx1 > 3 and ny1 > 3:
             tr = _Transfer(topology)
-            self.transfers.append(tr)
+            transfers.append(tr)
             topology = tr.coarse
             nx1, ny1 = topology.grid_shape
-            self.shapes.append((nx1, ny1))
-        self.levels: list[_Level] = []
-        self.Pi = None
-        # sewn node pairs (m,2) per level relaxed jointly by _chain_gs (along seam chains), or None (set by
-        # PaddedMultigrid on sewn lattices; a full rectangle has none)
-        self.pairs = None
-        self._pslots = None
-        # per level, (span of the i lines, span of the j lines) for _line_gs, and the padding
-        # nodes (bool (n_l,), or None), set by PaddedMultigrid; the full lines by default
-        self.spans = [_full_spans(nx, ny) for nx, ny in self.shapes]
-        self.pad = [None] * len(self.shapes)
-        self._sym = None  # (fine indptr, fine indices, coarse patterns, line slots) of the last set-up
+            shapes.append((nx1, ny1))
+        self._init_levels(shapes, transfers, [_full_spans(nx, ny) for nx, ny in shapes], [None] * len(shapes))
 
     @classmethod
     def from_levels(cls, shapes, transfers, spans, pad, pairs=None):
         """A multigrid on levels already built (shapes, transfers, smoother spans, padding masks
         and seam pairs of another instance's __init__; read, never changed), without a set-up."""
         mg = cls.__new__(cls)
-        mg.shapes = list(shapes)
-        mg.transfers = list(transfers)
-        mg.levels = []
-        mg.Pi = None
-        mg.pairs = pairs
-        mg._pslots = None
-        mg.spans = list(spans)
-        mg.pad = list(pad)
-        mg._sym = None
+        mg._init_levels(shapes, transfers, spans, pad, pairs)
         return mg
+
+    def _init_levels(self, shapes, transfers, spans, pad, pairs=None):
+        self.shapes = list(shapes)
+        self.transfers: list[_Transfer] = list(transfers)
+        self.levels: list[_Level] = []
+        self.Pi = None
+        # sewn node pairs (m,2) per level relaxed jointly by _chain_gs (along seam chains), or None (set by
+        # PaddedMultigrid on sewn lattices; a full rectangle has none)
+        self.pairs = pairs
+        self._pslots = None
+        # per level, (span of the i lines, span of the j lines) for _line_gs, and the padding
+        # nodes (bool (n_l,), or None), set by PaddedMultigrid; the full lines by default
+        self.spans = list(spans)
+        self.pad = list(pad)
+        self._sym = None  # (fine indptr, fine indices, coarse patterns, line slots) of the last set-up
 
     def setup(self, indptr, indices, data, Pi, pad_scale=None):
         """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,

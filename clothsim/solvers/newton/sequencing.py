@@ -62,8 +62,6 @@ HOLD_REFIT_COARSEST = 1
 HOLD_FIRST_REL = 1e-2
 HOLD_REFIT_REL = 1e-1
 HOLD_BAND = True
-# the re-solve after HOLD_BAND starts afresh (True) or keeps the level's multigrid hierarchy
-HOLD_RESET = False
 
 
 class _HoldFit:
@@ -466,7 +464,7 @@ def grid_sequence(model, state, e, kink, deadline):
             fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1])
             fit.take(fpos, cst.positions)
             fit.outside(mdl, cst.positions)
-            _solve_coarse(lvl, cst, li == 0, e, deadline, reset=HOLD_RESET)
+            _solve_coarse(lvl, cst, li == 0, e, deadline, reset=False)
         prev_model, prev_state = mdl, cst
     trial = state.copy()
     if not prolong_state(prev_model, prev_state, model, trial, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1]):
