@@ -114,6 +114,12 @@ class Topology:
         sequencing and the (nx+1, ny+1, ...) result arrays are written for."""
         return len(self.masks) == 1 and bool(self.masks[0].all())
 
+    @cached_property
+    def panels_full(self) -> bool:
+        """True when every panel is a full rectangle (no outline cut across the lattice): grid
+        sequencing's coarse lattices then hold every outline exactly, as on one rectangle."""
+        return all(bool(m.all()) for m in self.masks)
+
     @property
     def grid_shape(self) -> tuple[int, int]:
         """(nx+1, ny+1) of a one-panel full rectangle; ValueError for any other lattice."""

@@ -1009,7 +1009,8 @@ class Multigrid:
         # nodes (bool (n_l,), or None), set by PaddedMultigrid; the full lines by default
         self.spans = list(spans)
         self.pad = list(pad)
-        self._sym = None  # (fine indptr, fine indices, coarse patterns, line slots) of the last set-up
+        # (fine indptr, fine indices, coarse patterns, line slots, seam chains) of the last set-up
+        self._sym = None
 
     def setup(self, indptr, indices, data, Pi, pad_scale=None):
         """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
@@ -1022,12 +1023,13 @@ class Multigrid:
         L.indptr, L.indices, L.data = indptr, indices, data
         L.n = indptr.shape[0] - 1
         levels.append(L)
-        # the coarse patterns and line slots depend on the fine pattern alone: kept from the last
-        # set-up while the fine pattern is the same arrays (a Newton level's set-ups share it)
+        # the coarse patterns, line slots and seam chains depend on the fine pattern alone: kept
+        # from the last set-up while the fine pattern is the same arrays (a Newton level's set-ups
+        # share it)
         same = self._sym is not None and self._sym[0] is indptr and self._sym[1] is indices
         if not same:
-            self._sym = (indptr, indices, [], [])
-        pats, slots = self._sym[2], self._sym[3]
+            self._sym = (indptr, indices, [], [], [])
+        pats, slots, chains = self._sym[2], self._sym[3], self._sym[4]
         for lv, tr in enumerate(self.transfers):
             F = levels[-1]
             if lv == len(pats):
@@ -1049,8 +1051,10 @@ class Multigrid:
                 slots.append(_line_slots(L.indptr, L.indices, nx1, ny1))
             L.ds, L.ps, L.ns = slots[lv]
         if self.pairs is not None:
-            self._pslots = [None if pr is None else seam_chains(L.indptr, L.indices, pr)
-                            for L, pr in zip(levels, self.pairs)]
+            if not chains:
+                chains.extend(None if pr is None else seam_chains(L.indptr, L.indices, pr)
+                              for L, pr in zip(levels, self.pairs))
+            self._pslots = chains
         last = levels[-1]
         n3 = 3 * last.n
         Alast = sp.bsr_matrix((last.data, last.indices, last.indptr), shape=(n3, n3)).tocsc()

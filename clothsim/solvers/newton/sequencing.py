@@ -255,7 +255,10 @@ def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
         cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
     fixed = fine_model.fixed_axes
     pos[fixed] = fine_state.positions[fixed]
-    if not fine_model.topology.is_grid:
+    if not fine_model.topology.panels_full:
+        # (full rectangular panels: the coarse lattices hold their outlines exactly, as the
+        # square's do, and neither step changes the fine start; four 101^2 panels: the same
+        # Newton residuals, 44 ms of settling saved)
         _relax_rim(fine_model, pos, cont, rim_op)
         if kink is not None and SETTLE_RIM:
             settle_outline(fine_model, pos, cont, kink, band)
@@ -356,8 +359,8 @@ class _Hierarchy:
         chain = sequencing_chain(model)
         self.P = [None] + [_prolongation(chain[i][0].topology, chain[i - 1][0].topology)
                            for i in range(1, len(chain))]
-        self.bands = [None if m.topology.is_grid else outline_band(m) for m, _ in chain]
-        self.rim_ops = [None if m.topology.is_grid else _rim_operator(m) for m, _ in chain]
+        self.bands = [None if m.topology.panels_full else outline_band(m) for m, _ in chain]
+        self.rim_ops = [None if m.topology.panels_full else _rim_operator(m) for m, _ in chain]
         self.levels = [NewtonLevel(m, kink=kink) for m, _ in chain[:-1]]
         # each cut level's guessed holds (None: a full grid, or none)
         self.fits = []
