@@ -102,3 +102,44 @@ def test_bench_reference_pass_does_the_same_work_on_taut_springs():
     er = reference_pass(pos, sn, rest, width, table, x, y, start, Fr)
     np.testing.assert_allclose(Fr, F, rtol=0, atol=1e-12 * np.abs(F).max())
     assert abs(er - e) <= 1e-12 * abs(e)
+
+
+def test_node_spring_block_equals_table_eval():
+    """settle.node_spring_block (the sequencing's node-wise Gauss-Seidel; its lookup inline): its
+    resultant is node_force's and its block the sum of the springs' spring_hessian_block (a slack
+    spring at its kink stiffness), to rounding; its shortest rest length exact."""
+    from clothsim.kernels import spring_hessian_block
+    from clothsim.solvers.newton.settle import node_spring_block
+
+    for seed in range(4):
+        pos, sn, rest, width, table, x, y, cum, start, comp, ext = _scene(seed)
+        n, s = pos.shape[0], sn.shape[0]
+        kink = np.random.default_rng(seed).uniform(0.0, 50.0, s) * (seed % 2)
+        node = np.concatenate([sn[:, 0], sn[:, 1]])
+        order = np.argsort(node, kind="stable")
+        nbr = np.concatenate([sn[:, 1], sn[:, 0]])[order].astype(np.int64)
+        sid = np.concatenate([np.arange(s), np.arange(s)])[order].astype(np.int64)
+        ptr = np.searchsorted(node[order], np.arange(n + 1)).astype(np.int64)
+        f, H, Kb, ref = np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+        checked = 0
+        for k in range(n):
+            if ptr[k + 1] == ptr[k]:
+                continue
+            lmin = node_spring_block(k, pos, ptr, sid, nbr, rest, width, table, x, y, cum, start, comp, kink, ext,
+                                     f, H)
+            node_force(k, pos, ptr, nbr, sid, rest, width, table, x, y, cum, start, comp, ext, ref)
+            Href = np.zeros((3, 3))
+            for q in range(ptr[k], ptr[k + 1]):
+                sp = sid[q]
+                if np.linalg.norm(pos[nbr[q]] - pos[k]) < 1e-14:
+                    continue
+                spring_hessian_block(pos[k], pos[nbr[q]], rest[sp], width[sp], x, y, cum, start, comp, table[sp],
+                                     kink[sp], Kb)
+                Href += Kb
+            scale = np.abs(Href).max() + 1e-300
+            np.testing.assert_allclose(f, ref, rtol=1e-12, atol=1e-12 * (np.abs(ref).max() + 1e-300))
+            np.testing.assert_allclose(H, Href, rtol=1e-12, atol=1e-12 * scale)
+            assert np.array_equal(H, H.T)
+            assert lmin == rest[sid[ptr[k]:ptr[k + 1]]].min()
+            checked += 1
+        assert checked > 40
