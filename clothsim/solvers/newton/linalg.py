@@ -1107,15 +1107,19 @@ class Multigrid:
 
 
 @njit(cache=True)
-def _pad_copy(src, data, value, out):
-    """out[q] = data[src[q]] where src[q] >= 0, else value x I3 (out (nq,3,3), every block written)."""
+def _pad_copy(src, data, value, out, lattice_only):
+    """out[q] = data[src[q]] where src[q] >= 0, else value x I3 (out (nq,3,3)); lattice_only:
+    the blocks with src[q] < 0 are left as they are (written by an earlier call with the same
+    value)."""
     for q in range(src.shape[0]):
         k = src[q]
-        for r in range(3):
-            for c in range(3):
-                if k >= 0:
+        if k >= 0:
+            for r in range(3):
+                for c in range(3):
                     out[q, r, c] = data[k, r, c]
-                else:
+        elif not lattice_only:
+            for r in range(3):
+                for c in range(3):
                     out[q, r, c] = value if r == c else 0.0
 
 
@@ -1289,6 +1293,7 @@ class PaddedMultigrid:
         self.full, self.emb, self.N = lay.full, lay.emb, lay.N
         self.mg = Multigrid.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, lay.pairs)
         self._pattern = None
+        self._fdat = self._fpi = self._pad_value = None  # the rectangle's matrix, projectors, (pad value, src)
 
     def prepare(self, indptr, indices):
         """The rectangle's BSR pattern and, per block, the lattice block it copies (-1: identity);
@@ -1322,12 +1327,20 @@ class PaddedMultigrid:
             self.prepare(indptr, indices)
         fptr, fidx, src = self._pattern
         scale = float(np.abs(np.einsum("kii->k", data)).mean() / 3) if data.shape[0] else 1.0
-        fdat = np.empty((fidx.shape[0], 3, 3))
         # the padding's blocks are the identity, like a held node's (I - Pi with Pi = 0): the
         # Galerkin products drop exactly that part, so the padding adds nothing to a coarse node
-        # (a scaled identity there would pin the coarse nodes next to it: seam edges, outlines)
-        _pad_copy(src, data, 1.0 if PAD_IDENTITY else max(scale, 1e-300), fdat)
-        fpi = np.zeros((self.N, 3, 3))
+        # (a scaled identity there would pin the coarse nodes next to it: seam edges, outlines).
+        # The rectangle's matrix and projectors are kept from one set-up to the next (the
+        # last hierarchy is not used after a new set-up): the padding is written once, and the
+        # 33 MB of a 225^2 rectangle are not allocated (and page-faulted) again each time
+        value = 1.0 if PAD_IDENTITY else max(scale, 1e-300)
+        keep = self._fdat is not None and self._pad_value[0] == value and self._pad_value[1] is src
+        if not keep:
+            self._fdat = np.empty((fidx.shape[0], 3, 3))
+            self._fpi = np.zeros((self.N, 3, 3))
+            self._pad_value = (value, src)
+        fdat, fpi = self._fdat, self._fpi
+        _pad_copy(src, data, value, fdat, keep)
         fpi[self.emb] = Pi
         if self.mg._sym is None:
             self.mg._sym = self._layout.sym  # the coarse patterns of an earlier multigrid, if any
