@@ -279,8 +279,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--garments", action="store_true",
                    help="only the panel scenes (a 40k-node circle and four sewn panels on the sphere cap) "
                         "beside the 201^2 square: writes benchmarks_garments.md")
-    b.add_argument("--repeat", type=int, default=3,
-                   help="with --garments: fresh processes per scene, the best reported (default: %(default)s)")
+    b.add_argument("--repeat", type=int, default=5,
+                   help="with --garments: rounds of fresh processes, each running every scene once; the best "
+                        "and the median of the rounds' ratios to the square reported (default: %(default)s)")
     b.set_defaults(func=cmd_bench)
     add_compression_commands(sub)
     return p

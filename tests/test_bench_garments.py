@@ -30,4 +30,37 @@ def test_garment_report_gives_ratio_to_the_square_and_every_run(tmp_path):
     md = (tmp_path / "benchmarks_garments.md").read_text()
     line = next(s for s in md.splitlines() if s.startswith("| circle cap 40k"))
     cells = [c.strip() for c in line.strip("|").split("|")]
-    assert cells[5] == "450" and cells[6] == "1.50" and cells[7] == "450, 470"
+    assert cells[5] == "450" and cells[6] == "1.50" and cells[9] == "450, 470"
+
+
+def test_interleaved_runs_every_scene_once_per_round(monkeypatch):
+    """Rounds of fresh processes, each round every scene in turn; the best per scene kept, with
+    every round's work units and CPU seconds in round order."""
+    wu = {"a": iter([300.0, 280.0, 310.0]), "b": iter([450.0, 400.0, 500.0])}
+    order = []
+
+    def child(fn, case, solver, ref):
+        order.append(case.name)
+        return dict(_row(case.name, next(wu[case.name])), ref_pass_s=0.002, solver=solver)
+
+    monkeypatch.setattr(bench, "_in_child", child)
+    rows = bench._interleaved([(bench.Case("a", "x.yaml"), "newton", None),
+                               (bench.Case("b", "y.yaml"), "newton", None)], 3)
+    assert order == ["a", "b", "a", "b", "a", "b"]
+    assert [r["times_wu"]["1e-07"] for r in rows] == [280.0, 400.0]
+    assert rows[1]["wu_runs"] == [450.0, 400.0, 500.0] and rows[1]["rounds"] == 3
+    assert rows[1]["cpu_runs"] == [0.9, 0.8, 1.0]
+    # round by round: 1.5, 1.4286, 1.6129 -> median 1.5
+    r = bench.paired_ratios(rows[0], rows[1])
+    assert len(r) == 3 and abs(sorted(r)[1] - 1.5) < 1e-12
+
+
+def test_garment_report_gives_paired_medians(tmp_path):
+    sq = dict(_row("sphere cap 201^2", 280.0), wu_runs=[300.0, 280.0, 310.0], cpu_runs=[0.6, 0.5, 0.6])
+    ci = dict(_row("circle cap 40k", 400.0), wu_runs=[450.0, 400.0, None], cpu_runs=[0.8, 0.75, None])
+    bench.write_garment_report([sq, ci], tmp_path, 12.0)
+    md = (tmp_path / "benchmarks_garments.md").read_text()
+    line = next(s for s in md.splitlines() if s.startswith("| circle cap 40k"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    # best 400 / 280; paired WU: 1.5, 1.4286 -> 1.46; paired s: 1.333, 1.5 -> 1.42
+    assert cells[6] == "1.43" and cells[7] == "1.46" and cells[8] == "1.42"
