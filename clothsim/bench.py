@@ -22,7 +22,8 @@ side); levels it did not reach are reported as "not reached".
 
 Work units. Wall-clock seconds on a shared machine swing 2x from run to run, so every time is also
 reported in work units (WU): the time divided by the time of one *reference pass* over the same
-scene's springs, measured in the same process (``reference_pass``: a plain numba loop in this
+scene's springs, measured in the same process before and after the solve (their mean: the
+machine's speed drifts within a minute) (``reference_pass``: a plain numba loop in this
 file that uses no clothsim kernel; per spring: the length, the lookup of the strain in the
 spring's piecewise-linear table, the force on both nodes and the energy). Both are measured in
 process CPU time (``time.process_time``), so time lost to other jobs on the machine counts in
@@ -454,7 +455,10 @@ def run_case(case: Case, solver: str, ref_positions: np.ndarray | None) -> dict:
     t0 = time.perf_counter()
     solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
     compile_s = time.perf_counter() - t0
-    ref_s = reference_pass_time(model, state.positions)
+    # the reference pass before and after the solve, their mean: the machine's speed drifts
+    # (the same process measured 1.9 then 1.3 ms a pass within a minute)
+    pos0 = state.positions.copy()
+    ref_before = reference_pass_time(model, pos0)
     snaps: dict[float, np.ndarray] = {}
     clock = CpuClock()
 
@@ -468,6 +472,8 @@ def run_case(case: Case, solver: str, ref_positions: np.ndarray | None) -> dict:
     res = solve(model, state, settings, callback=cb)
     clock.sample()
     cpu_total = clock.cpu[-1]
+    ref_after = reference_pass_time(model, pos0)
+    ref_s = 0.5 * (ref_before + ref_after)
     h = res.history
     times, times_wu = {}, {}
     for lv in LEVELS:
@@ -490,7 +496,8 @@ def run_case(case: Case, solver: str, ref_positions: np.ndarray | None) -> dict:
         "wall_time_s": float(res.wall_time_s), "compile_s": compile_s, "time_limit_s": limit,
         "times": {str(k): v for k, v in times.items()},
         "times_wu": {str(k): v for k, v in times_wu.items()},
-        "ref_pass_s": ref_s, "springs": int(model.spring_count), "cpu_s": cpu_total,
+        "ref_pass_s": ref_s, "ref_pass_before_after_s": [ref_before, ref_after],
+        "springs": int(model.spring_count), "cpu_s": cpu_total,
         "wall_s_outer": clock.wall[-1], "total_wu": cpu_total / ref_s,
         "sweep_wu": (cpu_total / ref_s / res.iterations) if solver == "paper" and res.iterations else None,
         "errors": {str(k): v for k, v in err.items()}, "error_final": err_final,
