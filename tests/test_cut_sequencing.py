@@ -93,3 +93,43 @@ def test_garment_bench_cases_and_report(tmp_path):
     write_garment_report(rows, tmp_path, 1.0)
     text = (tmp_path / "benchmarks_garments.md").read_text()
     assert "| 1.50 |" in text and "| 3.00 |" in text
+
+
+def test_no_outline_band_where_every_panel_is_a_full_rectangle(monkeypatch):
+    """Sewn full-rectangle panels (their coarse lattices hold every outline exactly, as the
+    square's do) get no outline band or rim relaxation in the sequencing, a cut lattice does.
+    Forced back on the four panels, the band changes neither the Newton iterations nor the
+    equilibrium (beyond 1e-9 m)."""
+    from clothsim.solvers.newton import sequencing as S
+
+    assert Topology.rectangle(4, 3).panels_full
+    assert Topology.from_masks([np.ones((5, 5), bool), np.ones((3, 4), bool)]).panels_full
+    cut = np.ones((5, 5), bool)
+    cut[0, 0] = False
+    assert not Topology.from_masks([np.ones((5, 5), bool), cut]).panels_full
+
+    four, _, _ = _load(_case("four"), "newton", 1e-7, None)
+    circle, _, _ = _load(_case("circle"), "newton", 1e-7, None)
+    assert four.topology.panels_full and not circle.topology.panels_full
+    hf = S._Hierarchy(four, 1e-3)
+    assert all(b is None for b in hf.bands) and all(r is None for r in hf.rim_ops)
+    hc = S._Hierarchy(circle, 1e-3)
+    assert all(b is not None and b.size for b in hc.bands)
+
+    # the four panels with the band and the rim relaxation forced back: the same Newton
+    # iterations and equilibrium (the fine steps take what the settling would have done)
+    four, fstate, settings = _load(_case("four"), "newton", 1e-9, 60.0)
+    runs = []
+    for forced in (False, True):
+        if forced:
+            # the lattice taken for a cut one: the hierarchy gets its bands and rim operators
+            monkeypatch.setattr(Topology, "panels_full", property(lambda self: False))
+        S._HIERARCHIES.clear()
+        h = S._hierarchy(four, settings.newton_kink)
+        assert (h.bands[-1] is not None and h.bands[-1].size > 0) == forced
+        st = fstate.copy()
+        res = solve(four, st, settings)
+        runs.append((res.iterations, st.positions))
+    S._HIERARCHIES.clear()
+    assert runs[0][0] == runs[1][0]
+    assert 0 < np.abs(runs[0][1] - runs[1][1]).max() < 1e-9  # (not the same path: the band did run)

@@ -31,9 +31,9 @@ def outline_band(model, depth: int | None = None) -> np.ndarray:
     (warp/weft springs) of a held node or of an unsewn node with fewer than four lattice
     neighbours (the outline), ordered by that distance (nearest first). Nodes of seam springs or
     seam elements are left out and do not start a band: their missing neighbours are across
-    their seam, in the other panel (on the four-panel cap the band then covers the held outer
-    edges only: 35 instead of 50 WU of settling, the same fine start and iterations). Empty on a
-    model without such nodes."""
+    their seam, in the other panel. Empty on a model without such nodes. (Grid sequencing
+    settles no band where every panel is a full rectangle: its coarse lattices hold those
+    outlines exactly, ``Topology.panels_full``.)"""
     from ...grid import FAMILY_SEAM
 
     depth = RIM_BAND if depth is None else int(depth)

@@ -350,9 +350,10 @@ HIERARCHY_CACHE = 2
 class _Hierarchy:
     """What grid sequencing builds for one model and reuses on every later solve of it: the chain
     of coarse models (``sequencing_chain``), the interpolation from each to the next finer one
-    (``_prolongation``), each cut lattice's outline band (``rim.outline_band``; None on full grids),
-    a NewtonLevel per coarse model (reset before each use) and each coarse cut level's guessed
-    holds (``_HoldFit``; None on full grids)."""
+    (``_prolongation``), each cut lattice's outline band (``rim.outline_band``) and rim operator
+    (None where every panel is a full rectangle, ``Topology.panels_full``), a NewtonLevel per
+    coarse model (reset before each use) and each coarse cut level's guessed holds (``_HoldFit``;
+    None on full grids)."""
 
     def __init__(self, model, kink):
         self.kink = kink
