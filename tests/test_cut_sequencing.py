@@ -133,3 +133,29 @@ def test_no_outline_band_where_every_panel_is_a_full_rectangle(monkeypatch):
     S._HIERARCHIES.clear()
     assert runs[0][0] == runs[1][0]
     assert 0 < np.abs(runs[0][1] - runs[1][1]).max() < 1e-9  # (not the same path: the band did run)
+
+
+def test_cut_lattice_sequences_down_to_a_smaller_coarsest_grid(monkeypatch):
+    """A cut lattice's sequencing goes down to CUT_COARSEST_NODES (its coarsest grid carries the
+    guessed holds' refit), a full one's stops at 400 nodes: the 161-across circle then reaches
+    1e-7 N in two fine Newton steps instead of three, at the same equilibrium."""
+    from clothsim.solvers.newton import sequencing as S
+
+    circle, _, _ = _load(_case("circle"), "newton", 1e-7, None)
+    chain = S._Hierarchy(circle, 1e-3).chain
+    assert S.CUT_COARSEST_NODES <= chain[0][0].node_count < 400
+    square, _, _ = _load(Case("sq", "configs/sphere_cap.yaml", ["fabric.divisions=[40,40]"]), "newton", 1e-7, None)
+    assert S._Hierarchy(square, 1e-3).chain[0][0].node_count >= 400
+
+    case = Case("c161", "configs/garments/circle_cap.yaml", ["panels.0.divisions=[160,160]"])
+    runs = []
+    for nodes in (400, S.CUT_COARSEST_NODES):
+        monkeypatch.setattr(S, "CUT_COARSEST_NODES", nodes)
+        S._HIERARCHIES.clear()
+        model, state, settings = _load(case, "newton", 1e-7, 60.0)
+        res = solve(model, state, settings)
+        assert res.status == "converged"
+        runs.append((res.iterations, state.positions))
+    S._HIERARCHIES.clear()
+    assert (runs[0][0], runs[1][0]) == (4, 3)
+    assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-7
