@@ -257,8 +257,8 @@ def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
     pos[fixed] = fine_state.positions[fixed]
     if not fine_model.topology.panels_full:
         # (full rectangular panels: the coarse lattices hold their outlines exactly, as the
-        # square's do, and neither step changes the fine start; four 101^2 panels: the same
-        # Newton residuals, 44 ms of settling saved)
+        # square's do, and neither step saves a Newton step; four 101^2 panels: the same Newton
+        # residuals to 5 digits, 44 ms of settling saved)
         _relax_rim(fine_model, pos, cont, rim_op)
         if kink is not None and SETTLE_RIM:
             settle_outline(fine_model, pos, cont, kink, band)

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
-from ...kernels import LENGTH_EPS, table_eval
+from ...kernels import LENGTH_EPS
 from ...mold import contact_normals_from_query, mold_query
 from .active_set import held_axis_rows, orthonormal_rows
 
