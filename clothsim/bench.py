@@ -518,18 +518,20 @@ def _best_of(case: Case, solver: str, ref_positions, repeat: int) -> dict:
     return _pick_best([_in_child(run_case, case, solver, ref_positions) for _ in range(max(1, int(repeat)))])
 
 
-def _pick_best(runs: list[dict]) -> dict:
+def _pick_best(runs: list) -> dict:
     """The run with the fewest work units to 1e-7 N (its total when 1e-7 was not reached), with
     ``wu_runs`` and ``cpu_runs`` added: every run's work units and CPU seconds to 1e-7 N, in
-    order (None where not reached)."""
+    order (None where not reached, or where the run failed: a None in ``runs``)."""
     def key(r):
         w = r["times_wu"].get("1e-07")
         return (w is None, w if w is not None else r["total_wu"])
 
-    best = dict(min(runs, key=key))
-    best["wu_runs"] = [r["times_wu"].get("1e-07") for r in runs]
-    best["cpu_runs"] = [None if r["times_wu"].get("1e-07") is None or not r.get("ref_pass_s")
-                        else r["times_wu"]["1e-07"] * r["ref_pass_s"] for r in runs]
+    def wu(r):
+        return None if r is None else r["times_wu"].get("1e-07")
+
+    best = dict(min((r for r in runs if r is not None), key=key))
+    best["wu_runs"] = [wu(r) for r in runs]
+    best["cpu_runs"] = [None if wu(r) is None or not r.get("ref_pass_s") else wu(r) * r["ref_pass_s"] for r in runs]
     return best
 
 
@@ -537,17 +539,20 @@ def _interleaved(jobs: list[tuple], repeat: int, log=None) -> list[dict]:
     """``run_case`` for every (case, solver, reference positions) of ``jobs``, in ``repeat``
     rounds of fresh processes, each round running every job once in turn (so that all scenes
     share the machine's state of the moment: its load drifts over minutes), then
-    ``_pick_best`` per job. Each row also gets ``rounds``: how many of its runs completed (a
-    failed run is logged and left out)."""
-    runs: list[list[dict]] = [[] for _ in jobs]
+    ``_pick_best`` per job. A failed run is logged and kept as None, so that every job's lists
+    stay one entry per round (``paired_ratios`` pairs them by position). Each row also gets
+    ``rounds``: how many of its runs completed."""
+    runs: list[list] = [[] for _ in jobs]
     for _ in range(max(1, int(repeat))):
         for j, (case, solver, ref) in enumerate(jobs):
             try:
                 runs[j].append(_in_child(run_case, case, solver, ref))
             except Exception as exc:
+                runs[j].append(None)
                 if log:
                     log(f"{case.name} / {solver}: failed: {exc}")
-    return [dict(_pick_best(r), rounds=len(r)) for r in runs if r]
+    done = [sum(r is not None for r in rj) for rj in runs]
+    return [dict(_pick_best(rj), rounds=d) for rj, d in zip(runs, done) if d]
 
 
 def paired_ratios(base: dict, row: dict, key: str = "wu_runs") -> list[float]:

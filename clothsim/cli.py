@@ -279,9 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--garments", action="store_true",
                    help="only the panel scenes (a 40k-node circle and four sewn panels on the sphere cap) "
                         "beside the 201^2 square: writes benchmarks_garments.md")
-    b.add_argument("--repeat", type=int, default=5,
+    b.add_argument("--repeat", type=int, default=None,
                    help="with --garments: rounds of fresh processes, each running every scene once; the best "
-                        "and the median of the rounds' ratios to the square reported (default: %(default)s)")
+                        "and the median of the rounds' ratios to the square reported (default: "
+                        "bench.GARMENT_REPEAT, 5)")
     b.set_defaults(func=cmd_bench)
     add_compression_commands(sub)
     return p

@@ -64,3 +64,27 @@ def test_garment_report_gives_paired_medians(tmp_path):
     cells = [c.strip() for c in line.strip("|").split("|")]
     # best 400 / 280; paired WU: 1.5, 1.4286 -> 1.46; paired s: 1.333, 1.5 -> 1.42
     assert cells[6] == "1.43" and cells[7] == "1.46" and cells[8] == "1.42"
+
+
+def test_interleaved_keeps_a_failed_run_as_a_gap_in_its_round(monkeypatch):
+    """A run that fails stays a None in its round, so the paired ratios still pair each round of
+    a scene with the same round of the square."""
+    wu = {"a": iter([300.0, 280.0, 310.0]), "b": iter([450.0, 500.0])}
+    calls = {"b": 0}
+
+    def child(fn, case, solver, ref):
+        if case.name == "b":
+            calls["b"] += 1
+            if calls["b"] == 2:
+                raise RuntimeError("boom")
+        return dict(_row(case.name, next(wu[case.name])), ref_pass_s=0.002, solver=solver)
+
+    monkeypatch.setattr(bench, "_in_child", child)
+    log = []
+    rows = bench._interleaved([(bench.Case("a", "x.yaml"), "newton", None),
+                               (bench.Case("b", "y.yaml"), "newton", None)], 3, log.append)
+    assert rows[1]["wu_runs"] == [450.0, None, 500.0] and rows[1]["rounds"] == 2
+    assert rows[1]["cpu_runs"] == [0.9, None, 1.0]
+    assert rows[1]["times_wu"]["1e-07"] == 450.0
+    assert bench.paired_ratios(rows[0], rows[1]) == [1.5, 500.0 / 310.0]
+    assert any("boom" in m for m in log)

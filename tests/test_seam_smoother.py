@@ -202,7 +202,8 @@ def test_a_second_setup_on_the_same_pattern_equals_a_fresh_one():
 def test_padded_multigrids_on_one_topology_share_its_layout_and_set_up_alike():
     """The padded rectangle's layout (embedding, levels, spans, seam pairs, BSR pattern, coarse
     patterns) is built once per topology: a second multigrid on it shares it, other seam pairs
-    get their own, and a set-up on the shared layout equals, bit for bit, one built afresh."""
+    get their own, and a set-up on the shared layout (after one on other values, whose rectangle
+    buffers it reuses) equals, bit for bit, one built afresh."""
     from clothsim.solvers.newton import linalg
 
     model, state = _small_garment(16)
@@ -214,7 +215,15 @@ def test_padded_multigrids_on_one_topology_share_its_layout_and_set_up_alike():
     again = NewtonLevel(model, use_multigrid=True).mg
     assert again._layout is lv.mg._layout and again.mg is not lv.mg.mg
     assert PaddedMultigrid(model.topology, None)._layout is not lv.mg._layout  # no seam pairs
+    # a first set-up on other values (its rectangle's buffers are kept for the second one)
+    rng = np.random.default_rng(2)
+    other = lv.A.copy() * rng.uniform(0.5, 2.0, size=(lv.A.shape[0], 1, 1))
+    other_pi = lv.Pi.copy()
+    other_pi[::3] = 0.0
+    again.setup(lv.indptr, lv.indices, other, other_pi)
+    kept = again._fdat
     again.setup(lv.indptr, lv.indices, lv.A.copy(), lv.Pi)
+    assert again._fdat is kept
     linalg._LAYOUTS.clear()
     fresh = NewtonLevel(model, use_multigrid=True).mg
     assert fresh._layout is not lv.mg._layout

@@ -1051,10 +1051,11 @@ class Multigrid:
                 slots.append(_line_slots(L.indptr, L.indices, nx1, ny1))
             L.ds, L.ps, L.ns = slots[lv]
         if self.pairs is not None:
-            if not chains:
-                chains.extend(None if pr is None else seam_chains(L.indptr, L.indices, pr)
-                              for L, pr in zip(levels, self.pairs))
-            self._pslots = chains
+            # (kept with the pairs they were made for: multigrids sharing _sym share their layout's)
+            if not chains or chains[0] is not self.pairs:
+                chains[:] = [self.pairs, [None if pr is None else seam_chains(L.indptr, L.indices, pr)
+                                          for L, pr in zip(levels, self.pairs)]]
+            self._pslots = chains[1]
         last = levels[-1]
         n3 = 3 * last.n
         Alast = sp.bsr_matrix((last.data, last.indices, last.indptr), shape=(n3, n3)).tocsc()

@@ -238,8 +238,9 @@ def _interpolate(pidx, pw, xc, cc, out, cout):
 
 def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None):
     """The interpolation of ``prolong_state`` without its mold query: (pos (n, 3) [m], cont (n,)
-    bool: interpolated contact) with the fine held coordinates kept and, on a cut lattice, the
-    outline's fringe relaxed and its band settled (nodes may be left inside the mold)."""
+    bool: interpolated contact) with the fine held coordinates kept and, on a cut lattice (or on
+    full panels given a ``band``), the outline's fringe relaxed and its band settled (nodes may be
+    left inside the mold)."""
     if fine_model.topology.is_grid:
         # P's rows as the multigrid's transfer holds them (the same weights in the same order as
         # grid_prolongation's P, so the same sums, without building P)
@@ -255,10 +256,11 @@ def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
         cont = (P @ coarse_state.in_contact.astype(float)) > 1.0 - 1e-9
     fixed = fine_model.fixed_axes
     pos[fixed] = fine_state.positions[fixed]
-    if not fine_model.topology.panels_full:
-        # (full rectangular panels: the coarse lattices hold their outlines exactly, as the
-        # square's do, and neither step saves a Newton step; four 101^2 panels: the same Newton
-        # residuals to 5 digits, 44 ms of settling saved)
+    if not fine_model.topology.is_grid and (band is not None or not fine_model.topology.panels_full):
+        # (full rectangular panels held on their coarse nodes: the coarse lattices hold their
+        # outlines exactly, as the square's do, and neither step saves a Newton step, so the
+        # sequencing passes no band; four 101^2 panels: the same Newton residuals to 5 digits,
+        # 44 ms of settling saved)
         _relax_rim(fine_model, pos, cont, rim_op)
         if kink is not None and SETTLE_RIM:
             settle_outline(fine_model, pos, cont, kink, band)
@@ -268,10 +270,11 @@ def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
 def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
-    two contact nodes) onto its surface as contact nodes. On a cut or multi-panel lattice the
-    outline's fringe is relaxed (``_relax_rim``) and, when ``kink`` (NewtonOptions.kink) is
-    given, its band of nodes settled by nonlinear Gauss-Seidel (``rim.settle_outline``; ``band``:
-    ``rim.outline_band(fine_model)`` when known). P: the interpolation (``_prolongation``) and rim_op:
+    two contact nodes) onto its surface as contact nodes. On a cut lattice (some panel not a full
+    rectangle; on full panels only when a ``band`` is given) the outline's fringe is relaxed
+    (``_relax_rim``) and, when ``kink`` (NewtonOptions.kink) is given, its band of nodes settled by
+    nonlinear Gauss-Seidel (``rim.settle_outline``; ``band``: ``rim.outline_band(fine_model)`` when
+    known). P: the interpolation (``_prolongation``) and rim_op:
     ``_rim_operator(fine_model)``, when known."""
     from ...mold import mold_query_many
 
@@ -359,20 +362,18 @@ HIERARCHY_CACHE = 2
 class _Hierarchy:
     """What grid sequencing builds for one model and reuses on every later solve of it: the chain
     of coarse models (``sequencing_chain``), the interpolation from each to the next finer one
-    (``_prolongation``), each cut lattice's outline band (``rim.outline_band``) and rim operator
-    (None where every panel is a full rectangle, ``Topology.panels_full``), a NewtonLevel per
-    coarse model (reset before each use) and each coarse cut level's guessed holds (``_HoldFit``;
-    None on full grids)."""
+    (``_prolongation``), a NewtonLevel per coarse model (reset before each use), each coarse
+    level's guessed holds (``_HoldFit``; None on full grids) and each level's outline band
+    (``rim.outline_band``) and rim operator (None where every panel is a full rectangle,
+    ``Topology.panels_full``, and no level has guessed holds)."""
 
     def __init__(self, model, kink):
         self.kink = kink
         chain = sequencing_chain(model) if model.topology.panels_full else sequencing_chain(model, CUT_COARSEST_NODES)
         self.P = [None] + [_prolongation(chain[i][0].topology, chain[i - 1][0].topology)
                            for i in range(1, len(chain))]
-        self.bands = [None if m.topology.panels_full else outline_band(m) for m, _ in chain]
-        self.rim_ops = [None if m.topology.panels_full else _rim_operator(m) for m, _ in chain]
         self.levels = [NewtonLevel(m, kink=kink) for m, _ in chain[:-1]]
-        # each cut level's guessed holds (None: a full grid, or none)
+        # each coarse level's guessed holds (None: a full grid, or none)
         self.fits = []
         for li, (m, _) in enumerate(chain[:-1]):
             fit = None
@@ -383,6 +384,12 @@ class _Hierarchy:
                 fit = _HoldFit(m, model, idx)
                 fit = fit if fit.g.size else None
             self.fits.append(fit)
+        # the outline band and rim relaxation where the coarse lattices hold the outline or the
+        # holds only roughly: a panel cut by its outline, or guessed holds (held fine nodes that
+        # no coarse node keeps); none on full rectangular panels held on their coarse nodes
+        rough = not model.topology.panels_full or any(f is not None for f in self.fits)
+        self.bands = [outline_band(m) if rough and not m.topology.is_grid else None for m, _ in chain]
+        self.rim_ops = [_rim_operator(m) if rough and not m.topology.is_grid else None for m, _ in chain]
         # the given model itself is not kept (the cache must not keep it alive)
         self.chain = chain[:-1] + [(None, None)]
 

@@ -106,7 +106,7 @@ def node_spring_block(k, pos, ptr, sp, oth, rest, width, table, x, y, cum, start
 
     The table lookup is ``kernels.table_eval``'s, inline and without the energy (a call per
     spring was a third of this kernel's time), and each length is divided once (its reciprocal
-    multiplied): 250-400 -> ~130 ns a node of four springs."""
+    multiplied): 355 -> 203 ns a node update of the circle's outline band (four springs)."""
     f0 = ext[k, 0]
     f1 = ext[k, 1]
     f2 = ext[k, 2]
@@ -139,7 +139,7 @@ def node_spring_block(k, pos, ptr, sp, oth, rest, width, table, x, y, cum, start
         if st <= 0.0:
             if comp[tb] == 0:
                 T = 0.0
-                dT = kink[s]
+                dT = kink[s] if kink[s] > 0.0 else 0.0
             else:
                 dT = (y[a + 1] - y[a]) / (x[a + 1] - x[a])
                 T = y[a] + dT * st
