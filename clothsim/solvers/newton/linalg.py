@@ -9,7 +9,6 @@ Shapes: n nodes, S springs, nb stored 3x3 blocks; vectors are flat (3n,) in node
 from __future__ import annotations
 
 import math
-import weakref
 from collections import OrderedDict
 
 import numpy as np
@@ -18,6 +17,7 @@ import scipy.sparse.linalg as sla
 from numba import njit
 
 from ...kernels import LENGTH_EPS, spring_vector, table_eval
+from .objcache import per_object
 
 # multigrid: stop coarsening at this many nodes
 COARSEST_NODES = 400
@@ -1243,8 +1243,8 @@ class _PaddedLayout:
         self.sym = None
 
 
-# the layouts of the last few topologies (_padded_layout): (weakref to the topology, seam pairs'
-# bytes and switches, layout) by id(topology)
+# the layouts of the last few topologies (_padded_layout, objcache.per_object): (weakref to the
+# topology, seam pairs' bytes and switches, layout) by id(topology)
 _LAYOUTS: OrderedDict = OrderedDict()
 LAYOUT_CACHE = 4
 
@@ -1255,18 +1255,7 @@ def _padded_layout(topology, seam_pairs=None) -> _PaddedLayout:
     # (the switches the layout reads are part of its key)
     sp_key = (None if seam_pairs is None else np.asarray(seam_pairs, np.int64).tobytes(), TRIM_PADDING,
               PAIR_SMOOTHING, PANEL_ALIGN)
-    key = id(topology)
-    got = _LAYOUTS.get(key)
-    if got is not None and got[0]() is topology and got[1] == sp_key:
-        _LAYOUTS.move_to_end(key)
-        return got[2]
-    lay = _PaddedLayout(topology, seam_pairs)
-    if got is None:
-        weakref.finalize(topology, _LAYOUTS.pop, key, None)
-    _LAYOUTS[key] = (weakref.ref(topology), sp_key, lay)
-    while len(_LAYOUTS) > LAYOUT_CACHE:
-        _LAYOUTS.popitem(last=False)
-    return lay
+    return per_object(_LAYOUTS, topology, sp_key, lambda: _PaddedLayout(topology, seam_pairs), LAYOUT_CACHE)
 
 
 class PaddedMultigrid:
@@ -1294,11 +1283,12 @@ class PaddedMultigrid:
         self.full, self.emb, self.N = lay.full, lay.emb, lay.N
         self.mg = Multigrid.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, lay.pairs)
         self._pattern = None
-        self._fdat = self._fpi = self._pad_value = None  # the rectangle's matrix, projectors, (pad value, src)
+        self._fdat = self._fpi = self._pad_value = None  # the rectangle's matrix, projectors, padding value
 
     def prepare(self, indptr, indices):
         """The rectangle's BSR pattern and, per block, the lattice block it copies (-1: identity);
         kept in the layout for the next multigrid on the same lattice pattern."""
+        self._fdat = None  # (setup's kept rectangle follows the pattern)
         got = self._layout.pattern
         if got is not None and np.array_equal(got[0], indptr) and np.array_equal(got[1], indices):
             self._pattern = got[2]
@@ -1335,11 +1325,11 @@ class PaddedMultigrid:
         # last hierarchy is not used after a new set-up): the padding is written once, and the
         # 33 MB of a 225^2 rectangle are not allocated (and page-faulted) again each time
         value = 1.0 if PAD_IDENTITY else max(scale, 1e-300)
-        keep = self._fdat is not None and self._pad_value[0] == value and self._pad_value[1] is src
+        keep = self._fdat is not None and self._pad_value == value
         if not keep:
             self._fdat = np.empty((fidx.shape[0], 3, 3))
             self._fpi = np.zeros((self.N, 3, 3))
-            self._pad_value = (value, src)
+            self._pad_value = value
         fdat, fpi = self._fdat, self._fpi
         _pad_copy(src, data, value, fdat, keep)
         fpi[self.emb] = Pi

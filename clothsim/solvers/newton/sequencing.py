@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import time
-import weakref
 from collections import OrderedDict
 
 import numpy as np
@@ -19,6 +18,7 @@ from numba import njit
 from .active_set import PENETRATION_TOL
 from .iteration import NewtonLevel, _forcing
 from .linalg import _grid_transfer
+from .objcache import per_object
 from .rim import outline_band, settle_outline
 from .settle import settle_start
 
@@ -398,18 +398,7 @@ def _hierarchy(model, kink):
     """The model's ``_Hierarchy``, built on its first solve and kept while the model lives (the
     model and its arrays are not changed in place: a Control makes a new Model). The
     ``HIERARCHY_CACHE`` most recently used models' are kept."""
-    key = id(model)
-    h = _HIERARCHIES.get(key)
-    if h is not None and h[0]() is model and h[1].kink == kink:
-        _HIERARCHIES.move_to_end(key)
-        return h[1]
-    hier = _Hierarchy(model, kink)
-    if h is None:
-        weakref.finalize(model, _HIERARCHIES.pop, key, None)
-    _HIERARCHIES[key] = (weakref.ref(model), hier)
-    while len(_HIERARCHIES) > HIERARCHY_CACHE:
-        _HIERARCHIES.popitem(last=False)
-    return hier
+    return per_object(_HIERARCHIES, model, kink, lambda: _Hierarchy(model, kink), HIERARCHY_CACHE)
 
 
 def _solve_coarse(level: NewtonLevel, state, coarsest: bool, e, deadline, rel=None, reset=True):
