@@ -160,3 +160,37 @@ def test_cut_lattice_sequences_down_to_a_smaller_coarsest_grid(monkeypatch):
     S._HIERARCHIES.clear()
     assert (runs[0][0], runs[1][0]) == (4, 3)
     assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-7
+
+
+def test_middle_levels_take_one_newton_iteration(monkeypatch):
+    """The levels between the coarsest and the last coarse one take MID_LEVEL_ITERATIONS (1)
+    Newton iteration: on the 113-across circle its 625-node level took 2 uncapped; capped, the
+    fine lattice starts as well (the same fine iterations) and reaches the same equilibrium."""
+    from clothsim.solvers.newton import iteration as I
+    from clothsim.solvers.newton import sequencing as S
+
+    counts: dict = {}
+    orig = I.NewtonLevel.iterate
+
+    def counted(self, *a, **k):
+        counts[self.n] = counts.get(self.n, 0) + 1
+        return orig(self, *a, **k)
+
+    monkeypatch.setattr(I.NewtonLevel, "iterate", counted)
+    case = Case("c113", "configs/garments/circle_cap.yaml", ["panels.0.divisions=[112,112]"])
+    runs = []
+    for cap in (None, 1):
+        monkeypatch.setattr(S, "MID_LEVEL_ITERATIONS", cap)
+        S._HIERARCHIES.clear()
+        model, state, settings = _load(case, "newton", 1e-7, 60.0)
+        chain = S._Hierarchy(model, 1e-3).chain
+        assert len(chain) >= 4
+        counts.clear()
+        res = solve(model, state, settings)
+        assert res.status == "converged"
+        mids = [counts.get(m.node_count, 0) for m, _ in chain[1:-2]]
+        runs.append((mids, res.iterations, state.positions))
+    S._HIERARCHIES.clear()
+    assert max(runs[0][0]) >= 2 and max(runs[1][0]) == 1
+    assert runs[0][1] == runs[1][1]
+    assert np.abs(runs[0][2] - runs[1][2]).max() < 1e-7

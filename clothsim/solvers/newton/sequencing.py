@@ -344,6 +344,11 @@ def sequencing_chain(model, min_nodes: int = 400):
 # 0.453 -> 0.440, the circle 0.80 -> 0.76, the four panels 0.69 -> 0.65, the thermoform 0.43 -> 0.35;
 # each fine grid's iterations unchanged)
 LEVEL_REL = 1e-1
+# ... and take at most this many Newton iterations (None: no cap; the last coarse level, which
+# gives the fine start, is not capped): their solution only seeds the next level's start. On the
+# 225-across circle its 621- and 2477-node levels took 2 iterations each; with one, the same fine
+# start (1.02e-3 N) and the same fine steps (113 and 161 across likewise)
+MID_LEVEL_ITERATIONS = 1
 
 # the sequencing of a cut lattice (some panel not a full rectangle) goes down to grids of this
 # many nodes (a full lattice's to ``sequencing_chain``'s 400): its coarsest grid carries the
@@ -401,21 +406,22 @@ def _hierarchy(model, kink):
     return per_object(_HIERARCHIES, model, kink, lambda: _Hierarchy(model, kink), HIERARCHY_CACHE)
 
 
-def _solve_coarse(level: NewtonLevel, state, coarsest: bool, e, deadline, rel=None, reset=True):
+def _solve_coarse(level: NewtonLevel, state, coarsest: bool, e, deadline, rel=None, reset=True, max_iter=60):
     """Solve one level of the sequencing: the coarsest grid until its contact set is settled, the
     others only as far as their discretisation error matters for the next grid's start (LEVEL_REL:
     the fine start's residual is set by the interpolation, not by a tighter coarse solve); rel:
-    to this share of the start residual instead. reset: start the level afresh (False: keep its
-    multigrid hierarchy, Levenberg shift and forcing history from the last solve)."""
+    to this share of the start residual instead; at most max_iter Newton iterations. reset: start
+    the level afresh (False: keep its multigrid hierarchy, Levenberg shift and forcing history from
+    the last solve)."""
     if reset:
         level.reset()
     v0 = level.residual(state.positions, state.in_contact)
     if rel is not None:
-        _solve_level(level, state, max(e, rel * v0), 60, deadline)
+        _solve_level(level, state, max(e, rel * v0), max_iter, deadline)
     elif coarsest:
-        _solve_level(level, state, max(e, 1e-8 * v0), 60, deadline, max(e, COARSEST_REL * v0))
+        _solve_level(level, state, max(e, 1e-8 * v0), max_iter, deadline, max(e, COARSEST_REL * v0))
     else:
-        _solve_level(level, state, max(e, LEVEL_REL * v0), 60, deadline)
+        _solve_level(level, state, max(e, LEVEL_REL * v0), max_iter, deadline)
 
 
 def grid_sequence(model, state, e, kink, deadline):
@@ -460,7 +466,9 @@ def grid_sequence(model, state, e, kink, deadline):
                 settle_start(mdl, cst, kink)
         lvl = hier.levels[li]
         refits = HOLD_REFIT_COARSEST if li == 0 and fit is not None else 0
-        _solve_coarse(lvl, cst, li == 0, e, deadline, HOLD_FIRST_REL if refits else None)
+        mid = 0 < li < len(chain) - 2 and MID_LEVEL_ITERATIONS is not None
+        _solve_coarse(lvl, cst, li == 0, e, deadline, HOLD_FIRST_REL if refits else None,
+                      max_iter=MID_LEVEL_ITERATIONS if mid else 60)
         for _ in range(refits):
             # the guessed holds where the solved sheet puts them, and the level solved again
             fit.place(cst.positions, cst.positions)
