@@ -877,26 +877,42 @@ class _Transposed:
     block columns (unknowns)."""
 
     def __init__(self, indptr, indices, nx1, ny1, ds, ps, ns):
-        n = nx1 * ny1
-        r = np.arange(n)
-        self.node = np.ascontiguousarray((r % nx1) * ny1 + r // nx1, np.int64)
-        counts = np.diff(indptr)[self.node]
-        self.indptr = np.zeros(n + 1, np.int64)
-        np.cumsum(counts, out=self.indptr[1:])
-        start = np.repeat(indptr[:-1][self.node] - self.indptr[:-1], counts)
-        self.gather = np.ascontiguousarray(np.arange(self.indptr[-1]) + start, np.int64)
-        self.indices = np.ascontiguousarray(indices[self.gather])
-        where = np.empty_like(self.gather)
-        where[self.gather] = np.arange(self.gather.size)
+        (self.node, self.indptr, self.gather, self.indices, self.ds, self.ps,
+         self.ns) = _transposed_pattern(indptr, indices, nx1, ny1, ds, ps, ns)
 
-        def moved(slot):
-            return np.where(slot >= 0, where[np.maximum(slot, 0)], -1).astype(np.int64)
 
-        self.ds = moved(ds[self.node])
-        self.ps = np.full((n, 2), -1, np.int64)
-        self.ns = np.full((n, 2), -1, np.int64)
-        self.ps[:, 1] = moved(ps[self.node, 0])
-        self.ns[:, 1] = moved(ns[self.node, 0])
+@njit(cache=True)
+def _transposed_pattern(indptr, indices, nx1, ny1, ds, ps, ns):
+    """``_Transposed``'s arrays: (node, indptr, gather, indices, ds, ps, ns)."""
+    n = nx1 * ny1
+    nb = indptr[n]
+    node = np.empty(n, np.int64)
+    tptr = np.zeros(n + 1, np.int64)
+    for r in range(n):
+        k = (r % nx1) * ny1 + r // nx1
+        node[r] = k
+        tptr[r + 1] = tptr[r] + indptr[k + 1] - indptr[k]
+    gather = np.empty(nb, np.int64)
+    tidx = np.empty(nb, indices.dtype)
+    where = np.empty(nb, np.int64)
+    for r in range(n):
+        k = node[r]
+        for u in range(indptr[k + 1] - indptr[k]):
+            q = indptr[k] + u
+            gather[tptr[r] + u] = q
+            tidx[tptr[r] + u] = indices[q]
+            where[q] = tptr[r] + u
+    tds = np.empty(n, np.int64)
+    tps = np.full((n, 2), -1, np.int64)
+    tns = np.full((n, 2), -1, np.int64)
+    for r in range(n):
+        k = node[r]
+        tds[r] = where[ds[k]] if ds[k] >= 0 else -1
+        if ps[k, 0] >= 0:
+            tps[r, 1] = where[ps[k, 0]]
+        if ns[k, 0] >= 0:
+            tns[r, 1] = where[ns[k, 0]]
+    return node, tptr, gather, tidx, tds, tps, tns
 
 
 @njit(cache=True)
