@@ -154,6 +154,7 @@ def cmd_fit(args) -> int:
     input or an unreachable target."""
     from .compression.fit import FitError, fit, parse_target, parse_vary, write_outputs
     from .config import SceneError
+    from .fileio import OutputError, check_out_dir, describe_write_error
     from .material import MaterialError
     from .mold import MoldError
 
@@ -165,9 +166,11 @@ def cmd_fit(args) -> int:
     try:
         varies = [parse_vary(v) for v in args.vary]
         targets = [parse_target(t) for t in args.target]
+        if args.out:  # before the solves: a bad --out must not cost a whole fit
+            check_out_dir(args.out)
         res = fit(args.scene, varies, targets, overrides=args.set, tol_mmhg=args.tol, max_solves=args.max_solves,
                   log=None if args.quiet else log)
-    except (FitError, SceneError, MoldError, MaterialError) as exc:
+    except (FitError, SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(("fitted: " if res.converged else "not fitted: ") + res.message)
@@ -177,7 +180,11 @@ def cmd_fit(args) -> int:
         print(f"  {t.probe}: {p:.3f} mmHg (target {t.mmhg:.3f})")
     print(res.tries_csv(varies, targets), end="")
     if args.out:
-        out = write_outputs(res, args.out, varies, targets)
+        try:
+            out = write_outputs(res, args.out, varies, targets)
+        except OSError as exc:  # a full disk, the folder removed meanwhile, ...
+            print(f"error: {describe_write_error(exc, args.out)}", file=sys.stderr)
+            return 2
         print(f"  wrote {out}/fitted.yaml, fit.csv, fit.json and the fitted run's result files")
     return 0 if res.converged else 1
 
@@ -189,8 +196,11 @@ def cmd_report(args) -> int:
 
     try:
         path = write_report(args.result_dir, args.out)
-    except (ReportError, SceneError, MoldError, OSError) as exc:
+    except (ReportError, SceneError, MoldError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file the checks did not foresee (removed meanwhile, ...)
+        print(f"error: {exc.filename or args.result_dir}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")
     return 0
@@ -206,8 +216,9 @@ def add_compression_commands(sub) -> None:
     f.add_argument("--target", action="append", required=True, metavar="PROBE=VALUE",
                    help="a probe's target pressure, e.g. --target ankle=20mmHg (units mmHg, Pa, kPa)")
     f.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override a scene field")
-    f.add_argument("--tol", type=float, default=0.1, help="tolerance on each target [mmHg] (default 0.1)")
-    f.add_argument("--max-solves", type=int, default=12, help="most solves to spend (default 12)")
+    f.add_argument("--tol", type=_positive_float, default=0.1,
+                   help="tolerance on each target [mmHg], positive and finite (default 0.1)")
+    f.add_argument("--max-solves", type=_positive_int, default=12, help="most solves to spend, at least 1 (default 12)")
     f.add_argument("--out", help="folder for fitted.yaml, fit.csv, fit.json and the fitted run's results")
     f.add_argument("--quiet", action="store_true", help="do not print each try")
     f.set_defaults(func=cmd_fit)

@@ -17,6 +17,8 @@ import base64
 import html
 import io
 import json
+import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +52,11 @@ def _fields(out: Path):
     scene = load_scene(out / "scene.yaml")
     model = compile_model(scene)
     topo = model.topology
-    with np.load(out / "result.npz") as d:
-        pg, cg = d["positions"], d["in_contact"]
+    try:
+        with np.load(out / "result.npz") as d:
+            pg, cg = d["positions"], d["in_contact"]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise ReportError(f"{out / 'result.npz'}: cannot be read ({type(exc).__name__}: {str(exc)[:80]})") from None
     # result.npz keeps a full rectangle's arrays as (nx+1, ny+1, ...) and a panel scene's flat
     # (N, ...) in node order
     pos = np.ascontiguousarray(pg.reshape(-1, 3), dtype=float)
@@ -162,13 +167,58 @@ def probes_table(probes: list[dict]) -> str:
     return "\n".join(rows)
 
 
-def build_report(result_dir: str | Path) -> str:
-    """The report's HTML text for a result folder (see the module docstring)."""
+RESULT_FILES = ("summary.json", "result.npz", "scene.yaml")
+
+
+def check_result_dir(result_dir: str | Path) -> Path:
+    """The result folder, checked: it exists, is a folder and holds summary.json, result.npz and
+    scene.yaml (what ``clothsim run --out`` and ``fit --out`` write). Raises ReportError naming the
+    folder and what is wrong."""
     out = Path(result_dir)
-    for name in ("summary.json", "result.npz", "scene.yaml"):
-        if not (out / name).is_file():
-            raise ReportError(f"{out}: no {name} (a folder written by 'clothsim run --out' or 'fit --out')")
-    s = json.loads((out / "summary.json").read_text())
+    if not out.exists():
+        raise ReportError(f"{out}: no such folder (give a folder written by 'clothsim run --out' or 'fit --out')")
+    if not out.is_dir():
+        raise ReportError(f"{out}: not a folder (give a folder written by 'clothsim run --out' or 'fit --out')")
+    missing = [name for name in RESULT_FILES if not (out / name).is_file()]
+    if "summary.json" in missing:
+        raise ReportError(f"{out}: not a result folder: no summary.json (a folder written by 'clothsim run --out' "
+                          f"or 'fit --out' holds {', '.join(RESULT_FILES)})")
+    if missing:
+        raise ReportError(f"{out}: no {missing[0]} (a folder written by 'clothsim run --out' or 'fit --out')")
+    return out
+
+
+def read_summary(path: Path) -> dict:
+    """summary.json as a dict; ReportError naming the file if it cannot be read, is not JSON or
+    is not a JSON object."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReportError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        s = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno} column {exc.colno}: {exc.msg}); "
+                          f"rewrite it with 'clothsim run --out'") from None
+    if not isinstance(s, dict):
+        kind = {list: "list", str: "string"}.get(type(s), type(s).__name__)
+        raise ReportError(f"{path}: not a run summary (a JSON {kind}, not an object)")
+    return s
+
+
+def build_report(result_dir: str | Path) -> str:
+    """The report's HTML text for a result folder (see the module docstring). Raises ReportError
+    (naming the file) for a folder that is not a result folder or holds a damaged file."""
+    out = check_result_dir(result_dir)
+    s = read_summary(out / "summary.json")
+    try:
+        return _build(out, s)
+    except (KeyError, TypeError, AttributeError, IndexError) as exc:
+        raise ReportError(f"{out / 'summary.json'}: not a run summary clothsim wrote "
+                          f"({type(exc).__name__}: {str(exc)[:80]})") from None
+
+
+def _build(out: Path, s: dict) -> str:
     scene, pos, faces, p_mmhg, strain = _fields(out)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
@@ -214,10 +264,37 @@ def build_report(result_dir: str | Path) -> str:
     return "\n".join(parts)
 
 
+def check_report_path(target: Path, flag: str = "--out") -> None:
+    """Refuse (ReportError) an HTML file path that cannot be written: a folder, a file in a folder
+    that does not exist or is not writable. Checked before the figures are rendered."""
+    parent = target.parent
+    if target.is_dir():
+        raise ReportError(f"{flag} {target}: is a folder (give the HTML file to write, e.g. {target / 'report.html'})")
+    if not parent.exists():
+        raise ReportError(f"{flag} {target}: its folder {parent} does not exist")
+    if not parent.is_dir():
+        raise ReportError(f"{flag} {target}: {parent} is not a folder")
+    probe = parent / f".clothsim-probe{os.getpid()}"
+    try:  # permission bits do not stop root; a read-only file system does
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except OSError as exc:
+        raise ReportError(f"{flag} {target}: cannot write in {parent} ({exc.strerror or exc})") from None
+
+
 def write_report(result_dir: str | Path, path: str | Path | None = None) -> Path:
-    """Write the report (default RESULT_DIR/report.html); returns its path."""
+    """Write the report (default RESULT_DIR/report.html); returns its path. Raises ReportError
+    (naming the file and the problem) for a bad result folder or a path that cannot be written."""
+    from ..fileio import describe_write_error
     from ..results import atomic_write_bytes
 
+    check_result_dir(result_dir)
     target = Path(path) if path else Path(result_dir) / "report.html"
-    atomic_write_bytes(target, build_report(result_dir).encode("utf-8"))
+    flag = "--out" if path else "report"
+    check_report_path(target, flag)
+    text = build_report(result_dir)
+    try:
+        atomic_write_bytes(target, text.encode("utf-8"))
+    except OSError as exc:
+        raise ReportError(describe_write_error(exc, target, flag)) from None
     return target
