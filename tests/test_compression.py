@@ -298,3 +298,73 @@ def test_sweeps_take_probe_outputs(tmp_path):
     (d / "sweep_run.json").write_text(json.dumps({"extra": {}}))
     row = sw.read_row(tmp_path, run)
     assert row["probe:side_mmhg"] == 20.5 and row["probe:side_contact_fraction"] == 1.0
+
+
+TWO_PROBES = "probes=[{name: side, point: [0.06, 0.0, 0.0]}, {name: cuff, point: [-0.05, 0.0, 0.044], radius: 0.008}]"
+
+
+def test_fit_two_fields_to_two_targets(tmp_path):
+    """Several fields, several targets (least squares): the sleeve's width sets the side probe's
+    reading (T / r) and its height how much of the cuff probe's disc the top edge covers, so
+    side = 20 mmHg and cuff = 10 mmHg (half covered) fix both. Through the CLI: both targets met
+    within the tolerance, fit.csv has a column per field and per probe, the fitted scene
+    reproduces the readings, and the fit stops at the first try that meets every target (it used
+    to spend every one of --max-solves)."""
+    from clothsim.cli import main
+
+    out = tmp_path / "fit2"
+    rc = main(["fit", str(SLEEVE), "--vary", "fabric.size.0", "--vary", "fabric.size.1", "--target", "side=20mmHg",
+               "--target", "cuff=10mmHg", "--set", TWO_PROBES, "--max-solves", "24", "--out", str(out), "--quiet"])
+    assert rc == 0
+    info = json.loads((out / "fit.json").read_text())
+    assert info["converged"]
+    assert abs(info["readings_mmhg"]["side"] - 20.0) <= 0.1 and abs(info["readings_mmhg"]["cuff"] - 10.0) <= 0.1
+    rows = list(csv.DictReader((out / "fit.csv").open()))
+    assert list(rows[0])[:3] == ["try", "fabric.size.0", "fabric.size.1"]
+    assert {"side_mmHg", "cuff_mmHg", "side_residual_mmHg", "cuff_residual_mmHg"} <= set(rows[0])
+    assert len(rows) == info["solves"] < 24
+    worst = [max(abs(float(r["side_residual_mmHg"])), abs(float(r["cuff_residual_mmHg"]))) for r in rows]
+    assert worst[-1] <= 0.1 and all(w > 0.1 for w in worst[:-1]), worst
+    assert [float(rows[-1][k]) for k in ("fabric.size.0", "fabric.size.1")] == pytest.approx(
+        [info["fields"]["fabric.size.0"], info["fields"]["fabric.size.1"]], rel=1e-9)
+    scene = load_scene(out / "fitted.yaml")
+    assert list(scene.fabric.size) == pytest.approx(list(info["fields"].values()), rel=1e-12)
+    again = {p["name"]: p["pressure_mmhg"] for p in clothsim.solve(scene).compression()["probes"]}
+    assert again == pytest.approx(info["readings_mmhg"], abs=1e-3)
+
+
+def test_fit_varies_a_field_the_scene_file_omits():
+    """--vary takes any field the scene's schema defines, from its default value: the sleeve's
+    file gives no fabric.warp.scale (omitted = 1) and no solver.C (2.0); it used to be refused
+    ('set it first with --set'). Integer fields (counts), fields without a default and paths the
+    schema does not define are refused, each saying why."""
+    from clothsim.compression.fit import check_fit
+    from clothsim.config import apply_overrides, read_yaml
+
+    data = apply_overrides(read_yaml(SLEEVE)[0], FIT_SET)
+    side = [Target("side", 15.0)]
+    assert check_fit(data, SLEEVE, [Vary("fabric.warp.scale"), Vary("solver.C")], side) == [1.0, 2.0]
+    assert check_fit(data, SLEEVE, [Vary("fabric.size.0")], side) == [0.25]
+    for path, message in [("solver.max_iterations", "holds an integer (200000)"),
+                          ("fabric.thickness", "not set and has no default value; give its start value with "
+                                               "--set fabric.thickness=VALUE"),
+                          ("fabric.warp.stiffness", "fabric.warp has no field 'stiffness' (its fields: csv, preset, "
+                                                    "scale, strain, stress, tension)"),
+                          ("fabric.warp.csv", "not a number")]:
+        with pytest.raises(FitError, match=__import__("re").escape(message)):
+            check_fit(data, SLEEVE, [Vary(path)], side)
+
+
+def test_fit_a_material_scale_from_its_default(tmp_path):
+    """A whole fit on fabric.warp.scale, which the sleeve's file omits: it starts at 1 (the first
+    try), within the default bounds 0.7-1.3, and the fitted scene holds the scale."""
+    from clothsim.cli import main
+
+    out = tmp_path / "fit"
+    rc = main(["fit", str(SLEEVE), "--vary", "fabric.warp.scale", "--target", "side=15mmHg", "--set", FIT_SET[0],
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    rows = list(csv.DictReader((out / "fit.csv").open()))
+    assert float(rows[0]["fabric.warp.scale"]) == 1.0 and abs(float(rows[-1]["side_mmHg"]) - 15.0) <= 0.1
+    scale = load_scene(out / "fitted.yaml").fabric.warp.scale
+    assert 1.0 < scale < 1.3 and scale == pytest.approx(float(rows[-1]["fabric.warp.scale"]), rel=1e-9)

@@ -2,7 +2,8 @@
 
 ``python app.py fit SCENE --vary FIELD[=LO:HI] --target "PROBE=20mmHg"`` varies any field a
 ``--set`` path reaches (a panel width ``fabric.size.0``, a stretch, a material ``scale``) until
-the probe reads the target.
+the probe reads the target. A field the scene file omits starts from the schema's default
+(``fabric.warp.scale`` 1, ``solver.C`` 2); integer fields (counts) cannot be varied.
 
 - **One field, one target**: secant steps on residual(x) = reading(x) - target, kept inside the
   bracket once the residual changes sign (Illinois regula falsi, the secant's safeguarded form),
@@ -10,7 +11,8 @@ the probe reads the target.
   the bound; if the residual keeps its sign there the target is out of reach and the fit is
   refused with the reachable range (the readings at both bounds).
 - **Several fields / targets**: least squares (scipy.optimize.least_squares, trust-region
-  reflective with the bounds, forward differences), each residual a solve.
+  reflective with the bounds, forward differences), each residual a solve; it stops at the first
+  solve (a step or a difference) whose readings all meet their targets within the tolerance.
 
 Every solve after the first starts from the previous equilibrium (its free coordinates), so the
 contact set and the seam are already in place; a solve typically takes a few Newton steps.
@@ -445,9 +447,14 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
             if len(f.tries) >= max_solves:
                 raise _Budget()
             cache[key] = f(x)
+            if np.abs(cache[key]).max() <= tol:  # every target met: stop, as the secant does
+                raise _Met()
         return cache[key]
 
     class _Budget(Exception):
+        pass
+
+    class _Met(Exception):
         pass
 
     msg = ""
@@ -457,6 +464,8 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
         msg = sol.message
     except _Budget:
         msg = f"stopped after {max_solves} solves"
+    except _Met:
+        msg = "every target met"
     best = min(f.tries, key=lambda t: np.abs(t.residuals_mmhg).max())
     ok = bool(np.abs(best.residuals_mmhg).max() <= tol)
     text = (f"all targets within {tol} mmHg after {len(f.tries)} solves" if ok else
