@@ -368,3 +368,33 @@ def test_fit_a_material_scale_from_its_default(tmp_path):
     assert float(rows[0]["fabric.warp.scale"]) == 1.0 and abs(float(rows[-1]["side_mmHg"]) - 15.0) <= 0.1
     scale = load_scene(out / "fitted.yaml").fabric.warp.scale
     assert 1.0 < scale < 1.3 and scale == pytest.approx(float(rows[-1]["fabric.warp.scale"]), rel=1e-9)
+
+
+def test_profile_plot_leaves_room_for_a_uniform_profile(monkeypatch):
+    """profiles.png: the pressure axis runs from 0 past the greatest reading, so a uniform profile
+    (every slice the same, as on the sewn sleeve) is drawn inside the axes, not on its right edge
+    (the axis used to end at the data's maximum)."""
+    from matplotlib.figure import Figure
+
+    from clothsim.compression.probes import profile_png
+
+    figs = []
+    real = Figure.savefig
+
+    def keep(self, *a, **k):
+        figs.append(self)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    # uniform to rounding (as a solved sleeve's slices are): the data span only 2e-6 mmHg
+    slices = [{"height_m": h, "mean_mmhg": 13.6 + d, "min_mmhg": 13.6 - 1e-6, "max_mmhg": 13.6 + 1e-6}
+              for h, d in ((-0.03, 0.0), (0.0, 5e-7), (0.03, -5e-7))]
+    graded = [{"height_m": h, "mean_mmhg": p, "min_mmhg": p - 1, "max_mmhg": p + 2}
+              for h, p in ((0.1, 25.0), (0.2, 20.0), (0.3, 15.0))]
+    for profiles, top in (([{"name": "leg", "slices": slices}], 13.600001), ([{"name": "leg", "slices": graded}], 27.0)):
+        assert profile_png(profiles)[:8] == b"\x89PNG\r\n\x1a\n"
+        lo, hi = figs[-1].axes[0].get_xlim()
+        assert lo == 0.0 and hi >= 1.05 * top, (lo, hi, top)
+    profile_png([{"name": "leg", "slices": [{"height_m": 0.0, "mean_mmhg": None, "min_mmhg": None,
+                                             "max_mmhg": None}]}])  # no contact: an empty plot, no error
+    assert figs[-1].axes[0].get_xlim()[1] > 0
