@@ -60,6 +60,7 @@ def cmd_run(args) -> int:
         sys.stderr.write("\n")
     s = result.summary()
     if out is not None:
+        before = _file_stamps(out)
         try:
             result.save(out, ply_field=args.color)
         except OSError as exc:  # a full disk, the folder removed meanwhile, ...
@@ -89,13 +90,53 @@ def cmd_run(args) -> int:
               f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
               + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
                  if s.get("contact_line_load_n_per_m") is not None else ""))
+    _print_compression(s)
     if out is not None:
-        print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
+        written = _written_files(out, before)
+        print(f"  wrote {out}/" + ", ".join(written))
     if args.json:
         from .results import strict_json
 
         print(strict_json(s))
     return 0 if result.converged else 1
+
+
+def _file_stamps(out: Path) -> dict[str, tuple[int, int]]:
+    """{name: (inode, mtime_ns)} of the files in ``out`` (empty if it does not exist yet)."""
+    stamps = {}
+    try:
+        for f in out.iterdir():
+            try:
+                st = f.stat()
+            except OSError:
+                continue
+            stamps[f.name] = (st.st_ino, st.st_mtime_ns)
+    except OSError:
+        pass
+    return stamps
+
+
+def _written_files(out: Path, before: dict[str, tuple[int, int]]) -> list[str]:
+    """The files of ``out`` that a save wrote (new, or replaced since ``before``: every result file
+    is written to a temporary name and renamed over), in writing order."""
+    after = _file_stamps(out)
+    new = [n for n, st in after.items() if not n.startswith(".") and before.get(n) != st]
+    return sorted(new, key=lambda n: (after[n][1], n))
+
+
+def _print_compression(s: dict) -> None:
+    """The probes (name, pressure, contact fraction, class, note) and each profile's gradient
+    check of a run summary, when the scene asks for them."""
+    probes = s.get("probes") or []
+    if probes:
+        w = max(len(p["name"]) for p in probes)
+        print("  probes (normal force on the sensor disc / its area):")
+        for p in probes:
+            cls = "; ".join(f"{k}: {v}" for k, v in (p.get("classes") or {}).items())
+            print(f"    {p['name']:<{w}}  {p['pressure_mmhg']:8.2f} mmHg  contact fraction {p['contact_fraction']:.2f}"
+                  + (f"  {cls}" if cls else "") + (f"  ({p['note']})" if p.get("note") else ""))
+    for pf in s.get("profiles") or []:
+        print(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
 
 
 def cmd_view(args) -> int:

@@ -398,3 +398,34 @@ def test_profile_plot_leaves_room_for_a_uniform_profile(monkeypatch):
     profile_png([{"name": "leg", "slices": [{"height_m": 0.0, "mean_mmhg": None, "min_mmhg": None,
                                              "max_mmhg": None}]}])  # no contact: an empty plot, no error
     assert figs[-1].axes[0].get_xlim()[1] > 0
+
+
+def test_run_prints_probes_classes_gradient_and_every_file(tmp_path, capsys):
+    """`clothsim run` on a scene with probes and profiles prints a probes block (name, mmHg,
+    contact fraction, class, note, as summary.json holds them) and each profile's gradient
+    check, and its 'wrote' line names every file it wrote (it used to print none of the
+    readings and to leave out probes.csv and profiles.*)."""
+    from clothsim.cli import main
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("kept")  # not written by the run: not listed
+    rc = main(["run", str(SLEEVE), "--set", PROBES, "--set", PROFILE, "--set", "classes={probe: side}",
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    s = json.loads((out / "summary.json").read_text())
+    lines = text.splitlines()
+    for p in s["probes"]:
+        line = next(x for x in lines if x.strip().startswith(p["name"] + " "))
+        assert f"{p['pressure_mmhg']:.2f} mmHg" in line and f"contact fraction {p['contact_fraction']:.2f}" in line
+        for std, cls in (p.get("classes") or {}).items():
+            assert f"{std}: {cls}" in line
+        assert p["note"] in line
+    side = next(x for x in lines if x.strip().startswith("side "))
+    assert "RAL-GZ 387: below class I" in side and "UK Drug Tariff: below class 1" in side
+    assert f"profile leg: {s['profiles'][0]['gradient']['note']}" in text
+    wrote = next(x for x in lines if x.strip().startswith("wrote "))
+    listed = set(wrote.split("/")[-1].split(", "))
+    on_disk = {f.name for f in out.iterdir() if f.name != "notes.txt"}
+    assert listed == on_disk and {"probes.csv", "profiles.csv", "profiles.png", "summary.json"} <= listed, wrote
