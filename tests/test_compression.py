@@ -391,7 +391,8 @@ def test_profile_plot_leaves_room_for_a_uniform_profile(monkeypatch):
               for h, d in ((-0.03, 0.0), (0.0, 5e-7), (0.03, -5e-7))]
     graded = [{"height_m": h, "mean_mmhg": p, "min_mmhg": p - 1, "max_mmhg": p + 2}
               for h, p in ((0.1, 25.0), (0.2, 20.0), (0.3, 15.0))]
-    for profiles, top in (([{"name": "leg", "slices": slices}], 13.600001), ([{"name": "leg", "slices": graded}], 27.0)):
+    for slc, top in ((slices, 13.600001), (graded, 27.0)):
+        profiles = [{"name": "leg", "slices": slc}]
         assert profile_png(profiles)[:8] == b"\x89PNG\r\n\x1a\n"
         lo, hi = figs[-1].axes[0].get_xlim()
         assert lo == 0.0 and hi >= 1.05 * top, (lo, hi, top)
