@@ -252,7 +252,8 @@ def add_compression_commands(sub) -> None:
     f = sub.add_parser("fit", help="inverse sizing: find a field's value that gives target probe pressures")
     f.add_argument("scene", help="scene YAML file with probes")
     f.add_argument("--vary", action="append", required=True, metavar="FIELD[=LO:HI]",
-                   help="a --set path to vary, with optional bounds (default: start value +-30%%), "
+                   help="a scene field to vary (a --set path; one the file omits starts from its default, "
+                        "e.g. fabric.warp.scale from 1), with optional bounds (default: start value +-30%%), "
                         "e.g. --vary fabric.size.0=0.2:0.3")
     f.add_argument("--target", action="append", required=True, metavar="PROBE=VALUE",
                    help="a probe's target pressure, e.g. --target ankle=20mmHg (units mmHg, Pa, kPa)")
