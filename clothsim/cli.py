@@ -60,6 +60,7 @@ def cmd_run(args) -> int:
         sys.stderr.write("\n")
     s = result.summary()
     if out is not None:
+        before = _file_stamps(out)
         try:
             result.save(out, ply_field=args.color)
         except OSError as exc:  # a full disk, the folder removed meanwhile, ...
@@ -89,13 +90,53 @@ def cmd_run(args) -> int:
               f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
               + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
                  if s.get("contact_line_load_n_per_m") is not None else ""))
+    _print_compression(s)
     if out is not None:
-        print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
+        written = _written_files(out, before)
+        print(f"  wrote {out}/" + ", ".join(written))
     if args.json:
         from .results import strict_json
 
         print(strict_json(s))
     return 0 if result.converged else 1
+
+
+def _file_stamps(out: Path) -> dict[str, tuple[int, int]]:
+    """{name: (inode, mtime_ns)} of the files in ``out`` (empty if it does not exist yet)."""
+    stamps = {}
+    try:
+        for f in out.iterdir():
+            try:
+                st = f.stat()
+            except OSError:
+                continue
+            stamps[f.name] = (st.st_ino, st.st_mtime_ns)
+    except OSError:
+        pass
+    return stamps
+
+
+def _written_files(out: Path, before: dict[str, tuple[int, int]]) -> list[str]:
+    """The files of ``out`` that a save wrote (new, or replaced since ``before``: every result file
+    is written to a temporary name and renamed over), in writing order."""
+    after = _file_stamps(out)
+    new = [n for n, st in after.items() if not n.startswith(".") and before.get(n) != st]
+    return sorted(new, key=lambda n: (after[n][1], n))
+
+
+def _print_compression(s: dict) -> None:
+    """The probes (name, pressure, contact fraction, class, note) and each profile's gradient
+    check of a run summary, when the scene asks for them."""
+    probes = s.get("probes") or []
+    if probes:
+        w = max(len(p["name"]) for p in probes)
+        print("  probes (normal force on the sensor disc / its area):")
+        for p in probes:
+            cls = "; ".join(f"{k}: {v}" for k, v in (p.get("classes") or {}).items())
+            print(f"    {p['name']:<{w}}  {p['pressure_mmhg']:8.2f} mmHg  contact fraction {p['contact_fraction']:.2f}"
+                  + (f"  {cls}" if cls else "") + (f"  ({p['note']})" if p.get("note") else ""))
+    for pf in s.get("profiles") or []:
+        print(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
 
 
 def cmd_view(args) -> int:
@@ -154,6 +195,7 @@ def cmd_fit(args) -> int:
     input or an unreachable target."""
     from .compression.fit import FitError, fit, parse_target, parse_vary, write_outputs
     from .config import SceneError
+    from .fileio import OutputError, check_out_dir, describe_write_error
     from .material import MaterialError
     from .mold import MoldError
 
@@ -165,9 +207,11 @@ def cmd_fit(args) -> int:
     try:
         varies = [parse_vary(v) for v in args.vary]
         targets = [parse_target(t) for t in args.target]
+        if args.out:  # before the solves: a bad --out must not cost a whole fit
+            check_out_dir(args.out)
         res = fit(args.scene, varies, targets, overrides=args.set, tol_mmhg=args.tol, max_solves=args.max_solves,
                   log=None if args.quiet else log)
-    except (FitError, SceneError, MoldError, MaterialError) as exc:
+    except (FitError, SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(("fitted: " if res.converged else "not fitted: ") + res.message)
@@ -177,7 +221,11 @@ def cmd_fit(args) -> int:
         print(f"  {t.probe}: {p:.3f} mmHg (target {t.mmhg:.3f})")
     print(res.tries_csv(varies, targets), end="")
     if args.out:
-        out = write_outputs(res, args.out, varies, targets)
+        try:
+            out = write_outputs(res, args.out, varies, targets)
+        except OSError as exc:  # a full disk, the folder removed meanwhile, ...
+            print(f"error: {describe_write_error(exc, args.out)}", file=sys.stderr)
+            return 2
         print(f"  wrote {out}/fitted.yaml, fit.csv, fit.json and the fitted run's result files")
     return 0 if res.converged else 1
 
@@ -189,8 +237,11 @@ def cmd_report(args) -> int:
 
     try:
         path = write_report(args.result_dir, args.out)
-    except (ReportError, SceneError, MoldError, OSError) as exc:
+    except (ReportError, SceneError, MoldError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file the checks did not foresee (removed meanwhile, ...)
+        print(f"error: {exc.filename or args.result_dir}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")
     return 0
@@ -201,13 +252,15 @@ def add_compression_commands(sub) -> None:
     f = sub.add_parser("fit", help="inverse sizing: find a field's value that gives target probe pressures")
     f.add_argument("scene", help="scene YAML file with probes")
     f.add_argument("--vary", action="append", required=True, metavar="FIELD[=LO:HI]",
-                   help="a --set path to vary, with optional bounds (default: start value +-30%%), "
+                   help="a scene field to vary (a --set path; one the file omits starts from its default, "
+                        "e.g. fabric.warp.scale from 1), with optional bounds (default: start value +-30%%), "
                         "e.g. --vary fabric.size.0=0.2:0.3")
     f.add_argument("--target", action="append", required=True, metavar="PROBE=VALUE",
                    help="a probe's target pressure, e.g. --target ankle=20mmHg (units mmHg, Pa, kPa)")
     f.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override a scene field")
-    f.add_argument("--tol", type=float, default=0.1, help="tolerance on each target [mmHg] (default 0.1)")
-    f.add_argument("--max-solves", type=int, default=12, help="most solves to spend (default 12)")
+    f.add_argument("--tol", type=_positive_float, default=0.1,
+                   help="tolerance on each target [mmHg], positive and finite (default 0.1)")
+    f.add_argument("--max-solves", type=_positive_int, default=12, help="most solves to spend, at least 1 (default 12)")
     f.add_argument("--out", help="folder for fitted.yaml, fit.csv, fit.json and the fitted run's results")
     f.add_argument("--quiet", action="store_true", help="do not print each try")
     f.set_defaults(func=cmd_fit)

@@ -390,3 +390,131 @@ def test_yaml_error_quotes_a_short_excerpt(tmp_path, capsys):
     rc, err = _main(capsys, "run", str(p))
     assert rc == 2 and "s.yaml:2: not valid YAML" in err, err
     assert err.count("secretsecretsecret") <= 5, err
+
+
+# ----------------------------------------------------------------------------- fit and report options
+
+
+SLEEVE = ROOT / "configs" / "sewn_sleeve.yaml"
+SIDE_PROBE = "probes=[{name: side, point: [0.06, 0.0, 0.0]}]"
+
+
+@pytest.fixture
+def no_fit_solve(monkeypatch):
+    """Fail the test if a fit's solve starts (fit builds Simulation objects itself)."""
+    import clothsim.simulation as simulation
+
+    def boom(*a, **k):
+        raise AssertionError("a solve ran before the bad option was refused")
+
+    monkeypatch.setattr(simulation, "Simulation", boom)
+    monkeypatch.setattr(simulation, "solve", boom)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--tol", "nan", "argument --tol: must be a positive finite number (got nan)"),
+    ("--tol", "inf", "argument --tol: must be a positive finite number (got inf)"),
+    ("--tol", "-1", "argument --tol: must be a positive finite number (got -1)"),
+    ("--tol", "0", "argument --tol: must be a positive finite number (got 0)"),
+    ("--tol", "abc", "argument --tol: not a number: 'abc'"),
+    ("--max-solves", "0", "argument --max-solves: must be at least 1 (got 0)"),
+    ("--max-solves", "-3", "argument --max-solves: must be at least 1 (got -3)"),
+    ("--max-solves", "2.5", "argument --max-solves: not an integer: '2.5'"),
+])
+def test_fit_bad_tol_and_max_solves_refused_before_any_solve(capsys, no_fit_solve, option, value, message):
+    """--tol nan/-1 used to run every solve and exit 1; --max-solves 0/-3 ran a solve and exit 0."""
+    rc, err = _main(capsys, "fit", str(SLEEVE), "--vary", "fabric.size.0", "--target", "side=20mmHg",
+                    "--set", SIDE_PROBE, option, value)
+    assert rc == 2 and message in err, err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--vary", "fabric.size.0=0.3:0.2"], "--vary fabric.size.0=0.3:0.2: need finite LO < HI"),
+    (["--vary", "fabric.size.0=nan:0.3"], "need finite LO < HI"),
+    (["--target", "side=nanmmHg"], "expected PROBE=VALUE"),
+    (["--target", "side=20psi"], "unknown unit 'psi'"),
+    (["--vary", "fabric.divisions.0"], "--vary fabric.divisions.0: the field holds an integer"),
+    (["--vary", "fabric.size.0", "--vary", "fabric.size.0"], "--vary fabric.size.0: given twice"),
+    (["--target", "side=20", "--target", "side=21"], "--target side: given twice"),
+])
+def test_fit_bad_vary_and_target_refused_before_any_solve(capsys, no_fit_solve, args, message):
+    argv = ["fit", str(SLEEVE), "--set", SIDE_PROBE, *args]
+    if "--vary" not in args:
+        argv += ["--vary", "fabric.size.0"]
+    if "--target" not in args:
+        argv += ["--target", "side=20mmHg"]
+    rc, err = _main(capsys, *argv)
+    assert rc == 2 and message in err, err
+
+
+def test_fit_out_checked_before_any_solve(tmp_path, capsys, no_fit_solve):
+    """A --out that cannot be a folder is refused before the fit spends its solves."""
+    f = tmp_path / "file"
+    f.write_text("x")
+    rc, err = _main(capsys, "fit", str(SLEEVE), "--vary", "fabric.size.0", "--target", "side=20mmHg",
+                    "--set", SIDE_PROBE, "--out", str(f))
+    assert rc == 2 and f"--out {f}: exists and is not a folder" in err, err
+
+
+@pytest.fixture(scope="module")
+def result_dir(tmp_path_factory):
+    """A result folder of the small strip scene (run --out)."""
+    from clothsim import simulation
+    from clothsim.config import scene_from_dict
+
+    out = tmp_path_factory.mktemp("strip") / "run"
+    res = simulation.solve(scene_from_dict(scene_dict()))
+    res.save(out)
+    return out
+
+
+def _copy_result(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+@pytest.mark.parametrize("damage, message", [
+    ("summary.json", "summary.json: not valid JSON (line 1"),
+    ("summary.json=[]", "summary.json: not a run summary (a JSON list, not an object)"),
+    ("result.npz", "result.npz: cannot be read"),
+    ("scene.yaml", "scene.yaml"),
+])
+def test_report_of_a_damaged_result_folder_refused(tmp_path, capsys, result_dir, damage, message):
+    """A corrupt summary.json used to end in a JSONDecodeError traceback (exit 1)."""
+    d = _copy_result(result_dir, tmp_path / "run")
+    name, _, content = damage.partition("=")
+    (d / name).write_text(content or "{ not json\x00")
+    rc, err = _main(capsys, "report", str(d))
+    assert rc == 2 and message in err and str(d) in err, err
+    assert not (d / "report.html").exists()
+
+
+def test_report_of_a_folder_that_is_not_a_result_refused(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    rc, err = _main(capsys, "report", str(empty))
+    assert rc == 2 and f"{empty}: not a result folder: no summary.json" in err, err
+    rc, err = _main(capsys, "report", str(tmp_path / "missing"))
+    assert rc == 2 and f"{tmp_path / 'missing'}: no such folder" in err, err
+    f = tmp_path / "file.txt"
+    f.write_text("x")
+    rc, err = _main(capsys, "report", str(f))
+    assert rc == 2 and f"{f}: not a folder" in err, err
+
+
+def test_report_out_that_cannot_be_written_refused(tmp_path, capsys, result_dir):
+    """--out naming a folder, or a file in a folder that does not exist, used to print the raw
+    [Errno ...] text; each is a message naming the file and the problem."""
+    d = _copy_result(result_dir, tmp_path / "run")
+    folder = tmp_path / "somewhere"
+    folder.mkdir()
+    rc, err = _main(capsys, "report", str(d), "--out", str(folder))
+    assert rc == 2 and f"--out {folder}: is a folder (give the HTML file to write" in err, err
+    assert "Errno" not in err
+    missing = tmp_path / "no" / "such" / "report.html"
+    rc, err = _main(capsys, "report", str(d), "--out", str(missing))
+    assert rc == 2 and f"--out {missing}: its folder {missing.parent} does not exist" in err, err
+    assert "Errno" not in err
+    assert list(folder.iterdir()) == []

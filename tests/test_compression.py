@@ -298,3 +298,135 @@ def test_sweeps_take_probe_outputs(tmp_path):
     (d / "sweep_run.json").write_text(json.dumps({"extra": {}}))
     row = sw.read_row(tmp_path, run)
     assert row["probe:side_mmhg"] == 20.5 and row["probe:side_contact_fraction"] == 1.0
+
+
+TWO_PROBES = "probes=[{name: side, point: [0.06, 0.0, 0.0]}, {name: cuff, point: [-0.05, 0.0, 0.044], radius: 0.008}]"
+
+
+def test_fit_two_fields_to_two_targets(tmp_path):
+    """Several fields, several targets (least squares): the sleeve's width sets the side probe's
+    reading (T / r) and its height how much of the cuff probe's disc the top edge covers, so
+    side = 20 mmHg and cuff = 10 mmHg (half covered) fix both. Through the CLI: both targets met
+    within the tolerance, fit.csv has a column per field and per probe, the fitted scene
+    reproduces the readings, and the fit stops at the first try that meets every target (it used
+    to spend every one of --max-solves)."""
+    from clothsim.cli import main
+
+    out = tmp_path / "fit2"
+    rc = main(["fit", str(SLEEVE), "--vary", "fabric.size.0", "--vary", "fabric.size.1", "--target", "side=20mmHg",
+               "--target", "cuff=10mmHg", "--set", TWO_PROBES, "--max-solves", "24", "--out", str(out), "--quiet"])
+    assert rc == 0
+    info = json.loads((out / "fit.json").read_text())
+    assert info["converged"]
+    assert abs(info["readings_mmhg"]["side"] - 20.0) <= 0.1 and abs(info["readings_mmhg"]["cuff"] - 10.0) <= 0.1
+    rows = list(csv.DictReader((out / "fit.csv").open()))
+    assert list(rows[0])[:3] == ["try", "fabric.size.0", "fabric.size.1"]
+    assert {"side_mmHg", "cuff_mmHg", "side_residual_mmHg", "cuff_residual_mmHg"} <= set(rows[0])
+    assert len(rows) == info["solves"] < 24
+    worst = [max(abs(float(r["side_residual_mmHg"])), abs(float(r["cuff_residual_mmHg"]))) for r in rows]
+    assert worst[-1] <= 0.1 and all(w > 0.1 for w in worst[:-1]), worst
+    assert [float(rows[-1][k]) for k in ("fabric.size.0", "fabric.size.1")] == pytest.approx(
+        [info["fields"]["fabric.size.0"], info["fields"]["fabric.size.1"]], rel=1e-9)
+    scene = load_scene(out / "fitted.yaml")
+    assert list(scene.fabric.size) == pytest.approx(list(info["fields"].values()), rel=1e-12)
+    again = {p["name"]: p["pressure_mmhg"] for p in clothsim.solve(scene).compression()["probes"]}
+    assert again == pytest.approx(info["readings_mmhg"], abs=1e-3)
+
+
+def test_fit_varies_a_field_the_scene_file_omits():
+    """--vary takes any field the scene's schema defines, from its default value: the sleeve's
+    file gives no fabric.warp.scale (omitted = 1) and no solver.C (2.0); it used to be refused
+    ('set it first with --set'). Integer fields (counts), fields without a default and paths the
+    schema does not define are refused, each saying why."""
+    from clothsim.compression.fit import check_fit
+    from clothsim.config import apply_overrides, read_yaml
+
+    data = apply_overrides(read_yaml(SLEEVE)[0], FIT_SET)
+    side = [Target("side", 15.0)]
+    assert check_fit(data, SLEEVE, [Vary("fabric.warp.scale"), Vary("solver.C")], side) == [1.0, 2.0]
+    assert check_fit(data, SLEEVE, [Vary("fabric.size.0")], side) == [0.25]
+    for path, message in [("solver.max_iterations", "holds an integer (200000)"),
+                          ("fabric.thickness", "not set and has no default value; give its start value with "
+                                               "--set fabric.thickness=VALUE"),
+                          ("fabric.warp.stiffness", "fabric.warp has no field 'stiffness' (its fields: csv, preset, "
+                                                    "scale, strain, stress, tension)"),
+                          ("fabric.warp.csv", "not a number")]:
+        with pytest.raises(FitError, match=__import__("re").escape(message)):
+            check_fit(data, SLEEVE, [Vary(path)], side)
+
+
+def test_fit_a_material_scale_from_its_default(tmp_path):
+    """A whole fit on fabric.warp.scale, which the sleeve's file omits: it starts at 1 (the first
+    try), within the default bounds 0.7-1.3, and the fitted scene holds the scale."""
+    from clothsim.cli import main
+
+    out = tmp_path / "fit"
+    rc = main(["fit", str(SLEEVE), "--vary", "fabric.warp.scale", "--target", "side=15mmHg", "--set", FIT_SET[0],
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    rows = list(csv.DictReader((out / "fit.csv").open()))
+    assert float(rows[0]["fabric.warp.scale"]) == 1.0 and abs(float(rows[-1]["side_mmHg"]) - 15.0) <= 0.1
+    scale = load_scene(out / "fitted.yaml").fabric.warp.scale
+    assert 1.0 < scale < 1.3 and scale == pytest.approx(float(rows[-1]["fabric.warp.scale"]), rel=1e-9)
+
+
+def test_profile_plot_leaves_room_for_a_uniform_profile(monkeypatch):
+    """profiles.png: the pressure axis runs from 0 past the greatest reading, so a uniform profile
+    (every slice the same, as on the sewn sleeve) is drawn inside the axes, not on its right edge
+    (the axis used to end at the data's maximum)."""
+    from matplotlib.figure import Figure
+
+    from clothsim.compression.probes import profile_png
+
+    figs = []
+    real = Figure.savefig
+
+    def keep(self, *a, **k):
+        figs.append(self)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    # uniform to rounding (as a solved sleeve's slices are): the data span only 2e-6 mmHg
+    slices = [{"height_m": h, "mean_mmhg": 13.6 + d, "min_mmhg": 13.6 - 1e-6, "max_mmhg": 13.6 + 1e-6}
+              for h, d in ((-0.03, 0.0), (0.0, 5e-7), (0.03, -5e-7))]
+    graded = [{"height_m": h, "mean_mmhg": p, "min_mmhg": p - 1, "max_mmhg": p + 2}
+              for h, p in ((0.1, 25.0), (0.2, 20.0), (0.3, 15.0))]
+    for slc, top in ((slices, 13.600001), (graded, 27.0)):
+        profiles = [{"name": "leg", "slices": slc}]
+        assert profile_png(profiles)[:8] == b"\x89PNG\r\n\x1a\n"
+        lo, hi = figs[-1].axes[0].get_xlim()
+        assert lo == 0.0 and hi >= 1.05 * top, (lo, hi, top)
+    profile_png([{"name": "leg", "slices": [{"height_m": 0.0, "mean_mmhg": None, "min_mmhg": None,
+                                             "max_mmhg": None}]}])  # no contact: an empty plot, no error
+    assert figs[-1].axes[0].get_xlim()[1] > 0
+
+
+def test_run_prints_probes_classes_gradient_and_every_file(tmp_path, capsys):
+    """`clothsim run` on a scene with probes and profiles prints a probes block (name, mmHg,
+    contact fraction, class, note, as summary.json holds them) and each profile's gradient
+    check, and its 'wrote' line names every file it wrote (it used to print none of the
+    readings and to leave out probes.csv and profiles.*)."""
+    from clothsim.cli import main
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("kept")  # not written by the run: not listed
+    rc = main(["run", str(SLEEVE), "--set", PROBES, "--set", PROFILE, "--set", "classes={probe: side}",
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    s = json.loads((out / "summary.json").read_text())
+    lines = text.splitlines()
+    for p in s["probes"]:
+        line = next(x for x in lines if x.strip().startswith(p["name"] + " "))
+        assert f"{p['pressure_mmhg']:.2f} mmHg" in line and f"contact fraction {p['contact_fraction']:.2f}" in line
+        for std, cls in (p.get("classes") or {}).items():
+            assert f"{std}: {cls}" in line
+        assert p["note"] in line
+    side = next(x for x in lines if x.strip().startswith("side "))
+    assert "RAL-GZ 387: below class I" in side and "UK Drug Tariff: below class 1" in side
+    assert f"profile leg: {s['profiles'][0]['gradient']['note']}" in text
+    wrote = next(x for x in lines if x.strip().startswith("wrote "))
+    listed = set(wrote.split("/")[-1].split(", "))
+    on_disk = {f.name for f in out.iterdir() if f.name != "notes.txt"}
+    assert listed == on_disk and {"probes.csv", "profiles.csv", "profiles.png", "summary.json"} <= listed, wrote

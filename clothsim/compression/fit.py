@@ -2,7 +2,8 @@
 
 ``python app.py fit SCENE --vary FIELD[=LO:HI] --target "PROBE=20mmHg"`` varies any field a
 ``--set`` path reaches (a panel width ``fabric.size.0``, a stretch, a material ``scale``) until
-the probe reads the target.
+the probe reads the target. A field the scene file omits starts from the schema's default
+(``fabric.warp.scale`` 1, ``solver.C`` 2); integer fields (counts) cannot be varied.
 
 - **One field, one target**: secant steps on residual(x) = reading(x) - target, kept inside the
   bracket once the residual changes sign (Illinois regula falsi, the secant's safeguarded form),
@@ -10,7 +11,8 @@ the probe reads the target.
   the bound; if the residual keeps its sign there the target is out of reach and the fit is
   refused with the reachable range (the readings at both bounds).
 - **Several fields / targets**: least squares (scipy.optimize.least_squares, trust-region
-  reflective with the bounds, forward differences), each residual a solve.
+  reflective with the bounds, forward differences), each residual a solve; it stops at the first
+  solve (a step or a difference) whose readings all meet their targets within the tolerance.
 
 Every solve after the first starts from the previous equilibrium (its free coordinates), so the
 contact set and the seam are already in place; a solve typically takes a few Newton steps.
@@ -129,7 +131,14 @@ def parse_vary(text: str) -> Vary:
     return Vary(path.strip(), lo, hi)
 
 
-def _get_path(data, path: str):
+#: fields the schema leaves None when omitted, with the value an omitted field means (their
+#: docstrings say so): a fit may vary them from that value without a --set
+OMITTED_MEANS = {("MaterialSpec", "scale"): 1.0, ("MeshMoldSpec", "scale"): 1.0}
+
+
+def _raw_value(data, path: str):
+    """The value at ``path`` in the raw scene dict, or a KeyError naming the first missing part
+    (an IndexError-free walk: a bad list index is a FitError)."""
     node = data
     for part in path.split("."):
         if isinstance(node, list):
@@ -140,10 +149,69 @@ def _get_path(data, path: str):
         elif isinstance(node, dict) and part in node:
             node = node[part]
         else:
-            raise FitError(f"--vary {path}: the scene has no field '{part}' there (set it first with --set)")
-    if isinstance(node, bool) or not isinstance(node, (int, float)):
-        raise FitError(f"--vary {path}: the field holds {node!r}, not a number")
-    return float(node)
+            raise KeyError(part)
+    return node
+
+
+def _schema_value(scene, path: str):
+    """(value, owner class name, field name) at ``path`` in the validated scene: a field the file
+    omits holds its default. Raises FitError when the schema has no such field."""
+    from pydantic import BaseModel
+
+    node, owner, name = scene, None, None
+    done: list[str] = []
+    for part in path.split("."):
+        where = ".".join(done) or "the scene"
+        if isinstance(node, BaseModel):
+            fields = type(node).model_fields
+            key = next((k for k, f in fields.items() if part in (k, f.alias)), None)
+            if key is None:
+                known = ", ".join(sorted(f.alias or k for k, f in fields.items()))
+                raise FitError(f"--vary {path}: {where} has no field '{part}' (its fields: {known})")
+            owner, name, node = type(node).__name__, key, getattr(node, key)
+        elif isinstance(node, (list, tuple)):
+            try:
+                node = node[int(part)]
+            except (ValueError, IndexError):
+                raise FitError(f"--vary {path}: '{part}' is not an index of {where}, a {len(node)}-item list") from None
+            owner = name = None
+        elif node is None:
+            raise FitError(f"--vary {path}: {where} is not set in the scene and has no default; give it with "
+                           f"--set (e.g. --set {'.'.join(done)}=...)")
+        else:
+            raise FitError(f"--vary {path}: {where} holds {node!r}, which has no field '{part}'")
+        done.append(part)
+    return node, owner, name
+
+
+def start_value(data: dict, path: str, scene=None) -> float:
+    """The start value of a varied field: the scene file's value, or, for a field the file omits,
+    the schema's default (``solver.C`` 2.0, ``fabric.warp.scale`` 1, see OMITTED_MEANS). Refused
+    (FitError): a path the schema does not define, a field that is not a number, an integer field
+    (a count: ``fabric.divisions``, ``solver.max_iterations``; a fit varies a continuous value),
+    and an omitted field with no default value (give it with --set first). ``scene``: the
+    validated scene of ``data`` (it tells the field's type)."""
+    from ..config import scene_from_dict
+
+    if scene is None:
+        scene = scene_from_dict(copy.deepcopy(data))
+    value, owner, name = _schema_value(scene, path)
+    if value is None and (owner, name) in OMITTED_MEANS:
+        value = OMITTED_MEANS[(owner, name)]
+    if value is None:
+        raise FitError(f"--vary {path}: the field is not set and has no default value; give its start value "
+                       f"with --set {path}=VALUE")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise FitError(f"--vary {path}: the field holds {value!r}, not a number")
+    if isinstance(value, int):
+        raise FitError(f"--vary {path}: the field holds an integer ({value}): a fit varies a continuous value")
+    try:
+        raw = _raw_value(data, path)
+    except KeyError:
+        return float(value)  # omitted in the file: the schema's default
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+        raise FitError(f"--vary {path}: the field holds {raw!r}, not a number")
+    return float(raw)
 
 
 def warm_start(model, state, positions: np.ndarray, rounds: int = 8) -> None:
@@ -228,25 +296,35 @@ def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, ov
 
 
 def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list[Target]) -> list[float]:
-    """Check a fit before any solve: the scene validates, every target names one of its probes and
-    every varied path holds a number. Returns the start values; raises FitError (or SceneError)."""
+    """Check a fit before any solve: the scene validates, every target names one of its probes
+    (once), every varied path (given once) is a continuous number of the scene or of its schema
+    (see :func:`start_value`). Returns the start values; raises FitError (or SceneError)."""
     from ..config import scene_from_dict
 
     if not varies or not targets:
         raise FitError("fit needs at least one --vary and one --target")
+    for what, names in (("--vary", [v.path for v in varies]), ("--target", [t.probe for t in targets])):
+        for n, name in enumerate(names):
+            if name in names[:n]:
+                raise FitError(f"{what} {name}: given twice")
     scene = scene_from_dict(copy.deepcopy(data), source)
     names = [p.name for p in scene.probes]
     for t in targets:
         if t.probe not in names:
             raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
                            f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
-    return [_get_path(data, v.path) for v in varies]
+    return [start_value(data, v.path, scene) for v in varies]
 
 
 def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[Target], *,
              tol_mmhg: float = 0.1, max_solves: int = 12, log=None) -> FitResult:
     """:func:`fit` on a raw scene dict (as in the YAML; ``source``: the file its relative paths
     resolve against). The sweep runner calls this for each run of a sweep with a ``fit:`` block."""
+    if isinstance(tol_mmhg, bool) or not (isinstance(tol_mmhg, (int, float)) and math.isfinite(tol_mmhg)
+                                          and tol_mmhg > 0):
+        raise FitError(f"tol_mmhg: must be a positive finite number (got {tol_mmhg!r})")
+    if isinstance(max_solves, bool) or not isinstance(max_solves, int) or max_solves < 1:
+        raise FitError(f"max_solves: must be an integer, at least 1 (got {max_solves!r})")
     x0 = check_fit(data, source, varies, targets)
     scene_path = source
     lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
@@ -298,7 +376,10 @@ def _secant(f: _Solver, x0: float, lo: float, hi: float, tol: float, max_solves:
 
     r0 = ev(x0)
     if done(r0):
-        return FitResult(True, f"reached on the first solve", [x0], [r0 + target.mmhg])
+        return FitResult(True, "reached on the first solve", [x0], [r0 + target.mmhg])
+    if max_solves < 2:
+        return FitResult(False, f"not within {tol} mmHg after 1 solve (residual {r0:+.3g} mmHg at {vary.path} = "
+                                f"{x0:.8g}); raise --max-solves", [x0], [r0 + target.mmhg])
     # second point: a small step inside the bounds
     h = 0.01 * (hi - lo)
     x1 = x0 + h if x0 + h <= hi else x0 - h
@@ -366,9 +447,14 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
             if len(f.tries) >= max_solves:
                 raise _Budget()
             cache[key] = f(x)
+            if np.abs(cache[key]).max() <= tol:  # every target met: stop, as the secant does
+                raise _Met()
         return cache[key]
 
     class _Budget(Exception):
+        pass
+
+    class _Met(Exception):
         pass
 
     msg = ""
@@ -378,6 +464,8 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
         msg = sol.message
     except _Budget:
         msg = f"stopped after {max_solves} solves"
+    except _Met:
+        msg = "every target met"
     best = min(f.tries, key=lambda t: np.abs(t.residuals_mmhg).max())
     ok = bool(np.abs(best.residuals_mmhg).max() <= tol)
     text = (f"all targets within {tol} mmHg after {len(f.tries)} solves" if ok else

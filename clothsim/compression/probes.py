@@ -263,7 +263,8 @@ def profiles_csv(profiles: list[dict]) -> str:
 
 def profile_png(profiles: list[dict], title: str = "") -> bytes:
     """A PNG (matplotlib, Agg): mean pressure [mmHg] (x) against height [m] (y) per profile, the
-    band from the least to the greatest pressure shaded."""
+    band from the least to the greatest pressure shaded; the pressure axis runs from 0 to 1.1 x
+    the greatest reading."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -271,6 +272,7 @@ def profile_png(profiles: list[dict], title: str = "") -> bytes:
 
     fig = Figure(figsize=(5.0, 4.5), dpi=100)
     ax = fig.add_subplot(1, 1, 1)
+    top = 0.0  # the greatest reading drawn [mmHg]
     for pf in profiles:
         on = [s for s in pf["slices"] if s["mean_mmhg"] is not None]
         if not on:
@@ -280,13 +282,17 @@ def profile_png(profiles: list[dict], title: str = "") -> bytes:
         ax.fill_betweenx(h, [s["min_mmhg"] if s["min_mmhg"] is not None else s["mean_mmhg"] for s in on],
                          [s["max_mmhg"] if s["max_mmhg"] is not None else s["mean_mmhg"] for s in on],
                          color=line.get_color(), alpha=0.2, label=f"{pf['name']} (min-max)")
-    ax.set_xlim(left=0.0)
+        top = max(top, *(v for s in on for v in (s["mean_mmhg"], s["min_mmhg"], s["max_mmhg"]) if v is not None))
+    # from 0 with 10 % headroom past the greatest reading: a uniform profile (a vertical line) is
+    # drawn inside the axes, not on their right edge
+    ax.set_xlim(0.0, 1.1 * top if top > 0 else 1.0)
     ax.ticklabel_format(axis="x", useOffset=False)
     ax.set_xlabel("contact pressure [mmHg]")
     ax.set_ylabel("height along the axis [m]")
     ax.set_title(title or "pressure profile")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:  # no slice in contact: nothing to label
+        ax.legend(fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")

@@ -2,9 +2,10 @@
 
 The file opens offline with no server: every image is a base64-embedded PNG (matplotlib, Agg),
 the styles are inline, and nothing is fetched from a URL. It holds the run's status line, the
-contact pressure [mmHg] and strain maps of the deformed sheet from three views (front, side, top)
-with colour bars and ticks, the probes table with classes, the profile plot and gradient check,
-the convergence plot (residual against iteration), the scene as run and the clothsim version.
+contact pressure [mmHg], warp strain and weft strain maps of the deformed sheet, each from three
+views (front, side, top: one image each) with its colour bar and ticks, the probes table with
+classes, the profile plot and gradient check, the convergence plot (residual against iteration),
+the scene as run and the clothsim version.
 
 The maps are recomputed from ``result.npz`` (positions, contact) and ``scene.yaml`` (the
 compiled model's springs and ``model.topology.faces``), the same fields ``clothsim run`` writes;
@@ -17,6 +18,8 @@ import base64
 import html
 import io
 import json
+import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +39,15 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _img(b64: str, alt: str) -> str:
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{b64}">'
+def _img(b64: str, alt: str, cls: str = "") -> str:
+    c = f' class="{cls}"' if cls else ""
+    return f'<img{c} alt="{html.escape(alt)}" src="data:image/png;base64,{b64}">'
 
 
 def _fields(out: Path):
-    """(scene, positions (N, 3), faces (F, 3), node pressure [mmHg] (N,), node strain (N,))."""
+    """(scene, positions (N, 3), faces (F, 3), node pressure [mmHg] (N,), node warp strain (N,),
+    node weft strain (N,)); a node's strain in one direction is that of its springs in that
+    direction (topology.spread), engineering strain [-]."""
     from ..config import load_scene
     from ..compile import compile_model
     from ..grid import State
@@ -50,8 +56,11 @@ def _fields(out: Path):
     scene = load_scene(out / "scene.yaml")
     model = compile_model(scene)
     topo = model.topology
-    with np.load(out / "result.npz") as d:
-        pg, cg = d["positions"], d["in_contact"]
+    try:
+        with np.load(out / "result.npz") as d:
+            pg, cg = d["positions"], d["in_contact"]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise ReportError(f"{out / 'result.npz'}: cannot be read ({type(exc).__name__}: {str(exc)[:80]})") from None
     # result.npz keeps a full rectangle's arrays as (nx+1, ny+1, ...) and a panel scene's flat
     # (N, ...) in node order
     pos = np.ascontiguousarray(pg.reshape(-1, 3), dtype=float)
@@ -60,40 +69,51 @@ def _fields(out: Path):
         raise ReportError(f"{out}: result.npz has {pos.shape[0]} nodes, the scene {topo.node_count}")
     strain, _, _, pressure = node_fields(model, State(pos, con, 0))
     wc, fc = topo.warp_count, topo.weft_count
-    node_strain = np.maximum(topo.spread(strain[:wc], "warp"), topo.spread(strain[wc:wc + fc], "weft"))
-    return scene, pos, topo.faces, pressure / MMHG, node_strain
+    return (scene, pos, topo.faces, pressure / MMHG, topo.spread(strain[:wc], "warp"),
+            topo.spread(strain[wc:wc + fc], "weft"))
 
 
-def map_png(pos, faces, values, label: str, cmap: str) -> str:
-    """Three views of the deformed sheet coloured by ``values`` (N,) (face colour = mean of its
-    corners), one colour bar with ticks; base64 PNG."""
+def _map_scale(faces, values):
+    """(face values (F,), lo, hi) of a node field: a face's value is the mean of its corners;
+    the scale runs from min(0, least) so a uniform field reads as uniform, not as noise."""
+    v = np.where(np.isfinite(values), values, np.nan)
+    with np.errstate(invalid="ignore"):
+        fv = np.nanmean(v[faces], axis=1) if faces.size else np.zeros(0)
+    finite = fv[np.isfinite(fv)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    lo = min(lo, 0.0)
+    if hi <= lo:
+        hi = lo + (abs(lo) * 1e-3 or 1.0)
+    return fv, lo, hi
+
+
+def map_pngs(pos, faces, values, label: str, cmap: str) -> tuple[list[tuple[str, str]], str]:
+    """A node field ``values`` (N,) on the deformed sheet (positions (N, 3) [m], faces (F, 3)):
+    ([(view name, base64 PNG)] for the front, side and top views (each with its axes and ticks
+    in metres), base64 PNG of the colour bar with ticks, labelled ``label``). Every view shares
+    the one colour scale."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     from matplotlib import colormaps
-    from matplotlib.colors import Normalize
     from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    v = np.where(np.isfinite(values), values, np.nan)
-    fv = np.nanmean(v[faces], axis=1)
-    finite = fv[np.isfinite(fv)]
-    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
-    lo = min(lo, 0.0)  # a scale from zero: a uniform field reads as uniform, not as noise
-    if hi <= lo:
-        hi = lo + (abs(lo) * 1e-3 or 1.0)
+    fv, lo, hi = _map_scale(faces, values)
     norm = Normalize(lo, hi)
     cm = colormaps[cmap]
     colors = cm(norm(np.nan_to_num(fv, nan=hi)))
     tri = pos[faces]
     c = pos.mean(axis=0)
     half = 0.5 * float(np.ptp(pos, axis=0).max()) or 1.0
-    fig = Figure(figsize=(12.0, 4.2), dpi=90)
-    fig.subplots_adjust(left=0.0, right=0.86, bottom=0.05, top=0.92, wspace=0.1)
-    for k, (name, elev, azim) in enumerate(VIEWS):
-        ax = fig.add_subplot(1, 3, k + 1, projection="3d")
+    views = []
+    for name, elev, azim in VIEWS:
+        fig = Figure(figsize=(4.2, 4.2), dpi=90)
+        fig.subplots_adjust(left=0.0, right=0.95, bottom=0.04, top=0.93)
+        ax = fig.add_subplot(1, 1, 1, projection="3d")
         ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolors="none", linewidths=0))
         for setter, ci in ((ax.set_xlim, c[0]), (ax.set_ylim, c[1]), (ax.set_zlim, c[2])):
             setter(ci - half, ci + half)
@@ -106,10 +126,23 @@ def map_png(pos, faces, values, label: str, cmap: str) -> str:
         ax.tick_params(labelsize=7)
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
             axis.set_major_locator(MaxNLocator(4))
-    sm = ScalarMappable(norm=norm, cmap=cm)
-    cb = fig.colorbar(sm, ax=fig.axes, shrink=0.8, pad=0.02)
-    cb.set_label(label)
-    return _png(fig)
+        views.append((name, _png(fig)))
+    fig = Figure(figsize=(1.5, 4.2), dpi=90)
+    cax = fig.add_axes((0.12, 0.06, 0.22, 0.86))
+    fig.colorbar(ScalarMappable(norm=norm, cmap=cm), cax=cax).set_label(label)
+    cax.yaxis.set_major_locator(MaxNLocator(6))
+    return views, _png(fig)
+
+
+def map_figure(key: str, title: str, pos, faces, values, label: str, cmap: str) -> str:
+    """A ``<figure class='map' id='map-KEY'>``: the three views of a node field (``img.view``,
+    alt 'TITLE: front view' ...) and its colour bar (``img.colorbar``, alt 'TITLE colour bar')."""
+    views, bar = map_pngs(pos, faces, values, label, cmap)
+    imgs = "".join(_img(b64, f"{title}: {name} view", "view") for name, b64 in views)
+    return (f"<figure class='map' id='map-{html.escape(key)}'><div class='views'>{imgs}"
+            f"{_img(bar, f'{title} colour bar', 'colorbar')}</div>"
+            f"<figcaption>{html.escape(title)}: {html.escape(label)}, front, side and top views</figcaption>"
+            "</figure>")
 
 
 def convergence_png(history_csv: Path) -> str | None:
@@ -162,20 +195,67 @@ def probes_table(probes: list[dict]) -> str:
     return "\n".join(rows)
 
 
-def build_report(result_dir: str | Path) -> str:
-    """The report's HTML text for a result folder (see the module docstring)."""
+RESULT_FILES = ("summary.json", "result.npz", "scene.yaml")
+
+
+def check_result_dir(result_dir: str | Path) -> Path:
+    """The result folder, checked: it exists, is a folder and holds summary.json, result.npz and
+    scene.yaml (what ``clothsim run --out`` and ``fit --out`` write). Raises ReportError naming the
+    folder and what is wrong."""
     out = Path(result_dir)
-    for name in ("summary.json", "result.npz", "scene.yaml"):
-        if not (out / name).is_file():
-            raise ReportError(f"{out}: no {name} (a folder written by 'clothsim run --out' or 'fit --out')")
-    s = json.loads((out / "summary.json").read_text())
-    scene, pos, faces, p_mmhg, strain = _fields(out)
+    if not out.exists():
+        raise ReportError(f"{out}: no such folder (give a folder written by 'clothsim run --out' or 'fit --out')")
+    if not out.is_dir():
+        raise ReportError(f"{out}: not a folder (give a folder written by 'clothsim run --out' or 'fit --out')")
+    missing = [name for name in RESULT_FILES if not (out / name).is_file()]
+    if "summary.json" in missing:
+        raise ReportError(f"{out}: not a result folder: no summary.json (a folder written by 'clothsim run --out' "
+                          f"or 'fit --out' holds {', '.join(RESULT_FILES)})")
+    if missing:
+        raise ReportError(f"{out}: no {missing[0]} (a folder written by 'clothsim run --out' or 'fit --out')")
+    return out
+
+
+def read_summary(path: Path) -> dict:
+    """summary.json as a dict; ReportError naming the file if it cannot be read, is not JSON or
+    is not a JSON object."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReportError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        s = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno} column {exc.colno}: {exc.msg}); "
+                          f"rewrite it with 'clothsim run --out'") from None
+    if not isinstance(s, dict):
+        kind = {list: "list", str: "string"}.get(type(s), type(s).__name__)
+        raise ReportError(f"{path}: not a run summary (a JSON {kind}, not an object)")
+    return s
+
+
+def build_report(result_dir: str | Path) -> str:
+    """The report's HTML text for a result folder (see the module docstring). Raises ReportError
+    (naming the file) for a folder that is not a result folder or holds a damaged file."""
+    out = check_result_dir(result_dir)
+    s = read_summary(out / "summary.json")
+    try:
+        return _build(out, s)
+    except (KeyError, TypeError, AttributeError, IndexError) as exc:
+        raise ReportError(f"{out / 'summary.json'}: not a run summary clothsim wrote "
+                          f"({type(exc).__name__}: {str(exc)[:80]})") from None
+
+
+def _build(out: Path, s: dict) -> str:
+    scene, pos, faces, p_mmhg, strain_warp, strain_weft = _fields(out)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         f"<title>clothsim report: {html.escape(str(s.get('name', '')))}</title>",
         "<style>body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;"
         "margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:left;font-size:14px}"
-        "img{max-width:100%}pre{background:#f4f4f4;padding:8px;overflow:auto;font-size:12px}</style></head><body>",
+        "img{max-width:100%}.views{display:flex;flex-wrap:wrap;align-items:center}.views img.view{width:31%}"
+        ".views img.colorbar{width:6%;min-width:60px}figure{margin:.5em 0}figcaption{font-size:13px;color:#444}"
+        "pre{background:#f4f4f4;padding:8px;overflow:auto;font-size:12px}</style></head><body>",
         f"<h1>clothsim report: {html.escape(str(s.get('name', '')))}</h1>",
         f"<p id='status'>{html.escape(str(s.get('status')))}: {s.get('iterations')} iterations, residual "
         f"<span id='residual'>{s.get('residual', 0):.3e}</span> N, solver {html.escape(str(s.get('solver')))}, "
@@ -185,9 +265,13 @@ def build_report(result_dir: str | Path) -> str:
            f"<span id='peak'>none</span> ({html.escape(str(s.get('contact_pressure_note', '')))}). clothsim ")
         + f"<span id='version'>{html.escape(str(s.get('clothsim_version')))}</span>.</p>",
         "<h2>Contact pressure [mmHg]</h2>",
-        _img(map_png(pos, faces, p_mmhg, "contact pressure [mmHg]", "viridis"), "pressure map"),
-        "<h2>Strain (larger of warp and weft)</h2>",
-        _img(map_png(pos, faces, strain, "engineering strain [-]", "magma"), "strain map"),
+        map_figure("pressure", "pressure map", pos, faces, p_mmhg, "contact pressure [mmHg]", "viridis"),
+        "<h2>Warp strain</h2>",
+        map_figure("warp-strain", "warp strain map", pos, faces, strain_warp, "warp strain (engineering) [-]",
+                   "plasma"),
+        "<h2>Weft strain</h2>",
+        map_figure("weft-strain", "weft strain map", pos, faces, strain_weft, "weft strain (engineering) [-]",
+                   "plasma"),
     ]
     if s.get("probes"):
         parts += ["<h2>Probes</h2>", "<p>A probe reads the normal contact force on the sheet within its disc "
@@ -214,10 +298,37 @@ def build_report(result_dir: str | Path) -> str:
     return "\n".join(parts)
 
 
+def check_report_path(target: Path, flag: str = "--out") -> None:
+    """Refuse (ReportError) an HTML file path that cannot be written: a folder, a file in a folder
+    that does not exist or is not writable. Checked before the figures are rendered."""
+    parent = target.parent
+    if target.is_dir():
+        raise ReportError(f"{flag} {target}: is a folder (give the HTML file to write, e.g. {target / 'report.html'})")
+    if not parent.exists():
+        raise ReportError(f"{flag} {target}: its folder {parent} does not exist")
+    if not parent.is_dir():
+        raise ReportError(f"{flag} {target}: {parent} is not a folder")
+    probe = parent / f".clothsim-probe{os.getpid()}"
+    try:  # permission bits do not stop root; a read-only file system does
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except OSError as exc:
+        raise ReportError(f"{flag} {target}: cannot write in {parent} ({exc.strerror or exc})") from None
+
+
 def write_report(result_dir: str | Path, path: str | Path | None = None) -> Path:
-    """Write the report (default RESULT_DIR/report.html); returns its path."""
+    """Write the report (default RESULT_DIR/report.html); returns its path. Raises ReportError
+    (naming the file and the problem) for a bad result folder or a path that cannot be written."""
+    from ..fileio import describe_write_error
     from ..results import atomic_write_bytes
 
+    check_result_dir(result_dir)
     target = Path(path) if path else Path(result_dir) / "report.html"
-    atomic_write_bytes(target, build_report(result_dir).encode("utf-8"))
+    flag = "--out" if path else "report"
+    check_report_path(target, flag)
+    text = build_report(result_dir)
+    try:
+        atomic_write_bytes(target, text.encode("utf-8"))
+    except OSError as exc:
+        raise ReportError(describe_write_error(exc, target, flag)) from None
     return target
