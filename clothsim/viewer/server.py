@@ -69,6 +69,8 @@ from .render import Frame, SceneRenderer, camera_box, frame_camera, needs_refram
 
 
 STARTUP_NOTE = "Compiling kernels (first run only)"
+# how long start/pause/step/reset/apply(wait=True) wait for the update loop to run the request
+CONTROL_WAIT_S = 600.0
 
 
 def _startup_html(elapsed: float) -> str:
@@ -303,8 +305,10 @@ class ViewerApp:
 
     def _control(self, fn: Callable[[], None], wait: bool) -> None:
         self.post(fn, "run")
-        if wait:
-            self.wait_idle()
+        # the loop may be compiling kernels (a cold numba cache: about a minute) before it gets
+        # to the request: wait for it rather than return as if it had run
+        if wait and not self.wait_idle(CONTROL_WAIT_S):
+            raise TimeoutError(f"the viewer's update loop did not run the request within {CONTROL_WAIT_S:.0f} s")
 
     def wait_idle(self, timeout: float = 30.0) -> bool:
         """Block until every posted task has run and a frame has been pushed after them."""
