@@ -316,6 +316,11 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:  # Ctrl+C before a command's own handler is in place
             print("\ninterrupted", file=sys.stderr)
             return 130
+        except MemoryError:  # past the estimate (clothsim.compile.check_memory): a clear refusal
+            print(f"error: {args.command}: out of memory (the scene needs more memory than this process "
+                  f"may use: the machine's, or a ulimit -v or cgroup limit); use fewer divisions",
+                  file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":
