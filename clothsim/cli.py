@@ -294,12 +294,17 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     from .material import MaterialWarning
 
     if issubclass(category, MaterialWarning) or "clothsim" in str(filename):
-        print(f"warning: {message}", file=sys.stderr)
+        # once per command: a scene is validated again when it is resolved, copied or written
+        # (a table's warning came 2 or 3 times)
+        if str(message) not in _shown:
+            _shown.add(str(message))
+            print(f"warning: {message}", file=sys.stderr)
     else:
         _default_showwarning(message, category, filename, lineno, file, line)
 
 
 _default_showwarning = warnings.showwarning
+_shown: set[str] = set()  # the warnings this command has printed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -309,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
         argv = ["view", *argv]
     args = parser.parse_args(argv)
+    _shown.clear()
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
