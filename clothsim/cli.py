@@ -38,6 +38,16 @@ def _progress_printer(stream, every_s: float = 0.2):
     return cb
 
 
+def _stage_printer(stream):
+    """Start-up progress: one line per stage on stream (``start-up: model built (N nodes),
+    1.2 s``), so a big lattice's start-up is not silent."""
+    def on_stage(text: str, seconds: float) -> None:
+        stream.write(f"start-up: {text}, {seconds:.1f} s\n")
+        stream.flush()
+
+    return on_stage
+
+
 def cmd_run(args) -> int:
     from . import simulation
     from .config import SceneError, load_scene
@@ -52,7 +62,7 @@ def cmd_run(args) -> int:
             check_out_dir(out)
         show = sys.stderr.isatty() or args.progress
         cb = _progress_printer(sys.stderr) if (show and not args.quiet) else None
-        result = simulation.solve(scene, callback=cb)
+        result = simulation.solve(scene, callback=cb, on_stage=_stage_printer(sys.stderr) if cb else None)
     except (SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -477,3 +477,55 @@ def test_memory_error_is_a_clear_refusal(tmp_path, capsys, monkeypatch):
     rc, err = _main(capsys, "run", str(s), "--quiet")
     assert rc == 2
     assert "error: run: out of memory" in err
+
+
+# ----------------------------------------------------------------------------- start-up and the time limit
+
+
+def test_time_limit_bounds_the_start_up(tmp_path, capsys, monkeypatch):
+    """Issue 15 item 5: ``solver.time_limit_s`` did not bound the start-up (an 800 x 800 sheet
+    with a 1 s limit took 95 s, 90 of them start-up, with no output). The limit is checked between
+    the start-up's stages: a limit shorter than building the model and its initial state ends the
+    run there with status time_limit, before the kernels' warm-up and the relaxation, and the
+    stages are printed as start-up progress."""
+    import clothsim.simulation as simulation
+
+    def no_warm_up(*a, **k):
+        raise AssertionError("the warm-up ran past the time limit")
+
+    monkeypatch.setattr(simulation, "warm_up", no_warm_up)
+    s = _write(tmp_path, scene_dict())
+    rc, err = _main(capsys, "run", str(s), "--progress", "--set", "solver.time_limit_s=1e-9",
+                    "--out", str(tmp_path / "out"))
+    assert rc == 1, err
+    assert "start-up: model built (33 nodes)" in err and "start-up: initial state set" in err, err
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["status"] == "time_limit" and summary["iterations"] == 0
+    assert "reached during start-up (the model and initial state took" in summary["message"]
+
+
+def test_time_limit_after_the_warm_up(tmp_path, monkeypatch):
+    """A limit passed during the warm-up ends the run after it, before relaxing."""
+    import clothsim.simulation as simulation
+
+    real = simulation.warm_up
+    clock = [0.0]
+
+    def slow_warm_up(*a, **k):
+        clock[0] = 1000.0  # the warm-up "took" 1000 s
+        return real(*a, **k)
+
+    perf = simulation.time.perf_counter
+    monkeypatch.setattr(simulation, "warm_up", slow_warm_up)
+    monkeypatch.setattr(simulation.time, "perf_counter", lambda: perf() + clock[0])
+    stages = []
+    scene = load_scene(_write(tmp_path, scene_dict(**{"solver.time_limit_s": 100.0})))
+    res = simulation.solve(scene, on_stage=lambda text, t: stages.append(text))
+    assert res.solve.status == "time_limit" and res.solve.iterations == 0, res.solve.message
+    assert "model, initial state and kernel warm-up took" in res.solve.message
+    assert stages == ["model built (33 nodes)", "initial state set", "kernels compiled or loaded, one step tried"]
+    # with a limit the start-up keeps to, the run relaxes as before
+    clock[0] = 0.0
+    monkeypatch.setattr(simulation, "warm_up", real)
+    res = simulation.solve(scene)
+    assert res.solve.status == "converged"
