@@ -100,7 +100,10 @@ def cmd_run(args) -> int:
               + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
                  if s.get("contact_line_load_n_per_m") is not None else ""))
     if out is not None:
-        print(f"  wrote {out}/result.npz, summary.json, history.csv, sheet.ply, scene.yaml")
+        from .results import RESULT_FILES
+
+        names = [n for n in RESULT_FILES[1:] + RESULT_FILES[:1] if (out / n).is_file()]
+        print(f"  wrote {out}/{', '.join(names)}")
     if args.json:
         from .results import strict_json
 

@@ -504,15 +504,17 @@ def test_time_limit_bounds_the_start_up(tmp_path, capsys, monkeypatch):
     assert "reached during start-up (the model and initial state took" in summary["message"]
 
 
-def test_time_limit_after_the_warm_up(tmp_path, monkeypatch):
-    """A limit passed during the warm-up ends the run after it, before relaxing."""
+def test_time_limit_does_not_count_the_warm_up(tmp_path, monkeypatch):
+    """The warm-up (the numba kernels compiled or loaded, one trial step) is not counted against
+    the time limit: a cold cache costs a minute once per machine, whatever the scene. A warm-up
+    that "takes" 1000 s under a 100 s limit still lets the run relax; the stages are reported."""
     import clothsim.simulation as simulation
 
     real = simulation.warm_up
     clock = [0.0]
 
     def slow_warm_up(*a, **k):
-        clock[0] = 1000.0  # the warm-up "took" 1000 s
+        clock[0] = 1000.0
         return real(*a, **k)
 
     perf = simulation.time.perf_counter
@@ -521,11 +523,5 @@ def test_time_limit_after_the_warm_up(tmp_path, monkeypatch):
     stages = []
     scene = load_scene(_write(tmp_path, scene_dict(**{"solver.time_limit_s": 100.0})))
     res = simulation.solve(scene, on_stage=lambda text, t: stages.append(text))
-    assert res.solve.status == "time_limit" and res.solve.iterations == 0, res.solve.message
-    assert "model, initial state and kernel warm-up took" in res.solve.message
+    assert res.solve.status == "converged" and res.solve.iterations > 0, res.solve.message
     assert stages == ["model built (33 nodes)", "initial state set", "kernels compiled or loaded, one step tried"]
-    # with a limit the start-up keeps to, the run relaxes as before
-    clock[0] = 0.0
-    monkeypatch.setattr(simulation, "warm_up", real)
-    res = simulation.solve(scene)
-    assert res.solve.status == "converged"
