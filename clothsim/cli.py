@@ -38,6 +38,16 @@ def _progress_printer(stream, every_s: float = 0.2):
     return cb
 
 
+def _stage_printer(stream):
+    """Start-up progress: one line per stage on stream (``start-up: model built (N nodes),
+    1.2 s``), so a big lattice's start-up is not silent."""
+    def on_stage(text: str, seconds: float) -> None:
+        stream.write(f"start-up: {text}, {seconds:.1f} s\n")
+        stream.flush()
+
+    return on_stage
+
+
 def cmd_run(args) -> int:
     from . import simulation
     from .config import SceneError, load_scene
@@ -52,7 +62,7 @@ def cmd_run(args) -> int:
             check_out_dir(out)
         show = sys.stderr.isatty() or args.progress
         cb = _progress_printer(sys.stderr) if (show and not args.quiet) else None
-        result = simulation.solve(scene, callback=cb)
+        result = simulation.solve(scene, callback=cb, on_stage=_stage_printer(sys.stderr) if cb else None)
     except (SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -347,12 +357,17 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     from .material import MaterialWarning
 
     if issubclass(category, MaterialWarning) or "clothsim" in str(filename):
-        print(f"warning: {message}", file=sys.stderr)
+        # once per command: a scene is validated again when it is resolved, copied or written
+        # (a table's warning came 2 or 3 times)
+        if str(message) not in _shown:
+            _shown.add(str(message))
+            print(f"warning: {message}", file=sys.stderr)
     else:
         _default_showwarning(message, category, filename, lineno, file, line)
 
 
 _default_showwarning = warnings.showwarning
+_shown: set[str] = set()  # the warnings this command has printed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -362,6 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
         argv = ["view", *argv]
     args = parser.parse_args(argv)
+    _shown.clear()
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
@@ -369,6 +385,11 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:  # Ctrl+C before a command's own handler is in place
             print("\ninterrupted", file=sys.stderr)
             return 130
+        except MemoryError:  # past the estimate (clothsim.compile.check_memory): a clear refusal
+            print(f"error: {args.command}: out of memory (the scene needs more memory than this process "
+                  f"may use: the machine's, or a ulimit -v or cgroup limit); use fewer divisions",
+                  file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

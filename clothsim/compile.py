@@ -144,22 +144,80 @@ def estimated_nodes(scene: Scene) -> int:
     return total
 
 
+def _cgroup_headroom() -> float | None:
+    """Bytes the process's memory cgroup still allows (its limit minus its current use), or None
+    when there is no limit: cgroup v2 ``memory.max`` / ``memory.current``, else cgroup v1
+    ``memory.limit_in_bytes`` / ``memory.usage_in_bytes``."""
+    from pathlib import Path
+
+    for base, lim, cur in (("/sys/fs/cgroup", "memory.max", "memory.current"),
+                           ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes")):
+        try:
+            text = (Path(base) / lim).read_text().strip()
+        except OSError:
+            continue
+        if text == "max" or not text.isdigit() or int(text) >= 1 << 60:  # v1's "no limit" is ~2^63
+            return None
+        try:
+            used = int((Path(base) / cur).read_text().strip())
+        except (OSError, ValueError):
+            used = 0
+        return float(int(text) - used)
+    return None
+
+
+def _rlimit_headroom() -> float | None:
+    """Bytes of address space ``ulimit -v`` (RLIMIT_AS) still allows the process (the limit
+    minus its current virtual size), or None when unlimited."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft == resource.RLIM_INFINITY:
+            return None
+        import psutil
+
+        return float(soft - psutil.Process().memory_info().vms)
+    except Exception:  # noqa: BLE001  (no estimate possible)
+        return None
+
+
+def memory_budget() -> tuple[float, str] | None:
+    """The memory [bytes] a new model may use and what bounds it: the smallest of the machine's
+    available memory (psutil), the address space ``ulimit -v`` still allows and the memory
+    cgroup's headroom. None when none of them can be read."""
+    budgets = []
+    try:
+        import psutil
+
+        budgets.append((float(psutil.virtual_memory().available), "available on the machine"))
+    except Exception:  # noqa: BLE001
+        pass
+    rl = _rlimit_headroom()
+    if rl is not None:
+        budgets.append((max(rl, 0.0), "left under the address-space limit (ulimit -v)"))
+    cg = _cgroup_headroom()
+    if cg is not None:
+        budgets.append((max(cg, 0.0), "left under the memory cgroup's limit"))
+    return min(budgets) if budgets else None
+
+
 def check_memory(scene: Scene, available: float | None = None) -> None:
     """Refuse a scene whose lattice would not fit in the memory available (SceneError naming the
-    estimate), before any of it is built: a 1999 x 1999 sheet needs about 16 GB."""
+    estimate and the limit), before any of it is built: a 1999 x 1999 sheet needs about 16 GB.
+    The budget is :func:`memory_budget` (``available`` [bytes] replaces it)."""
     n = estimated_nodes(scene)
     need = BASE_BYTES + BYTES_PER_NODE * n
+    what = "available"
     if available is None:
-        try:
-            import psutil
-
-            available = float(psutil.virtual_memory().available)
-        except Exception:  # noqa: BLE001  (no estimate possible: do not refuse)
+        budget = memory_budget()
+        if budget is None:  # no estimate possible: do not refuse
             return
+        available, what = budget
     if need > available:
         field = "panels" if scene.panels else "fabric.divisions"
         raise SceneError(f"{field}: {n:,} nodes need about {need / 1e9:.1f} GB of memory; "
-                         f"{available / 1e9:.1f} GB are available (use fewer divisions)")
+                         f"{available / 1e9:.1f} GB are {what} (use fewer divisions)")
 
 
 def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:

@@ -34,6 +34,12 @@ from .grid import FAMILY_SEAM
 
 MMHG = 133.322387415  # Pa per mmHg
 
+#: every file :meth:`Result.save` may write (summary.json first: it is removed first). A save
+#: removes those of them it does not write this time, so an earlier result's files (a scene with
+#: probes, then one without) never sit beside a newer result.
+RESULT_FILES = ("summary.json", "result.npz", "history.csv", "sheet.ply", "scene.yaml",
+                "probes.csv", "profiles.csv", "profiles.png")
+
 
 def strict_json(obj) -> str:
     """JSON text in which every non-finite float (NaN, inf) is null, as strict JSON parsers
@@ -583,15 +589,20 @@ class Result:
         out = check_out_dir(out_dir)
         files = self.files(ply_field)
         check_free_space(out, sum(len(b) for b in files.values()))
-        write_result_files(out, files)
+        write_result_files(out, files, known=RESULT_FILES)
         return out
 
 
-def write_result_files(out: Path, files: dict[str, bytes], finished: str = "summary.json") -> None:
-    """Write files into out, each atomically: stale temporary files and ``finished`` removed
-    first, ``finished`` written last."""
+def write_result_files(out: Path, files: dict[str, bytes], finished: str = "summary.json",
+                       known: tuple[str, ...] = ()) -> None:
+    """Write files into out, each atomically: ``finished`` removed first, then stale temporary
+    files and every name of ``known`` that ``files`` does not hold (an earlier result's files
+    this one does not write); ``finished`` written last."""
     out = Path(out)
     (out / finished).unlink(missing_ok=True)
+    for name in known:
+        if name not in files:
+            (out / name).unlink(missing_ok=True)
     for tmp in out.glob(".*.tmp*"):  # left by a write that was killed half-way
         tmp.unlink(missing_ok=True)
     for name, data in files.items():

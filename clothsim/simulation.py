@@ -26,10 +26,19 @@ from .solvers import History, SolveResult, pick_method
 from .solvers import solve as run_solver
 
 
-def prepare(scene: Scene) -> tuple[Model, State, float]:
-    """Load the mold, build the model and the initial state. Returns (model, state, seconds)."""
+def prepare(scene: Scene, on_stage: Callable[[str], None] | None = None) -> tuple[Model, State, float]:
+    """Load the mold, build the model and the initial state. Returns (model, state, seconds).
+    ``on_stage(text)``, when given, is told when each of the two is done (start-up progress)."""
     t0 = time.perf_counter()
-    model, state = compile_scene(scene)
+    if on_stage is None:
+        model, state = compile_scene(scene)
+    else:
+        from .compile import compile_state
+
+        model = compile_model(scene)
+        on_stage(f"model built ({model.node_count:,} nodes)")
+        state = compile_state(scene, model)
+        on_stage("initial state set")
     return model, state, time.perf_counter() - t0
 
 
@@ -105,9 +114,10 @@ class Simulation:
     ``status``: idle, running, paused, converged, stalled, diverged, stopped, max_iterations,
     time_limit, error."""
 
-    def __init__(self, scene: Scene, on_progress: Callable | None = None, callback: Callable | None = None):
+    def __init__(self, scene: Scene, on_progress: Callable | None = None, callback: Callable | None = None,
+                 on_stage: Callable[[str], None] | None = None):
         """on_progress(sim) is told after each batch (the viewer); callback(progress) may return
-        True to stop the run (scripts)."""
+        True to stop the run (scripts); on_stage(text) is told as the start-up's stages end."""
         self._lock = threading.RLock()
         self.user_callback = callback
         self._wake = threading.Condition(self._lock)
@@ -118,11 +128,12 @@ class Simulation:
         self._closing = False
         self._pause_requested = False
         self.version = 0
-        self._load(scene)
+        self._load(scene, on_stage=on_stage)
 
     # ------------------------------------------------------------------ setup
-    def _load(self, scene: Scene, keep_positions: np.ndarray | None = None) -> None:
-        model, state, t = prepare(scene)
+    def _load(self, scene: Scene, keep_positions: np.ndarray | None = None,
+              on_stage: Callable[[str], None] | None = None) -> None:
+        model, state, t = prepare(scene, on_stage)
         if keep_positions is not None and keep_positions.shape == state.positions.shape:
             free = ~model.fixed_axes
             state.positions[free] = keep_positions[free]
@@ -347,14 +358,49 @@ class Simulation:
                             self.message)
 
 
-def solve(scene: Scene, callback: Callable | None = None) -> Result:
+def solve(scene: Scene, callback: Callable | None = None,
+          on_stage: Callable[[str, float], None] | None = None) -> Result:
     """Headless: build, relax and return a Result (the same path the viewer uses).
 
     ``callback(progress)`` receives clothsim.solvers.Progress after each batch; returning True
-    stops the run."""
+    stops the run. ``on_stage(text, seconds)`` is told as each start-up stage ends (the model
+    built, the initial state set, the kernels compiled or loaded from numba's cache and tried on
+    one step), with the seconds since the start.
+
+    ``solver.time_limit_s`` bounds the start-up's first stage too: when the time since the start
+    has passed it once the model and the initial state are built (the stage that grows with the
+    lattice: an 800 x 800 sheet's initial spread is a sparse solve of some 20 s), the run ends
+    there with status ``time_limit`` (no relaxation; the Result holds the initial state, its
+    residual and energy NaN: evaluating them could compile kernels, seconds). The stage itself
+    is not interrupted. The warm-up (compiling or loading the numba kernels, a minute when the
+    cache is cold whatever the scene, and one trial step) is not counted. The relaxation then
+    has the full time_limit_s of its own."""
     t0 = time.perf_counter()
-    sim = Simulation(scene, callback=callback)
+    limit = scene.solver.time_limit_s
+    stage = None if on_stage is None else (lambda text: on_stage(text, time.perf_counter() - t0))
+    sim = Simulation(scene, callback=callback, on_stage=stage)
+    if _startup_over(sim, limit, t0, "the model and initial state"):
+        return sim.result(time.perf_counter() - t0)
     warm_up(sim.model, sim.state, sim.settings)
+    if stage is not None:
+        stage("kernels compiled or loaded, one step tried")
     startup = time.perf_counter() - t0
     sim.run()
     return sim.result(startup)
+
+
+def _startup_over(sim: Simulation, limit: float | None, t0: float, what: str) -> bool:
+    """True (and sim's last result set to status time_limit, not relaxed) when the start-up since
+    t0 [s, perf_counter] has passed ``limit`` [s]."""
+    took = time.perf_counter() - t0
+    if limit is None or took <= limit:
+        return False
+    from .solvers.base import Status
+
+    msg = (f"time limit {limit:g} s reached during start-up ({what} took {took:.1f} s); "
+           f"not relaxed")
+    with sim._lock:  # residual and energy not evaluated: that could compile kernels (seconds)
+        sim.last_result = SolveResult(False, Status.TIME_LIMIT, msg, 0, math.nan, math.nan, math.nan,
+                                      int(sim.state.in_contact.sum()), 0.0, sim.method)
+        sim.status, sim.message = Status.TIME_LIMIT, msg
+    return True

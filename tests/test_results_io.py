@@ -132,3 +132,23 @@ def test_summary_written_last_and_strict(tmp_path):
         results.atomic_write_bytes = saved
     assert order[-1] == "summary.json" and len(order) == 5
     json.loads((tmp_path / "out" / "summary.json").read_text())
+
+
+def test_an_earlier_results_extra_files_are_removed(tmp_path, capsys):
+    """Run A (a scene with probes and profiles) wrote probes.csv, profiles.csv and profiles.png;
+    run B (without) into the same folder must not leave them beside its own result. A file the
+    result writer never writes is the user's and stays."""
+    s = _scene(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = ["probes.csv", "profiles.csv", "profiles.png", "summary.json", "sheet.ply"]
+    for name in stale:
+        (out / name).write_bytes(b"run A")
+    (out / "notes.txt").write_text("mine")
+    rc, _ = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    assert rc == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["history.csv", "notes.txt", "result.npz", "scene.yaml", "sheet.ply",
+                     "summary.json"], names
+    assert (out / "sheet.ply").read_bytes() != b"run A"
+    assert json.loads((out / "summary.json").read_text())["status"] == "converged"

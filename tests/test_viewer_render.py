@@ -51,3 +51,60 @@ def test_plot_leaves_room_above_the_top_tick():
     splits = plot.handle.axes[1]["splits"]
     lo, hi = plot.handle.scales["y"]["range"]
     assert lo == splits[0] and hi >= 2 * splits[-1] and splits[-1] >= 0.3
+
+
+def test_colour_bar_has_ticks_at_the_ranges_nice_values():
+    """Issue 15, item 19: the colour bar carries tick marks with values. For 0 .. 0.1 the ticks
+    are 0, 0.05, 0.1, drawn as dark marks under the gradient at columns 0, 128 and 255 of a
+    256-pixel bar (nothing between them), with their labels written below."""
+    from clothsim.viewer.glb import (BAR_HEIGHT, LABEL_HEIGHT, TICK_LENGTH, colorbar_image,
+                                     colorbar_with_ticks, nice_ticks, tick_label)
+
+    img, ticks = colorbar_with_ticks(0.0, 0.1, 256)
+    assert ticks == [0.0, 0.05, 0.1]
+    assert [tick_label(t, 0.05) for t in ticks] == ["0", "0.05", "0.1"]
+    assert img.shape == (BAR_HEIGHT + TICK_LENGTH + LABEL_HEIGHT, 256, 3)
+    assert (img[:BAR_HEIGHT] == colorbar_image(256, BAR_HEIGHT)).all()  # the gradient unchanged
+    for row in range(BAR_HEIGHT, BAR_HEIGHT + TICK_LENGTH):
+        dark = np.nonzero(img[row].max(axis=1) < 100)[0]
+        assert dark.tolist() == [0, 128, 255], (row, dark)
+    labels = img[BAR_HEIGHT + TICK_LENGTH:]
+    assert (labels.max(axis=2) < 150).sum() > 20  # the values are drawn
+    # other ranges: round steps inside the range, at most five, at least two
+    assert nice_ticks(-7.8e-8, 1.1e-8) == [-6e-8, -4e-8, -2e-8, 0.0]
+    assert nice_ticks(0.0, 3.25) == [0.0, 1.0, 2.0, 3.0]
+    assert nice_ticks(101325.0, 101400.0) == [101340.0, 101360.0, 101380.0, 101400.0]
+    assert nice_ticks(1.0, 1.0) == [] and nice_ticks(0.0, float("nan")) == []
+    img, ticks = colorbar_with_ticks(-0.013, 0.052, 256)
+    cols = np.nonzero(img[BAR_HEIGHT + 1].max(axis=1) < 100)[0]
+    assert ticks == [0.0, 0.02, 0.04]
+    assert cols.tolist() == [round((t + 0.013) / 0.065 * 255) for t in ticks]
+
+
+def test_viewer_colour_bar_follows_the_range():
+    """The viewer's colour-bar image has the ticks of the range it shows."""
+    import time
+
+    import pytest
+
+    pytest.importorskip("viser")
+    from clothsim.viewer import ViewerApp
+    from clothsim.viewer.glb import BAR_HEIGHT, nice_ticks, tick_x
+    from test_viewer import free_port, small_scene
+
+    app = ViewerApp(small_scene(), port=free_port())
+    try:
+        app.wait_idle(30)
+        app.panels["view"].gui["auto_range"].value = False
+        app.panels["view"].gui["range_min"].value = -1.0
+        app.panels["view"].gui["range_max"].value = 3.0
+        app.wait_idle(30)
+        t0 = time.time()
+        while app.renderer.range != (-1.0, 3.0) and time.time() - t0 < 30:
+            time.sleep(0.05)
+        img = app.panels["view"].gui["legend_img"].image
+        assert img.shape[0] > BAR_HEIGHT
+        cols = np.nonzero(img[BAR_HEIGHT + 1].max(axis=1) < 100)[0]
+        assert cols.tolist() == tick_x(nice_ticks(-1.0, 3.0), -1.0, 3.0, img.shape[1]).tolist() == [0, 64, 128, 191, 255]
+    finally:
+        app.close()

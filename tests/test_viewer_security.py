@@ -442,3 +442,20 @@ def test_browser_token_url_connects(browser):
         page.close()
         a.close()
     assert np.isfinite(a.sim.settings.e)
+
+
+# --------------------------------------------------------------------------- item 5: a scene too big
+def test_edit_to_a_lattice_too_big_is_refused_and_the_model_kept(app, monkeypatch):
+    """Issue 15, item 5: an edit whose lattice would not fit in memory is refused when applied
+    (the memory budget pretended to be 1 GB): the error names the estimate and the budget, and
+    the model and its lattice stay the ones before the edit."""
+    import clothsim.compile as comp
+
+    monkeypatch.setattr(comp, "memory_budget", lambda: (1e9, "available on the machine"))
+    model = app.sim.model
+    shape = model.topology.grid_shape
+    app.scene_draft.edit("fabric", lambda d: d["fabric"].__setitem__("divisions", [1999, 1999]))
+    app.apply(wait=True)
+    errors = " ".join(v for v in app.errors.values() if v)
+    assert "4,000,000 nodes need about 16.2 GB of memory; 1.0 GB are available" in errors, app.errors
+    assert app.sim.model is model and app.sim.model.topology.grid_shape == shape

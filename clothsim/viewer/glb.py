@@ -14,6 +14,7 @@ glTF stores vertex colours as *linear* RGB; colour maps are defined in sRGB, so
 from __future__ import annotations
 
 import json
+import math
 import struct
 
 import numpy as np
@@ -60,6 +61,88 @@ def colorbar_image(width: int = 256, height: int = 14) -> np.ndarray:
     """A horizontal viridis gradient (uint8 RGB, height x width), low values on the left."""
     row = (colormap(np.linspace(0.0, 1.0, width), 0.0, 1.0, linear=False) * 255).round().astype(np.uint8)
     return np.repeat(row[None, :, :], height, axis=0)
+
+
+def nice_ticks(lo: float, hi: float, max_ticks: int = 5) -> list[float]:
+    """Tick values for a colour range [lo, hi]: the multiples of a round step (1, 2 or 5 times a
+    power of ten) that lie in the range, at most ``max_ticks`` of them (at least two for any
+    finite range lo < hi). Empty for a non-finite or empty range."""
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return []
+    span = hi - lo
+    mag = 10.0 ** math.floor(math.log10(span / max(max_ticks - 1, 1)))
+    for step in (m * mag for m in (1.0, 2.0, 5.0, 10.0, 20.0, 50.0)):  # the finest that fits
+        tol = 1e-9 * step
+        k0, k1 = math.ceil((lo - tol) / step), math.floor((hi + tol) / step)
+        if k1 - k0 + 1 <= max_ticks:
+            break
+    ticks = [k * step for k in range(k0, k1 + 1)]
+    if len(ticks) < 2:  # a step too coarse for the range: its ends
+        ticks = [lo, hi]
+    # rounding noise (0.30000000000000004) off, and -0 as 0
+    digits = max(0, -math.floor(math.log10(step)) + 1)
+    return [round(t, digits) + 0.0 for t in ticks]
+
+
+def tick_label(x: float, step: float) -> str:
+    """A tick's text: enough digits to tell ticks ``step`` apart; plain decimals where they take
+    at most 8 places and the value is below 10^6, else exponent form."""
+    if x == 0:
+        return "0"
+    decimals = max(0, -math.floor(math.log10(step) + 1e-9))
+    if abs(x) < 1e6 and decimals <= 8 and (abs(x) >= 1e-3 or step >= 1e-4):
+        text = f"{x:.{decimals}f}"
+        return text.rstrip("0").rstrip(".") if "." in text else text
+    sig = max(1, math.floor(math.log10(abs(x))) - math.floor(math.log10(step) + 1e-9) + 1)
+    return f"{x:.{min(sig, 12) - 1}e}"
+
+
+#: colour-bar layout [pixels]: the gradient's height, the tick marks' length below it and the
+#: height of the label row
+BAR_HEIGHT = 12
+TICK_LENGTH = 5
+LABEL_HEIGHT = 14
+TICK_RGB = (40, 40, 40)
+
+
+def tick_x(values, lo: float, hi: float, width: int) -> np.ndarray:
+    """Pixel columns of tick values on a bar ``width`` pixels wide showing [lo, hi] (lo at column
+    0, hi at column width - 1)."""
+    return np.rint((np.asarray(values, float) - lo) / (hi - lo) * (width - 1)).astype(np.int64)
+
+
+def colorbar_with_ticks(lo: float, hi: float, width: int = 256) -> tuple[np.ndarray, list[float]]:
+    """The colour bar of the range [lo, hi] with tick marks and their values: a
+    (BAR_HEIGHT + TICK_LENGTH + LABEL_HEIGHT, width, 3) uint8 RGB image on white, the viridis
+    gradient on top, a dark mark TICK_LENGTH pixels long under each tick of :func:`nice_ticks`
+    (column :func:`tick_x`) and the tick's value centred under it. Returns (image, ticks); no
+    ticks (the bare bar) for an empty or non-finite range."""
+    img = np.full((BAR_HEIGHT + TICK_LENGTH + LABEL_HEIGHT, width, 3), 255, np.uint8)
+    img[:BAR_HEIGHT] = colorbar_image(width, BAR_HEIGHT)
+    ticks = nice_ticks(lo, hi)
+    if not ticks:
+        return img, []
+    xs = tick_x(ticks, lo, hi, width)
+    for x in xs:
+        img[BAR_HEIGHT:BAR_HEIGHT + TICK_LENGTH, x] = TICK_RGB
+    try:
+        from PIL import Image, ImageDraw, ImageFont
+    except ImportError:  # no labels without Pillow (matplotlib brings it)
+        return img, ticks
+    step = ticks[1] - ticks[0] if len(ticks) > 1 else abs(hi - lo)
+    im = Image.fromarray(img)
+    draw = ImageDraw.Draw(im)
+    try:
+        font = ImageFont.load_default(size=11)
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        font = ImageFont.load_default()
+    top = BAR_HEIGHT + TICK_LENGTH
+    for t, x in zip(ticks, xs):
+        text = tick_label(t, step)
+        w = draw.textlength(text, font=font)
+        left = min(max(0.0, x - w / 2), width - w)
+        draw.text((left, top), text, fill=TICK_RGB, font=font)
+    return np.asarray(im), ticks
 
 
 def vertex_normals(positions: np.ndarray, topology) -> np.ndarray:

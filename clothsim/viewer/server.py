@@ -693,6 +693,7 @@ class ViewerApp:
         self._view_dirty = False
         if frame is not None:
             self.panels["view"].set_legend(r.push_frame(frame, view))
+            self.panels["view"].set_colorbar(*r.range, r.field_key)
             self.pushed_positions = frame.positions
             self.pushed_iteration = frame.iteration
             self.frames_pushed += 1

@@ -4,18 +4,23 @@ which helpers are shown. These are display settings, not edits: they only mark t
 from __future__ import annotations
 
 from ..fields import FIELDS
-from ..glb import colorbar_image
+from ..glb import colorbar_image, colorbar_with_ticks, nice_ticks, tick_x
 from ..render import DEFAULT_SHEET_OPACITY, ViewSettings
 from . import Panel
+
+
+#: the colour bar's width [pixels]
+BAR_WIDTH = 256
 
 
 class ViewPanel(Panel):
     def __init__(self, app):
         super().__init__(app)
         self.legend = ""
+        self.bar_key = None  # what the colour bar image shows: (ticks, their columns)
 
     def build_legend(self, gui) -> None:
-        self.gui["legend_img"] = gui.add_image(colorbar_image(256, 12), format="png")
+        self.gui["legend_img"] = gui.add_image(colorbar_image(BAR_WIDTH, 12), format="png")
         self.gui["legend"] = gui.add_markdown("")
 
     def build(self, gui) -> None:
@@ -52,3 +57,16 @@ class ViewPanel(Panel):
         if text != self.legend:
             self.legend = text
             self.gui["legend"].content = text
+
+    def set_colorbar(self, lo: float, hi: float, key: str) -> None:
+        """The colour bar with tick marks and values for the range [lo, hi] of field ``key``
+        (glb.colorbar_with_ticks; the bare bar for the in-contact field, whose legend names its two
+        colours); the image is sent again only when its ticks change."""
+        ticks = [] if key == "contact" else nice_ticks(lo, hi)
+        cols = tuple(tick_x(ticks, lo, hi, BAR_WIDTH).tolist()) if ticks else ()
+        bar_key = (tuple(ticks), cols)
+        if bar_key == self.bar_key:
+            return
+        self.bar_key = bar_key
+        img = colorbar_with_ticks(lo, hi, BAR_WIDTH)[0] if ticks else colorbar_with_ticks(0.0, 0.0, BAR_WIDTH)[0]
+        self.gui["legend_img"].image = img
