@@ -122,6 +122,8 @@ def load_scene_mold(scene: Scene):
 
 #: memory a run needs per lattice node [bytes], measured: 501^2 nodes (251k) peaked at 999 MB
 #: RSS in the Newton benchmark, about 200 MB of it the interpreter, numba and the libraries
+#: (3.2 kB a node); the line smoother's renumbered copy of the matrix (newton.linalg._Transposed)
+#: adds about 0.56 kB a node since, still within this
 BYTES_PER_NODE = 4000
 BASE_BYTES = 250e6
 
@@ -144,25 +146,53 @@ def estimated_nodes(scene: Scene) -> int:
     return total
 
 
-def _cgroup_headroom() -> float | None:
-    """Bytes the process's memory cgroup still allows (its limit minus its current use), or None
-    when there is no limit: cgroup v2 ``memory.max`` / ``memory.current``, else cgroup v1
-    ``memory.limit_in_bytes`` / ``memory.usage_in_bytes``."""
+def _cgroup_paths() -> dict[str, str]:
+    """The process's cgroup paths from /proc/self/cgroup: {"": v2 path, "memory": v1 path}."""
     from pathlib import Path
 
-    for base, lim, cur in (("/sys/fs/cgroup", "memory.max", "memory.current"),
-                           ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes")):
-        try:
-            text = (Path(base) / lim).read_text().strip()
-        except OSError:
-            continue
-        if text == "max" or not text.isdigit() or int(text) >= 1 << 60:  # v1's "no limit" is ~2^63
-            return None
-        try:
-            used = int((Path(base) / cur).read_text().strip())
-        except (OSError, ValueError):
-            used = 0
-        return float(int(text) - used)
+    out = {}
+    try:
+        for line in Path("/proc/self/cgroup").read_text().splitlines():
+            _, ctrl, path = line.split(":", 2)
+            if ctrl == "" or "memory" in ctrl.split(","):
+                out["" if ctrl == "" else "memory"] = path.strip("/")
+    except (OSError, ValueError):
+        pass
+    return out
+
+
+def _cgroup_headroom() -> float | None:
+    """Bytes the process's memory cgroup still allows (its limit minus its current use, less the
+    page cache it can reclaim), or None when there is no limit: cgroup v2 ``memory.max`` /
+    ``memory.current`` (``inactive_file`` of ``memory.stat`` reclaimable), else cgroup v1
+    ``memory.limit_in_bytes`` / ``memory.usage_in_bytes`` (``total_inactive_file``). The
+    process's own cgroup (/proc/self/cgroup) is read where it is mounted, else the mount's root."""
+    from pathlib import Path
+
+    own = _cgroup_paths()
+    for root, key, lim, cur, cache in (("/sys/fs/cgroup", "", "memory.max", "memory.current", "inactive_file"),
+                                       ("/sys/fs/cgroup/memory", "memory", "memory.limit_in_bytes",
+                                        "memory.usage_in_bytes", "total_inactive_file")):
+        for base in dict.fromkeys(([str(Path(root) / own[key])] if own.get(key) else []) + [root]):
+            try:
+                text = (Path(base) / lim).read_text().strip()
+            except OSError:
+                continue
+            if text == "max" or not text.isdigit() or int(text) >= 1 << 60:  # v1's "no limit" is ~2^63
+                return None
+            try:
+                used = int((Path(base) / cur).read_text().strip())
+            except (OSError, ValueError):
+                used = 0
+            try:
+                for line in (Path(base) / "memory.stat").read_text().splitlines():
+                    name, _, value = line.partition(" ")
+                    if name == cache:
+                        used = max(used - int(value), 0)
+                        break
+            except (OSError, ValueError):
+                pass
+            return float(int(text) - used)
     return None
 
 

@@ -596,11 +596,14 @@ class Result:
 def write_result_files(out: Path, files: dict[str, bytes], finished: str = "summary.json",
                        known: tuple[str, ...] = ()) -> None:
     """Write files into out, each atomically: ``finished`` removed first, then stale temporary
-    files and every name of ``known`` that ``files`` does not hold (an earlier result's files
-    this one does not write); ``finished`` written last."""
+    files and, when the folder holds an earlier result (its ``finished`` file or one of the first
+    two names of ``known``: summary.json, result.npz for a run), every name of ``known`` that ``files`` does not hold (that result's files this one
+    does not write; in a folder without a result, a file of the same name is the user's and
+    stays); ``finished`` written last."""
     out = Path(out)
+    earlier = any((out / n).is_file() for n in (finished, *known[:2]))
     (out / finished).unlink(missing_ok=True)
-    for name in known:
+    for name in known if earlier else ():
         if name not in files:
             (out / name).unlink(missing_ok=True)
     for tmp in out.glob(".*.tmp*"):  # left by a write that was killed half-way

@@ -182,7 +182,7 @@ def test_middle_levels_take_one_newton_iteration(monkeypatch):
     for cap in (None, 1):
         monkeypatch.setattr(S, "MID_LEVEL_ITERATIONS", cap)
         S._HIERARCHIES.clear()
-        model, state, settings = _load(case, "newton", 1e-7, 60.0)
+        model, state, settings = _load(case, "newton", 1e-7, 600.0)
         chain = S._Hierarchy(model, 1e-3).chain
         assert len(chain) >= 4
         counts.clear()

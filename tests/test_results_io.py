@@ -152,3 +152,17 @@ def test_an_earlier_results_extra_files_are_removed(tmp_path, capsys):
                      "summary.json"], names
     assert (out / "sheet.ply").read_bytes() != b"run A"
     assert json.loads((out / "summary.json").read_text())["status"] == "converged"
+
+
+def test_files_of_result_names_in_a_folder_without_a_result_stay(tmp_path, capsys):
+    """A run into a folder that holds no earlier result (no summary.json, no result.npz) leaves
+    the user's files alone, even one named like a result file it does not write (a probes.csv of
+    the user's own)."""
+    s = _scene(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "probes.csv").write_text("the user's sensor readings")
+    rc, _ = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    assert rc == 0
+    assert (out / "probes.csv").read_text() == "the user's sensor readings"
+    assert json.loads((out / "summary.json").read_text())["status"] == "converged"

@@ -18,6 +18,7 @@ import base64
 import html
 import io
 import json
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -195,7 +196,7 @@ def probes_table(probes: list[dict]) -> str:
     return "\n".join(rows)
 
 
-RESULT_FILES = ("summary.json", "result.npz", "scene.yaml")
+REPORT_NEEDS = ("summary.json", "result.npz", "scene.yaml")
 
 
 def check_result_dir(result_dir: str | Path) -> Path:
@@ -207,10 +208,10 @@ def check_result_dir(result_dir: str | Path) -> Path:
         raise ReportError(f"{out}: no such folder (give a folder written by 'clothsim run --out' or 'fit --out')")
     if not out.is_dir():
         raise ReportError(f"{out}: not a folder (give a folder written by 'clothsim run --out' or 'fit --out')")
-    missing = [name for name in RESULT_FILES if not (out / name).is_file()]
+    missing = [name for name in REPORT_NEEDS if not (out / name).is_file()]
     if "summary.json" in missing:
         raise ReportError(f"{out}: not a result folder: no summary.json (a folder written by 'clothsim run --out' "
-                          f"or 'fit --out' holds {', '.join(RESULT_FILES)})")
+                          f"or 'fit --out' holds {', '.join(REPORT_NEEDS)})")
     if missing:
         raise ReportError(f"{out}: no {missing[0]} (a folder written by 'clothsim run --out' or 'fit --out')")
     return out
@@ -246,6 +247,16 @@ def build_report(result_dir: str | Path) -> str:
                           f"({type(exc).__name__}: {str(exc)[:80]})") from None
 
 
+def _num(v, fmt: str) -> str:
+    """v formatted with fmt, or "n/a" when it is missing or not finite (a run stopped before its
+    residual was evaluated writes null)."""
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return "n/a"
+    return format(x, fmt) if math.isfinite(x) else "n/a"
+
+
 def _build(out: Path, s: dict) -> str:
     scene, pos, faces, p_mmhg, strain_warp, strain_weft = _fields(out)
     parts = [
@@ -258,7 +269,7 @@ def _build(out: Path, s: dict) -> str:
         "pre{background:#f4f4f4;padding:8px;overflow:auto;font-size:12px}</style></head><body>",
         f"<h1>clothsim report: {html.escape(str(s.get('name', '')))}</h1>",
         f"<p id='status'>{html.escape(str(s.get('status')))}: {s.get('iterations')} iterations, residual "
-        f"<span id='residual'>{s.get('residual', 0):.3e}</span> N, solver {html.escape(str(s.get('solver')))}, "
+        f"<span id='residual'>{_num(s.get('residual'), '.3e')}</span> N, solver {html.escape(str(s.get('solver')))}, "
         f"{s.get('contact_count')} contact nodes of {s.get('node_count')}; peak contact pressure "
         + (f"<span id='peak'>{s['max_contact_pressure_mmhg']:.2f}</span> mmHg. clothsim "
            if s.get('max_contact_pressure_mmhg') is not None else

@@ -1198,8 +1198,9 @@ _NO_MAP = np.zeros(0, np.int64)
 
 
 def _i_lines(L, nx1, ny1, b, x, reverse, span):
-    """The level's i-line sweep (``_line_gs`` direction 0), on its renumbered rows when it has
-    them (``_Transposed``: the same result, read contiguously)."""
+    """The level's i-line sweep (``_line_gs`` direction 0) of x (3N,) [m] for b (3N,) [N] on the
+    level L (N = nx1 ny1 nodes), in place, on its renumbered rows when it has them
+    (``_Transposed``: the same result, read contiguously); span (ny1, 2): the i lines' spans."""
     T = L.T
     if T is None:
         _line_gs(L.indptr, L.indices, L.data, nx1, ny1, L.ds, L.ps, L.ns, b, x, 0, reverse, span, _NO_MAP)
