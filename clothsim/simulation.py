@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from .config import Scene, SceneError
-from .compile import compile_model, compile_scene
+from .compile import compile_model, compile_state
 from .grid import Model, State
 from .results import Result
 from .solvers import History, SolveResult, pick_method
@@ -30,14 +30,12 @@ def prepare(scene: Scene, on_stage: Callable[[str], None] | None = None) -> tupl
     """Load the mold, build the model and the initial state. Returns (model, state, seconds).
     ``on_stage(text)``, when given, is told when each of the two is done (start-up progress)."""
     t0 = time.perf_counter()
-    if on_stage is None:
-        model, state = compile_scene(scene)
-    else:
-        from .compile import compile_state
-
-        model = compile_model(scene)
+    # compile_scene's two steps, with a word after each
+    model = compile_model(scene)
+    if on_stage is not None:
         on_stage(f"model built ({model.node_count:,} nodes)")
-        state = compile_state(scene, model)
+    state = compile_state(scene, model)
+    if on_stage is not None:
         on_stage("initial state set")
     return model, state, time.perf_counter() - t0
 
