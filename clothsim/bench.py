@@ -567,6 +567,72 @@ def _child_reference(case):
     return {"positions": r["positions"], "residual": r["residual"], "status": r["status"]}
 
 
+#: solves of each scene in one process of ``run_pair`` (in the order base, scene, scene, base,
+#: base, scene, ...: each pair of neighbouring solves is one ratio)
+PAIR_SOLVES = 4
+
+
+def _cpu_to(model, state, settings, e: float = 1e-7) -> float | None:
+    """CPU seconds of one solve of ``model`` from a copy of ``state`` until its residual first
+    reaches e [N] (as ``run_case`` times it: the driver's history, converted to CPU time); None
+    when it is not reached."""
+    from .solvers import solve
+
+    clock = CpuClock()
+
+    def cb(prog):
+        clock.sample(prog.elapsed_s)
+        return False
+
+    res = solve(model, state.copy(), settings, callback=cb)
+    clock.sample()
+    hit = np.nonzero(res.history["residual"] <= e)[0] if len(res.history["residual"]) else []
+    return clock.cpu_at(float(res.history["time"][hit[0]])) if len(hit) else None
+
+
+def run_pair(base: Case, case: Case, solves: int = PAIR_SOLVES) -> list[list]:
+    """In one process, the scene ``case`` against ``base`` (newton): both loaded and warmed up as
+    in ``run_case`` (one single-iteration solve each), then solved alternately ``solves`` times
+    each, in the order base, case, case, base, base, case, ... Returns one [base s, case s] per
+    neighbouring pair: CPU seconds to 1e-7 N (``_cpu_to``; None where not reached). The two
+    solves of a pair share the process (its memory placement) and the machine's load of the
+    moment, and no reference pass enters their ratio."""
+    from .solvers import solve
+
+    loaded = []
+    for c in (base, case):
+        model, state, settings = _load(c, "newton", TARGET_E, c.time_limit.get("newton"))
+        solve(model, state.copy(), settings.model_copy(update={"max_iterations": 1, "time_limit_s": None}))
+        loaded.append((model, state, settings))
+    pairs = []
+    for k in range(max(1, int(solves))):
+        order = (0, 1) if k % 2 == 0 else (1, 0)
+        t = [None, None]
+        for i in order:
+            t[i] = _cpu_to(*loaded[i])
+        pairs.append(t)
+    return pairs
+
+
+def same_process_ratios(base: Case, others: list[Case], rounds: int, log=None) -> dict:
+    """For each scene of ``others``: ``rounds`` fresh processes of ``run_pair`` against ``base``;
+    returns {scene name: [case s / base s of every pair]} (pairs where either did not reach
+    1e-7 N, or a process that failed, are left out and logged)."""
+    out = {}
+    for case in others:
+        ratios = []
+        for _ in range(max(1, int(rounds))):
+            try:
+                pairs = _in_child(run_pair, base, case)
+            except Exception as exc:
+                if log:
+                    log(f"{case.name}: same-process pair failed: {exc}")
+                continue
+            ratios += [c / b for b, c in pairs if b and c is not None]
+        out[case.name] = ratios
+    return out
+
+
 def _in_child(fn, *args):
     import multiprocessing as mp
 
@@ -810,10 +876,16 @@ def write_garment_report(rows: list[dict], out: Path, elapsed: float) -> None:
              "units to 1e-7 N, `/ square` that best over the square's best, `paired` the median over the rounds "
              "of the scene's figure over the square's of the same round (work units; CPU seconds), and `runs` "
              "every round's work units (a process's reference pass moves by "
-             "up to 1.6x from one process to the next).", "",
+             "up to 1.6x from one process to the next). `same process` is the issue's time ratio measured "
+             "where the machine's state cannot enter it: in each of as many fresh processes, the scene and "
+             f"the square solved alternately ({PAIR_SOLVES} times each, in the order square, scene, scene, "
+             "square, ...), each scene's CPU seconds to 1e-7 N over its neighbouring square's; the median "
+             "over every pair, with the range and the number of pairs. (A reference pass measured twice in "
+             "one process gave 1.24 and 1.87 ms: the work units' ratio between processes carries that "
+             "noise.)", "",
              "| scene | nodes | status | iterations | t(1e-7) s | t(1e-7) WU | / square | paired WU / square "
-             "| paired s / square | runs (WU) | t(1e-9) WU | error m |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| paired s / square | same process s / square | runs (WU) | t(1e-9) WU | error m |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def med(v):
         return f"{float(np.median(v)):.2f}" if v else "-"
@@ -824,8 +896,11 @@ def write_garment_report(rows: list[dict], out: Path, elapsed: float) -> None:
         pw = med(paired_ratios(sq, r, "wu_runs")) if sq else "-"
         ps = med(paired_ratios(sq, r, "cpu_runs")) if sq else "-"
         runs = ", ".join(_fmt_wu(w) for w in r.get("wu_runs") or [wu])
+        sp_r = r.get("same_process_ratios")
+        same = (f"{float(np.median(sp_r)):.2f} ({min(sp_r):.2f}-{max(sp_r):.2f}, {len(sp_r)})" if sp_r
+                else ("1.00" if r is sq else "-"))
         lines.append(f"| {r['case']} | {r['nodes']} | {r['status']} | {r['iterations']} | {_fmt_t(r['times'].get('1e-07'))} "
-                     f"| {_fmt_wu(wu)} | {ratio} | {pw} | {ps} | {runs} | {_fmt_wu(r['times_wu'].get('1e-09'))} "
+                     f"| {_fmt_wu(wu)} | {ratio} | {pw} | {ps} | {same} | {runs} | {_fmt_wu(r['times_wu'].get('1e-09'))} "
                      f"| {_fmt_e(r['error_final'])} |")
     out.mkdir(parents=True, exist_ok=True)
     (out / "benchmarks_garments.md").write_text("\n".join(lines) + "\n")
@@ -873,11 +948,18 @@ def run(quick: bool = False, out: str | Path = "docs", log=None, scans: str = "w
             good = ref is not None and ref["status"] == "converged"
             jobs += [(case, solver, ref["positions"] if good else None) for solver in case.solvers]
         rows = _interleaved(jobs, repeat, log)
+        gc = [c for c in cases(quick, garments)]
+        same = same_process_ratios(gc[0], gc[1:], repeat, log) if len(gc) > 1 else {}
+        for r in rows:
+            if r["case"] in same:
+                r["same_process_ratios"] = same[r["case"]]
         for r in rows:
             if log:
                 log(f"{r['case']:32s} {r['solver']:7s} {r['status']:15s} it {r['iterations']:7d} "
                     f"res {r['residual']:.1e}  t(1e-7) {_fmt_tw(r, 1e-7):>16s}  runs (WU) "
-                    f"{', '.join(_fmt_wu(w) for w in r['wu_runs'])}")
+                    f"{', '.join(_fmt_wu(w) for w in r['wu_runs'])}"
+                    + (f"  same process / square: median {np.median(r['same_process_ratios']):.2f} of "
+                       f"{len(r['same_process_ratios'])}" if r.get("same_process_ratios") else ""))
         write_garment_report(rows, Path(out), time.perf_counter() - t0)
         return rows
     for case in cases(quick, garments):

@@ -30,7 +30,7 @@ def test_garment_report_gives_ratio_to_the_square_and_every_run(tmp_path):
     md = (tmp_path / "benchmarks_garments.md").read_text()
     line = next(s for s in md.splitlines() if s.startswith("| circle cap 40k"))
     cells = [c.strip() for c in line.strip("|").split("|")]
-    assert cells[5] == "450" and cells[6] == "1.50" and cells[9] == "450, 470"
+    assert cells[5] == "450" and cells[6] == "1.50" and cells[10] == "450, 470"
 
 
 def test_interleaved_runs_every_scene_once_per_round(monkeypatch):
@@ -88,3 +88,67 @@ def test_interleaved_keeps_a_failed_run_as_a_gap_in_its_round(monkeypatch):
     assert rows[1]["times_wu"]["1e-07"] == 450.0
     assert bench.paired_ratios(rows[0], rows[1]) == [1.5, 500.0 / 310.0]
     assert any("boom" in m for m in log)
+
+
+def test_run_pair_alternates_the_scenes_and_pairs_neighbours(monkeypatch):
+    """``run_pair`` solves base and scene alternately (base, scene, scene, base, ...) in one
+    process, after one warm-up solve each, and pairs each solve with its neighbour."""
+    import clothsim.solvers as solvers
+
+    class _S:
+        def model_copy(self, update):
+            return self
+
+        def copy(self):
+            return self
+
+    loads, warm, order = [], [], []
+    monkeypatch.setattr(bench, "_load", lambda c, *a: loads.append(c.name) or (c.name, _S(), _S()))
+    monkeypatch.setattr(solvers, "solve", lambda m, s, st, **k: warm.append(m))
+    t = {"b": iter([1.0, 1.1, 1.2, 1.3]), "c": iter([1.5, 1.6, None, 1.8])}
+    monkeypatch.setattr(bench, "_cpu_to", lambda m, s, st: order.append(m) or next(t[m]))
+    pairs = bench.run_pair(bench.Case("b", "x.yaml"), bench.Case("c", "y.yaml"), 4)
+    assert loads == ["b", "c"] and warm == ["b", "c"]
+    assert order == ["b", "c", "c", "b", "b", "c", "c", "b"]
+    assert pairs == [[1.0, 1.5], [1.1, 1.6], [1.2, None], [1.3, 1.8]]
+
+
+def test_same_process_ratios_skip_missing_pairs_and_failed_processes(monkeypatch):
+    runs = iter([[[1.0, 1.5], [2.0, None]], RuntimeError("boom"), [[1.0, 1.2]]])
+
+    def child(fn, base, case):
+        r = next(runs)
+        if isinstance(r, Exception):
+            raise r
+        return r
+
+    monkeypatch.setattr(bench, "_in_child", child)
+    log = []
+    out = bench.same_process_ratios(bench.Case("b", "x.yaml"), [bench.Case("c", "y.yaml")], 3, log.append)
+    assert out == {"c": [1.5, 1.2]}
+    assert any("boom" in m for m in log)
+
+
+def test_garment_report_gives_the_same_process_ratio(tmp_path):
+    sq = dict(_row("sphere cap 201^2", 280.0), wu_runs=[280.0])
+    ci = dict(_row("circle cap 40k", 400.0), wu_runs=[400.0], same_process_ratios=[1.3, 1.1, 1.2, 1.25])
+    fo = dict(_row("four panels cap 40k", 400.0), wu_runs=[400.0])
+    bench.write_garment_report([sq, ci, fo], tmp_path, 12.0)
+    md = (tmp_path / "benchmarks_garments.md").read_text()
+    cells = {}
+    for s in md.splitlines():
+        if s.startswith("| ") and not s.startswith("| scene"):
+            c = [x.strip() for x in s.strip("|").split("|")]
+            cells[c[0]] = c
+    assert cells["circle cap 40k"][9] == "1.23 (1.10-1.30, 4)"
+    assert cells["sphere cap 201^2"][9] == "1.00" and cells["four panels cap 40k"][9] == "-"
+
+
+def test_run_pair_times_two_real_scenes():
+    """A real pair on small lattices: both reach 1e-7 N and every time is a positive CPU time."""
+    base = bench.Case("sq", "configs/sphere_cap.yaml", ["fabric.divisions=[20,20]"], ("newton",), {"newton": 60})
+    case = bench.Case("ci", "configs/garments/circle_cap.yaml", ["panels.0.divisions=[24,24]"], ("newton",),
+                      {"newton": 60})
+    pairs = bench.run_pair(base, case, 2)
+    assert len(pairs) == 2
+    assert all(t is not None and 0.0 < t < 60.0 for p in pairs for t in p)
