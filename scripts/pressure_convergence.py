@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import clothsim
-from clothsim.results import MMHG, SENSOR_RADIUS_M, pressure_area, sensor_pressure
+from clothsim.results import MMHG, SENSOR_RADIUS_M, max_sensor_pressure, pressure_area, sensor_pressure
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -71,10 +71,12 @@ def _where(x: np.ndarray, edge_m: np.ndarray, k: int) -> dict:
             "from_edge_m": round(float(edge_m[k]), 4)}
 
 
-def band_readings(res, p: np.ndarray, ok: np.ndarray, S: np.ndarray) -> dict:
+def band_readings(res, p: np.ndarray, ok: np.ndarray, S: np.ndarray, F: np.ndarray, A: np.ndarray) -> dict:
     """The calf band's interior readings and where its peaks sit (see the module docstring).
     p (N,) node pressure [Pa]; ok (N,) bool: contact nodes with a pressure;
-    S: the sensor reading [Pa] at each of np.nonzero(ok)[0]."""
+    S: the sensor reading [Pa] at each of np.nonzero(ok)[0]; F, A (N,): the node reactions [N]
+    and areas [m^2] (the interior sensor peak is searched between the interior's nodes too,
+    results.max_sensor_pressure; its place is the node with the largest node-centred reading)."""
     m, x = res.model, res.state.positions
     ly = float(res.scene.fabric.size[1])
     ny = int(res.scene.fabric.divisions[1])
@@ -91,7 +93,7 @@ def band_readings(res, p: np.ndarray, ok: np.ndarray, S: np.ndarray) -> dict:
     return {"interior_m": INTERIOR_M, "interior_nodes": int(inner.sum()),
             "interior_node_peak_mmhg": float(pin.max() / MMHG),
             "interior_node_p95_mmhg": float(np.percentile(pin, 95) / MMHG),
-            "interior_sensor_peak_mmhg": float(Sin.max() / MMHG),
+            "interior_sensor_peak_mmhg": float(max_sensor_pressure(x, F, A, centers[inner], m.topology.cells) / MMHG),
             "interior_sensor_p95_mmhg": float(np.percentile(Sin, 95) / MMHG),
             "node_peak_at": _where(x, edge_m, kn), "sensor_peak_at": _where(x, edge_m, ks),
             "interior_node_peak_at": _where(x, edge_m, kin), "interior_sensor_peak_at": _where(x, edge_m, ksin)}
@@ -109,15 +111,17 @@ def measure(scene, label: dict, profile: bool = False, band: bool = False) -> di
         return dict(label, converged=bool(res.converged), iterations=int(res.solve.iterations),
                     wall_s=round(wall, 1), nodes=int(m.node_count), contact_nodes=int(c.sum()),
                     note="no defined contact pressure: " + str(res.diagnostics().get("contact_pressure_note")))
-    S = sensor_pressure(x, np.where(np.isfinite(f), f, 0.0), pressure_area(m, x), np.nonzero(ok)[0])
+    F, A = np.where(np.isfinite(f), f, 0.0), pressure_area(m, x)
+    S = sensor_pressure(x, F, A, np.nonzero(ok)[0])
     row = dict(label, converged=bool(res.converged), iterations=int(res.solve.iterations),
                residual_n=float(res.solve.residual), wall_s=round(wall, 1), nodes=int(m.node_count), contact_nodes=int(c.sum()),
                node_peak_mmhg=float(p[ok].max() / MMHG), node_p95_mmhg=float(np.percentile(p[ok], 95) / MMHG),
-               sensor_peak_mmhg=float(S.max() / MMHG), sensor_p95_mmhg=float(np.percentile(S, 95) / MMHG),
+               sensor_peak_mmhg=float(max_sensor_pressure(x, F, A, np.nonzero(ok)[0], m.topology.cells) / MMHG),
+               sensor_node_peak_mmhg=float(S.max() / MMHG), sensor_p95_mmhg=float(np.percentile(S, 95) / MMHG),
                sensor_radius_m=SENSOR_RADIUS_M, stripe_index=stripe_index(m, p, c),
                total_force_n=float(f[np.isfinite(f)].sum()))
     if band:
-        row.update(band_readings(res, p, ok, S))
+        row.update(band_readings(res, p, ok, S, F, A))
     if profile and m.topology.is_grid:
         k = int(np.argmax(np.where(ok, p, 0)))
         i, j = m.topology.node_ij[k]

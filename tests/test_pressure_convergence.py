@@ -14,7 +14,7 @@ import pytest
 import trimesh
 
 import clothsim
-from clothsim.results import SENSOR_RADIUS_M, sensor_pressure
+from clothsim.results import SENSOR_RADIUS_M, max_sensor_pressure, sensor_pressure, sensor_pressure_at
 
 from conftest import scene_dict
 
@@ -119,3 +119,39 @@ def test_sensor_reads_laplace_on_the_knit_band():
     assert d["sensor_radius_m"] == SENSOR_RADIUS_M
     assert abs(d["max_sensor_pressure_pa"] / d["max_contact_pressure_pa"] - 1) < 1e-4
     assert abs(d["max_sensor_pressure_pa"] / 615.0 - 1) < 2e-3
+
+
+def _flat_cells(n):
+    """The (C, 4) cells of ``_flat``'s lattice (corners (i,j), (i+1,j), (i+1,j+1), (i,j+1))."""
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    return np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+
+
+def test_sensor_at_a_node_reads_as_the_node_centred_sensor():
+    X, A, h = _flat(40)
+    p = 1000.0 * (1 + 20.0 * X[:, 0] + 300.0 * X[:, 1] ** 2)
+    c = np.arange(0, X.shape[0], 7)
+    np.testing.assert_array_equal(sensor_pressure_at(X, p * A, A, X[c]), sensor_pressure(X, p * A, A, c))
+
+
+@pytest.mark.parametrize("n", [16, 32])
+def test_sensor_peak_is_found_between_the_nodes(n):
+    """A pressure crest along y at x = x* between two node columns (p = p0 (1 - ((x - x*)/w)^2)):
+    the node-centred sensors miss the crest, the search between the nodes reads it. The search
+    never reads less than the nodes, and reads a uniform field exactly."""
+    X, A, h = _flat(n)
+    cells = _flat_cells(n)
+    xs = 0.02 + 0.5 * h                                  # the crest midway between two columns
+    w = 0.004
+    p = 1000.0 * np.maximum(1 - ((X[:, 0] - xs) / w) ** 2, 0.0) + 200.0
+    F = p * A
+    inside = np.nonzero(np.all(np.abs(X[:, :2] - 0.02) < 0.012, axis=1))[0]
+    nodes = sensor_pressure(X, F, A, inside).max()
+    best = max_sensor_pressure(X, F, A, inside, cells)
+    # the sensor over the crest itself (the field is even about x = xs)
+    crest = sensor_pressure_at(X, F, A, np.array([[xs, 0.02, 0.0]]))[0]
+    assert best > nodes
+    assert abs(best - crest) < 1e-9 * crest, (best, crest, nodes)
+    assert max_sensor_pressure(X, 800.0 * A, A, inside, cells) == pytest.approx(800.0, rel=1e-12)
+    assert max_sensor_pressure(X, F, A, inside, np.zeros((0, 4), np.int64)) == nodes
+    assert max_sensor_pressure(X, F, A, np.zeros(0, np.int64), cells) == 0.0
