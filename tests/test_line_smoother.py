@@ -88,3 +88,35 @@ def test_multigrid_uses_renumbered_lines_with_the_same_vcycle(monkeypatch):
         out.append(mg.vcycle(b))
     assert np.array_equal(out[0], out[2]) and np.array_equal(out[1], out[3])
     assert np.allclose(out[1], 0.5 * out[0])
+
+
+def test_multigrids_of_one_topology_share_their_patterns_not_their_values(monkeypatch):
+    """``Multigrid.for_topology``: a second multigrid of the same grid (a Newton level of the next
+    solve of the same model) takes the first one's levels and coarse patterns when its fine
+    pattern is equal (new arrays with the same content), keeps its own values, and gives the
+    V-cycle of a multigrid built afresh, bit for bit."""
+    monkeypatch.setattr(L, "TRANSPOSE_NODES", 100)
+    nx1, ny1 = 33, 29
+    indptr, indices, data = _grid_system(nx1, ny1, 2)
+    topo = Topology.rectangle(nx1 - 1, ny1 - 1)
+    Pi = np.tile(np.eye(3), (nx1 * ny1, 1, 1))
+    b = np.random.default_rng(3).normal(size=3 * nx1 * ny1)
+    fresh = L.Multigrid(topo)
+    fresh.setup(indptr, indices, 3.0 * data, Pi)
+    first = L.Multigrid.for_topology(topo)
+    first.setup(indptr, indices, data, Pi)
+    second = L.Multigrid.for_topology(topo)
+    assert all(a is b for a, b in zip(second.transfers, first.transfers))
+    second.setup(indptr.copy(), indices.copy(), 3.0 * data, Pi)
+    assert second._sym[2] is first._sym[2] and second._sym[5] is first._sym[5]   # patterns shared
+    assert second.levels[1].data is not first.levels[1].data                     # values not
+    assert np.array_equal(second.vcycle(b), fresh.vcycle(b))
+    assert np.allclose(first.vcycle(b), 3.0 * second.vcycle(b))
+    # a different fine pattern (one coupling dropped) gets patterns of its own
+    ip2, ix2, d2 = _grid_system(nx1, ny1, 2, nine_point=True)
+    third = L.Multigrid.for_topology(topo)
+    third.setup(ip2, ix2, d2, Pi)
+    assert third._sym[2] is not first._sym[2]
+    ref = L.Multigrid(topo)
+    ref.setup(ip2, ix2, d2, Pi)
+    assert np.array_equal(third.vcycle(b), ref.vcycle(b))

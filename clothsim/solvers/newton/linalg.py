@@ -1062,6 +1062,18 @@ class Multigrid:
         self._init_levels(shapes, transfers, [_full_spans(nx, ny) for nx, ny in shapes], [None] * len(shapes))
 
     @classmethod
+    def for_topology(cls, topology):
+        """A multigrid on the full-rectangle ``topology`` whose levels, and the coarse patterns of
+        its set-ups, are shared with every other one made here for the same topology
+        (``_grid_layout``): a Newton level made for each solve of the same model then builds its
+        transfers, Galerkin patterns, line slots and renumbered patterns once, as
+        ``PaddedMultigrid`` does for cut lattices. Each keeps its own values."""
+        lay = _grid_layout(topology)
+        mg = cls.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad)
+        mg._layout = lay
+        return mg
+
+    @classmethod
     def from_levels(cls, shapes, transfers, spans, pad, pairs=None):
         """A multigrid on levels already built (shapes, transfers, smoother spans, padding masks
         and seam pairs of another instance's __init__; read, never changed), without a set-up."""
@@ -1086,6 +1098,7 @@ class Multigrid:
         # patterns) of the last set-up
         self._sym = None
         self._tbuf: dict = {}  # per level, the renumbered values (_Transposed) of the last set-up
+        self._layout = None  # a _GridLayout shared with other multigrids of the topology (for_topology)
 
     def setup(self, indptr, indices, data, Pi, pad_scale=None):
         """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
@@ -1102,8 +1115,16 @@ class Multigrid:
         # from the last set-up while the fine pattern is the same arrays (a Newton level's set-ups
         # share it)
         same = self._sym is not None and self._sym[0] is indptr and self._sym[1] is indices
+        lay = self._layout
         if not same:
-            self._sym = (indptr, indices, [], [], [], [])
+            got = None if lay is None else lay.sym
+            if (got is not None and np.array_equal(got[0], indptr) and np.array_equal(got[1], indices)):
+                # the same fine pattern as an earlier multigrid's of this topology: its patterns
+                self._sym = (indptr, indices) + got[2:]
+            else:
+                self._sym = (indptr, indices, [], [], [], [])
+            if lay is not None:
+                lay.sym = (indptr.copy(), indices.copy()) + self._sym[2:]
         pats, slots, chains, trans = self._sym[2], self._sym[3], self._sym[4], self._sym[5]
         for lv, tr in enumerate(self.transfers):
             F = levels[-1]
@@ -1300,6 +1321,27 @@ def coarse_pairs(pairs, transfers):
         nxt = nxt[nxt[:, 0] != nxt[:, 1]]
         out.append(np.ascontiguousarray(nxt, np.int64) if len(nxt) else None)
     return out
+
+
+class _GridLayout:
+    """What ``Multigrid.for_topology`` builds from a full-rectangle topology alone: the levels'
+    shapes, transfers, spans and padding masks (none), and, once set up, the coarse patterns of
+    its fine BSR pattern (``sym``: Multigrid._sym with copies of the fine indptr and indices)."""
+
+    def __init__(self, topology):
+        mg = Multigrid(topology)
+        self.shapes, self.transfers, self.spans, self.pad = mg.shapes, mg.transfers, mg.spans, mg.pad
+        self.sym = None
+
+
+# the full-grid layouts of the last few topologies (_grid_layout), by id(topology)
+_GRID_LAYOUTS: OrderedDict = OrderedDict()
+
+
+def _grid_layout(topology) -> _GridLayout:
+    """The full-rectangle topology's _GridLayout, built on first use and kept while the topology
+    lives; the LAYOUT_CACHE most recently used are kept."""
+    return per_object(_GRID_LAYOUTS, topology, (TRANSPOSE_NODES,), lambda: _GridLayout(topology), LAYOUT_CACHE)
 
 
 class _PaddedLayout:
