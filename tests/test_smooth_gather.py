@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 
 from clothsim.mold.build import mold_from_arrays
-from clothsim.mold.smooth import _blend, _blend_from, _gather
+from clothsim.mold.smooth import _blend, _blend_from, _gather, _gather_face
 
 
 def _smooth_margs():
@@ -58,3 +58,74 @@ def test_a_vertex_left_out_changes_the_blend():
     fewer = np.concatenate([cand[:i], cand[i + 1:nc]])
     b = _blend_from(margs, x[0], x[1], x[2], fewer, nc - 1, g2)
     assert a != b
+
+
+def test_face_lists_gather_what_the_bvh_gathers_at_every_point_of_the_face():
+    # a query starts on the faceted closest point's face and gathers from that face's list
+    # (``_gather_face``): the same vertices in the same order as the BVH search, at the face's
+    # corners, on its edges and inside it
+    margs = _smooth_margs()
+    V = np.asarray(margs.vertices)
+    F = np.asarray(margs.faces)
+    ptr = np.asarray(margs.face_vertex_ptr)
+    assert ptr.shape == (len(F) + 1,) and ptr[-1] == len(margs.face_vertex_idx)
+    rng = np.random.default_rng(3)
+    stack = np.empty(128, np.int64)
+    margin = 0.25 * margs.params[14]
+    checked = 0
+    for f in rng.choice(len(F), 120, replace=False):
+        a, b, c = V[F[f]]
+        for w in [(1, 0, 0), (0, 1, 0), (0, 0, 1), (0.5, 0.5, 0), (0, 0.3, 0.7)] + [tuple(rng.dirichlet((1, 1, 1)))
+                                                                                      for _ in range(5)]:
+            x = w[0] * a + w[1] * b + w[2] * c
+            c1, n1 = _gather(margs, x[0], x[1], x[2], margin, stack, np.empty(64, np.int64))
+            c2, n2 = _gather_face(margs, f, x[0], x[1], x[2], margin, np.empty(4, np.int64))  # grows
+            assert n1 > 0 and n1 == n2 and np.array_equal(c1[:n1], c2[:n2])
+            checked += 1
+        # the list holds more than what one point gathers (it serves the whole face), and no
+        # vertex twice
+        lst = np.asarray(margs.face_vertex_idx[ptr[f]:ptr[f + 1]])
+        assert len(np.unique(lst)) == len(lst)
+    assert checked == 1200
+
+
+def test_face_lists_against_brute_force_distance_to_the_triangle():
+    # f's list = the vertices within r_v + margin of the triangle (up to the 1e-9 diagonal slack),
+    # by brute force over all vertices and a dense sampling of the triangle
+    margs = _smooth_margs()
+    V = np.asarray(margs.vertices)
+    F = np.asarray(margs.faces)
+    J = np.asarray(margs.vertex_jets)
+    ptr = np.asarray(margs.face_vertex_ptr)
+    margin = 0.25 * margs.params[14]
+    u, v = np.meshgrid(np.linspace(0, 1, 41), np.linspace(0, 1, 41))
+    keep = u + v <= 1.0
+    W = np.stack([1 - u[keep] - v[keep], u[keep], v[keep]], 1)
+    for f in range(0, len(F), 37):
+        S = W @ V[F[f]]
+        d = np.sqrt(((V[:, None, :] - S[None]) ** 2).sum(-1)).min(1)
+        lst = set(np.asarray(margs.face_vertex_idx[ptr[f]:ptr[f + 1]]).tolist())
+        sure_in = set(np.nonzero(d < J[:, 15] + margin - 5e-4)[0].tolist())  # sampling error < 3e-4 m
+        sure_out = set(np.nonzero(d > J[:, 15] + margin + 1e-9)[0].tolist())
+        assert sure_in <= lst and not (lst & sure_out)
+
+
+def test_smooth_query_answers_as_with_the_bvh_gather():
+    # the query with the face lists against the same mold without them (the BVH gather): the
+    # same bits
+    from clothsim.mold import mold_query_many
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    V = np.asarray(m.vertices) * np.array([1.0, 0.8, 1.3])
+    mold = mold_from_arrays(V, np.asarray(m.faces), closed=True, surface="smooth")
+    import dataclasses
+    bare = dataclasses.replace(mold, face_vertex_ptr=None, face_vertex_idx=None)
+    assert len(bare.kernel_args().face_vertex_ptr) == 0
+    rng = np.random.default_rng(11)
+    P = V[rng.integers(0, len(V), 500)] + 0.004 * rng.standard_normal((500, 3))
+    res = []
+    for mm in (mold, bare):
+        sd, cp, nr, ft = np.empty(500), np.empty((500, 3)), np.empty((500, 3)), np.empty((500, 2), np.int64)
+        mold_query_many(mm.kernel_args(), P, sd, cp, nr, ft)
+        res.append((sd, cp, nr, ft))
+    for a, b in zip(*res):
+        assert np.array_equal(a, b)
