@@ -129,3 +129,57 @@ def test_smooth_query_answers_as_with_the_bvh_gather():
         res.append((sd, cp, nr, ft))
     for a, b in zip(*res):
         assert np.array_equal(a, b)
+
+
+def _mold_and_bare():
+    import dataclasses
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    V = np.asarray(m.vertices) * np.array([1.0, 0.8, 1.3])
+    mold = mold_from_arrays(V, np.asarray(m.faces), closed=True, surface="smooth")
+    return mold, dataclasses.replace(mold, face_vertex_ptr=None, face_vertex_idx=None), V
+
+
+def test_shape_operator_with_face_lists_is_the_bvh_ones_bit_for_bit():
+    from clothsim.mold import smooth_shape_operator
+    mold, bare, V = _mold_and_bare()
+    rng = np.random.default_rng(2)
+    P = V[rng.integers(0, len(V), 200)] + 0.003 * rng.standard_normal((200, 3))
+    cp = np.empty((200, 3))
+    from clothsim.mold import mold_query_many
+    mold_query_many(mold.kernel_args(), P, np.empty(200), cp, np.empty((200, 3)), np.empty((200, 2), np.int64))
+    for h in (1e-6, 1e-4, 0.01):  # the last: 4 h beyond the list's margin, the BVH gather
+        for p in cp:
+            res = []
+            for mm in (mold, bare):
+                n = np.empty(3)
+                S = np.empty((3, 3))
+                ok = smooth_shape_operator(mm.kernel_args(), p[0], p[1], p[2], h, n, S)
+                res.append((ok, n.copy(), S.copy()))
+            assert res[0][0] and res[1][0]
+            assert np.array_equal(res[0][1], res[1][1]) and np.array_equal(res[0][2], res[1][2])
+
+
+def test_segment_hit_from_a_known_start_query_is_the_segment_hit():
+    # the line search's free nodes start their segment hit from the node's answer already
+    # queried (``_query_nodes`` with its smooth-surface flag): the same t, bit for bit, for
+    # segments that hit, miss and graze, starting near and far (faceted fallback) from the surface
+    from clothsim.mold import mold_segment_hit
+    from clothsim.mold.segment import smooth_segment_hit_from
+    from clothsim.solvers.newton.active_set import _query_nodes
+    mold, _, V = _mold_and_bare()
+    margs = mold.kernel_args()
+    rng = np.random.default_rng(9)
+    n = 400
+    c = V[rng.integers(0, len(V), n)]
+    out = c * (1.0 + rng.choice([0.02, 0.1, 0.8, 1.5], n)[:, None])  # near, and beyond the supports
+    P1 = c * (1.0 - 0.05 * rng.uniform(-1, 1, n)[:, None]) + 0.01 * rng.standard_normal((n, 3))
+    Q = np.empty((n, 10))
+    _query_nodes(out, True, margs, Q)
+    assert 0 < Q[:, 9].sum() < n  # both the smooth answers and the faceted fallback
+    hits = 0
+    for k in range(n):
+        t0 = mold_segment_hit(margs, out[k], P1[k])
+        t1 = smooth_segment_hit_from(margs, out[k], P1[k], Q[k], Q[k, 8], Q[k, 9] != 0.0)
+        assert t0 == t1
+        hits += t0 >= 0.0
+    assert 0 < hits < n

@@ -509,9 +509,24 @@ def smooth_shape_operator(margs, px, py, pz, h, n_out, S_out):
     for a in range(3):
         for b in range(3):
             S_out[a, b] = 0.0
-    # the three points are within h of p: one gather serves them (the same bits as _blend)
+    # the three points are within h of p: one gather serves them (the same bits as _blend).
+    # From the list of p's nearest face f (``face_vertex_lists``) when p is within the list's
+    # margin of f less 4 h: a vertex whose support reaches within 4 h of p is then within
+    # r_v + margin of f, so it is on the list, in the BVH's order (extra vertices, outside every
+    # support, add nothing: the same bits)
     margin = max(_GATHER_MARGIN * margs.params[14], 4.0 * h)
-    cand, nc = _gather(margs, px, py, pz, margin, stack, np.empty(64, np.int64))
+    cand = np.empty(64, np.int64)
+    nc = -1
+    if margs.face_vertex_ptr.shape[0] > 0 and h > 0.0:
+        q = np.empty(8)
+        sdf = _mesh_query(margs, px, py, pz, q)
+        code = int(q[6])
+        if code >= 0 and abs(sdf) + 4.0 * h <= _GATHER_MARGIN * margs.params[14]:
+            margin = 4.0 * h
+            cand, nc = _gather_face(margs, _nearest_face(margs, code, int(q[7])), px, py, pz, margin, cand)
+    if nc < 0:
+        margin = max(_GATHER_MARGIN * margs.params[14], 4.0 * h)
+        cand, nc = _gather(margs, px, py, pz, margin, stack, cand)
     if nc < 0 or not (h <= 0.5 * margin):
         return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, -1)
     return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, nc)
