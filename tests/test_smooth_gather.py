@@ -183,3 +183,40 @@ def test_segment_hit_from_a_known_start_query_is_the_segment_hit():
         assert t0 == t1
         hits += t0 >= 0.0
     assert 0 < hits < n
+
+
+def test_slanted_segment_hits_are_the_first_crossing_by_bisection():
+    # slanted segments from outside into the surface (a line-search trial's free node reaching
+    # the body) hit where bisection on the smooth signed distance finds the first crossing
+    # (sampled densely along the segment), to within the hit tolerance over the slope
+    from clothsim.mold import mold_query, mold_segment_hit
+    mold, _, V = _mold_and_bare()
+    margs = mold.kernel_args()
+    rng = np.random.default_rng(4)
+    q = np.empty(8)
+
+    def sd(x):
+        return mold_query(margs, x, q)
+
+    checked = 0
+    for k in rng.integers(0, len(V), 60):
+        c = np.asarray(margs.vertices[k])
+        n = np.asarray(margs.vertex_normals[k])
+        t1 = np.cross(n, rng.standard_normal(3))
+        t1 /= np.linalg.norm(t1)
+        p0 = c + 0.01 * n - 0.02 * t1
+        p1 = c - 0.006 * n + 0.01 * t1  # slanted: about 30 degrees to the surface
+        t = mold_segment_hit(margs, p0, p1)
+        ts = np.linspace(0.0, 1.0, 401)
+        f = np.array([sd(p0 + s * (p1 - p0)) for s in ts])
+        i = np.nonzero(f < 0.0)[0]
+        assert len(i) and i[0] > 0
+        lo, hi = ts[i[0] - 1], ts[i[0]]
+        for _ in range(60):
+            m = 0.5 * (lo + hi)
+            lo, hi = (m, hi) if sd(p0 + m * (p1 - p0)) > 0.0 else (lo, m)
+        L = np.linalg.norm(p1 - p0)
+        assert abs(sd(p0 + t * (p1 - p0))) <= 1e-12
+        assert abs(t - lo) * L <= 1e-10
+        checked += 1
+    assert checked == 60
