@@ -36,7 +36,8 @@ def _sphere_trial(steps):
         active_set.FIXED_PROJECTION_STEPS = steps
         active_set.FIXED_PROJECTION_EVERYWHERE = True
         pen = _trial_positions_sd.py_func(pos, np.array([True]), np.zeros(1), step, 1.0, fixed, True, margs, False,
-                                          -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False)
+                                          -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False,
+                                          np.empty((0, 10)))
     finally:
         active_set.FIXED_PROJECTION_STEPS, active_set.FIXED_PROJECTION_EVERYWHERE = old
     return pen, out[0], cout[0], rho0, z0, margs
@@ -128,7 +129,8 @@ def test_node_held_off_the_surface_closes_its_gap():
     cout = np.empty(2, bool)
     for alpha in (1.0, 0.5):
         pen = _trial_positions_sd.py_func(pos, contact, sd0, step, alpha, fixed, True, margs, False,
-                                          -np.ones(2, np.int64), np.zeros((2, 3)), out, cout, np.zeros(2), False)
+                                          -np.ones(2, np.int64), np.zeros((2, 3)), out, cout, np.zeros(2), False,
+                                          np.empty((0, 10)))
         assert pen == 0.0 and cout.all()
         assert out[0, 2] == pytest.approx((1 - alpha) * gap, rel=0, abs=1e-20)
         assert np.allclose(out[0, :2], pos[0, :2] + alpha * step[:2], rtol=0, atol=1e-15)

@@ -371,7 +371,8 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
         prm = np.array(mold.params)
         prm[13:15] = 0.0
         return dataclasses.replace(mold, kind=MOLD_MESH, params=_ro(prm, np.float64),
-                                   vertex_jets=None, bvh_reach=None)
+                                   vertex_jets=None, bvh_reach=None, face_vertex_ptr=None,
+                                   face_vertex_idx=None)
     if surface != "smooth":
         raise MoldError(f"{mold.source}: surface must be 'smooth' or 'faceted', got {surface!r}")
     r = None if smoothing is None else float(smoothing)
@@ -386,7 +387,13 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
     prm[13] = float(jets[:, 15].max())
     out = dataclasses.replace(mold, kind=MOLD_SMOOTH, params=_ro(prm, np.float64),
                               vertex_jets=_ro(jets, np.float64),
-                              bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64))
+                              bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64),
+                              face_vertex_ptr=None, face_vertex_idx=None)
+    # each face's gathering list for the queries started on it (``smooth.face_vertex_lists``)
+    from .smooth import face_vertex_lists
+
+    fptr, fidx = face_vertex_lists(out.kernel_args())
+    out = dataclasses.replace(out, face_vertex_ptr=_ro(fptr, np.int64), face_vertex_idx=_ro(fidx, np.int64))
     frac, dev = smooth_departure(out)
     if frac > SMOOTH_WARN_FRACTION:
         warnings.warn(f"{mold.source}: the smooth surface departs from {100 * frac:.0f} % of the "

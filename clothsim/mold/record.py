@@ -35,6 +35,8 @@ _NO_JETS = np.zeros((0, 20))
 _NO_JETS.setflags(write=False)
 _NO_REACH = np.zeros(0)
 _NO_REACH.setflags(write=False)
+_NO_LIST = np.zeros(0, dtype=np.int64)
+_NO_LIST.setflags(write=False)
 
 
 class MoldError(ValueError):
@@ -92,6 +94,10 @@ class MoldArgs(NamedTuple):
     """float64 (V, 20) on a smooth mesh, else (0, 20): see :attr:`Mold.vertex_jets`."""
     bvh_reach: np.ndarray
     """float64 (N,) on a smooth mesh, else (0,): see :attr:`Mold.bvh_reach`."""
+    face_vertex_ptr: np.ndarray
+    """int64 (F+1,) on a smooth mesh, else (0,): see :attr:`Mold.face_vertex_ptr`."""
+    face_vertex_idx: np.ndarray
+    """int64 (M,) on a smooth mesh, else (0,): see :attr:`Mold.face_vertex_ptr`."""
 
 
 def _ro(a: np.ndarray, dtype) -> np.ndarray:
@@ -169,12 +175,24 @@ class Mold:
     """float64 (N,) on a smooth mesh, (0,) otherwise: per BVH node the largest blending radius
     [m] of the vertices owned by its faces (a vertex is owned by the first face of its ring), so
     the smooth surface's vertex search prunes each node by its own reach."""
+    face_vertex_ptr: np.ndarray = None  # type: ignore[assignment]
+    """int64 (F+1,) on a smooth mesh, (0,) otherwise: CSR offsets into ``face_vertex_idx``, per
+    face the vertices whose support reaches within the foot iteration's gathering margin of some
+    point of the face (|x - v| < r_v + margin for some x on it), in the order the BVH search
+    visits them (``smooth.face_vertex_lists``): a query started on the face gathers its vertices
+    from this list instead of searching the tree (the same vertices in the same order)."""
+    face_vertex_idx: np.ndarray = None  # type: ignore[assignment]
+    """int64 (M,) on a smooth mesh, (0,) otherwise: see ``face_vertex_ptr``."""
 
     def __post_init__(self):
         if self.vertex_jets is None:
             object.__setattr__(self, "vertex_jets", _NO_JETS)
         if self.bvh_reach is None:
             object.__setattr__(self, "bvh_reach", _NO_REACH)
+        if self.face_vertex_ptr is None:
+            object.__setattr__(self, "face_vertex_ptr", _NO_LIST)
+        if self.face_vertex_idx is None:
+            object.__setattr__(self, "face_vertex_idx", _NO_LIST)
 
     # ---- API -----------------------------------------------------------------------------
     @property
@@ -227,7 +245,7 @@ class Mold:
                         self.edge_faces, self.vertex_face_ptr, self.vertex_face_idx,
                         self.vertex_boundary, self.bvh_min, self.bvh_max, self.bvh_child,
                         self.bvh_range, self.bvh_faces, self.vertex_jets,
-                        self.bvh_reach)
+                        self.bvh_reach, self.face_vertex_ptr, self.face_vertex_idx)
 
     def surface_mesh(self, resolution: int = 48, extent: float = 1.0):
         """A triangle mesh for display: ``(vertices float64 (V,3) [m], faces int64 (F,3))``.

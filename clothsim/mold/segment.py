@@ -219,8 +219,39 @@ def _smooth_segment_hit(margs, p0, p1):
     if L == 0.0:
         return -1.0
     out = np.empty(8)
-    t = 0.0
     f, safe = _smooth_sd(margs, p0, dx, dy, dz, 0.0, out)
+    return _smooth_trace(margs, p0, p1, f, safe, out)
+
+
+@njit(cache=True)
+def smooth_segment_hit_from(margs, p0, p1, q0, sd0, smooth0):
+    """``mold_segment_hit`` on the smooth surface with the query at p0 already made: q0 (>= 8) its
+    answer (``_smooth_query_flag`` at p0), sd0 [m] its signed distance, smooth0 its flag (False:
+    the faceted answer). The same steps as without it, so the same bits, one query fewer."""
+    dx = p1[0] - p0[0]
+    dy = p1[1] - p0[1]
+    dz = p1[2] - p0[2]
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if L == 0.0:
+        return -1.0
+    out = np.empty(8)
+    for a in range(8):
+        out[a] = q0[a]
+    safe = abs(sd0)
+    if not smooth0:
+        safe = max(safe - 0.1 * margs.params[14], 0.5 * safe)
+    return _smooth_trace(margs, p0, p1, sd0, safe, out)
+
+
+@njit(cache=True)
+def _smooth_trace(margs, p0, p1, f, safe, out):
+    """The body of ``_smooth_segment_hit`` after the query at t = 0 (f, safe: its
+    ``_smooth_sd``; out: its answer)."""
+    dx = p1[0] - p0[0]
+    dy = p1[1] - p0[1]
+    dz = p1[2] - p0[2]
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    t = 0.0
     steps = _TRACE_STEPS
     if abs(f) <= _HIT_TOL:
         if out[3] * dx + out[4] * dy + out[5] * dz < 0.0:

@@ -56,7 +56,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .queries import _box_d2, _mesh_query
+from .queries import _box_d2, _mesh_query, _tri_closest
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
 _FOOT_ITERS = 30
@@ -120,6 +120,91 @@ def _gather(margs, x, y, z, margin, stack, cand):
                     cand = bigger
                 cand[nc] = v
                 nc += 1
+    return cand, nc
+
+
+# the face lists' slack [m] per metre of the mesh's bounding-box diagonal: the faceted closest
+# point a query starts from lies on its face up to rounding
+_FACE_LIST_SLACK = 1e-9
+
+
+@njit(cache=True)
+def face_vertex_lists(margs):
+    """Per face f of a smooth mesh, the vertices v whose support reaches within the foot
+    iteration's gathering margin (``_GATHER_MARGIN`` median smoothing radii) of some point of f
+    (distance from v to the triangle < r_v + margin, with a slack of 1e-9 bounding-box diagonals),
+    in the order the BVH search visits them. Returns (ptr int64 (F+1,), idx int64 (M,)): the
+    CSR lists (``Mold.face_vertex_ptr``). A point x on f then has, among f's list, every vertex
+    ``_gather`` finds at x, in the same order (``_gather_face``)."""
+    F = margs.faces
+    V = margs.vertices
+    J = margs.vertex_jets
+    nf = F.shape[0]
+    ptr = np.zeros(nf + 1, np.int64)
+    idx = np.empty(16 * nf + 16, np.int64)
+    margin = _GATHER_MARGIN * margs.params[14]
+    slack = _FACE_LIST_SLACK * margs.params[15]
+    stack = np.empty(128, np.int64)
+    cand = np.empty(64, np.int64)
+    m = 0
+    for f in range(nf):
+        a = F[f, 0]
+        b = F[f, 1]
+        c = F[f, 2]
+        gx = (V[a, 0] + V[b, 0] + V[c, 0]) / 3.0
+        gy = (V[a, 1] + V[b, 1] + V[c, 1]) / 3.0
+        gz = (V[a, 2] + V[b, 2] + V[c, 2]) / 3.0
+        rf = 0.0
+        for j in range(3):
+            v = F[f, j]
+            rf = max(rf, math.sqrt((V[v, 0] - gx) ** 2 + (V[v, 1] - gy) ** 2 + (V[v, 2] - gz) ** 2))
+        # every point of f is within rf of its centroid: a superset, in the BVH's order
+        cand, nc = _gather(margs, gx, gy, gz, margin + rf + 2.0 * slack, stack, cand)
+        if nc < 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        for i in range(nc):
+            v = cand[i]
+            qx, qy, qz, _ = _tri_closest(V[v, 0], V[v, 1], V[v, 2], V[a, 0], V[a, 1], V[a, 2],
+                                         V[b, 0], V[b, 1], V[b, 2], V[c, 0], V[c, 1], V[c, 2])
+            d = math.sqrt((V[v, 0] - qx) ** 2 + (V[v, 1] - qy) ** 2 + (V[v, 2] - qz) ** 2)
+            if not (d < J[v, 15] + margin + slack):
+                continue
+            if m == idx.shape[0]:
+                bigger = np.empty(2 * idx.shape[0], np.int64)
+                bigger[:m] = idx[:m]
+                idx = bigger
+            idx[m] = v
+            m += 1
+        ptr[f + 1] = m
+    return ptr, idx[:m].copy()
+
+
+@njit(cache=True)
+def _gather_face(margs, f, x, y, z, margin, cand):
+    """``_gather`` at a point x on face f (its faceted closest point) from f's list
+    (``face_vertex_lists``, built for this margin) instead of the BVH: the same vertices in the
+    same order. Returns (cand, count), count -1 when the mesh has no lists."""
+    ptr = margs.face_vertex_ptr
+    if not (0 <= f < ptr.shape[0] - 1):
+        return cand, -1
+    V = margs.vertices
+    J = margs.vertex_jets
+    lst = margs.face_vertex_idx
+    nc = 0
+    for i in range(ptr[f], ptr[f + 1]):
+        v = lst[i]
+        dx = x - V[v, 0]
+        dy = y - V[v, 1]
+        dz = z - V[v, 2]
+        rv = J[v, 15] + margin
+        if dx * dx + dy * dy + dz * dz >= rv * rv:
+            continue
+        if nc == cand.shape[0]:
+            bigger = np.empty(2 * cand.shape[0], np.int64)
+            bigger[:nc] = cand[:nc]
+            cand = bigger
+        cand[nc] = v
+        nc += 1
     return cand, nc
 
 
@@ -293,7 +378,7 @@ def smooth_phi(margs, P, phi_out, grad_out, weight_out):
 
 
 @njit(cache=True)
-def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
+def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack, face=-1):
     """Closest point c on {phi = 0} to p, started from c; returns (cx, cy, cz, nx, ny, nz, sd,
     ok): the unit normal n(c) and sd = (p - c).n(c) [m].
 
@@ -306,12 +391,18 @@ def _smooth_foot(margs, px, py, pz, cx, cy, cz, g, stack):
 
     The vertices near the start are gathered once (``_gather``, within ``_GATHER_MARGIN``
     median smoothing radii) and the steps within half that of it sum over them alone, instead
-    of searching the BVH at every step: the same vertices in the same order, the same bits."""
+    of searching the BVH at every step: the same vertices in the same order, the same bits.
+    face >= 0: c lies on that face (the faceted closest point), and they are gathered from its
+    list (``_gather_face``), again the same."""
     prev = np.inf
     damp = 1.0
     margin = _GATHER_MARGIN * margs.params[14]
     cand = np.empty(64, np.int64)
-    cand, nc = _gather(margs, cx, cy, cz, margin, stack, cand)
+    nc = -1
+    if face >= 0:
+        cand, nc = _gather_face(margs, face, cx, cy, cz, margin, cand)
+    if nc < 0:
+        cand, nc = _gather(margs, cx, cy, cz, margin, stack, cand)
     x0 = cx
     y0 = cy
     z0 = cz
@@ -384,7 +475,7 @@ def _smooth_query_flag(margs, px, py, pz, out):
     g = np.empty(3)
     stack = np.empty(128, dtype=np.int64)
     cx, cy, cz, nx, ny, nz, sd, ok = _smooth_foot(margs, px, py, pz, out[0], out[1], out[2], g,
-                                                  stack)
+                                                  stack, int(out[7]))
     if not ok:
         return sdf, False
     out[0] = cx
@@ -418,9 +509,24 @@ def smooth_shape_operator(margs, px, py, pz, h, n_out, S_out):
     for a in range(3):
         for b in range(3):
             S_out[a, b] = 0.0
-    # the three points are within h of p: one gather serves them (the same bits as _blend)
+    # the three points are within h of p: one gather serves them (the same bits as _blend).
+    # From the list of p's nearest face f (``face_vertex_lists``) when p is within the list's
+    # margin of f less 4 h: a vertex whose support reaches within 4 h of p is then within
+    # r_v + margin of f, so it is on the list, in the BVH's order (extra vertices, outside every
+    # support, add nothing: the same bits)
     margin = max(_GATHER_MARGIN * margs.params[14], 4.0 * h)
-    cand, nc = _gather(margs, px, py, pz, margin, stack, np.empty(64, np.int64))
+    cand = np.empty(64, np.int64)
+    nc = -1
+    if margs.face_vertex_ptr.shape[0] > 0 and h > 0.0:
+        q = np.empty(8)
+        sdf = _mesh_query(margs, px, py, pz, q)
+        code = int(q[6])
+        if code >= 0 and abs(sdf) + 4.0 * h <= _GATHER_MARGIN * margs.params[14]:
+            margin = 4.0 * h
+            cand, nc = _gather_face(margs, _nearest_face(margs, code, int(q[7])), px, py, pz, margin, cand)
+    if nc < 0:
+        margin = max(_GATHER_MARGIN * margs.params[14], 4.0 * h)
+        cand, nc = _gather(margs, px, py, pz, margin, stack, cand)
     if nc < 0 or not (h <= 0.5 * margin):
         return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, -1)
     return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, nc)

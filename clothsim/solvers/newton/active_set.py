@@ -17,6 +17,7 @@ from numba import njit
 from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, free_axis_normals, stop_at_surface
 from ...mold import (MOLD_MESH, MOLD_SMOOTH, contact_normals_from_query, mold_contact_normals, mold_query,
                      smooth_shape_operator)
+from ...mold.segment import smooth_segment_hit_from
 from ...mold.smooth import _smooth_query_flag
 
 # after a projection onto the mold, a node may be inside by at most this [m]
@@ -91,12 +92,26 @@ def _ridge_face(x, R, normals, m, margs, probe, act, na):
 def _query_nodes(pos, has_mold, margs, Q):
     """Q (n, 9): every node's ``mold_query`` answer at pos (n,3) [m] in Q[k, 0:8] and its signed
     distance [m] in Q[k, 8] (inf without a mold): one call for the whole sheet, read by the
-    ``*_q`` kernels instead of querying the same points again."""
+    ``*_q`` kernels instead of querying the same points again. With a tenth column, Q[k, 9] is 1
+    where the answer is the smooth surface's own (``_smooth_query_flag``; 0 where it fell back to
+    the facets; 1 on other molds), read by the line search's segment hits
+    (``_trial_positions_sd``)."""
+    smooth = has_mold and margs[0][0] == MOLD_SMOOTH
+    flag = Q.shape[1] > 9
     for k in range(pos.shape[0]):
-        if has_mold:
+        if smooth:
+            sd, ok = _smooth_query_flag(margs, pos[k, 0], pos[k, 1], pos[k, 2], Q[k])
+            Q[k, 8] = sd
+            if flag:
+                Q[k, 9] = 1.0 if ok else 0.0
+        elif has_mold:
             Q[k, 8] = mold_query(margs, pos[k], Q[k])
+            if flag:
+                Q[k, 9] = 1.0
         else:
             Q[k, 8] = np.inf
+            if flag:
+                Q[k, 9] = 1.0
 
 
 @njit(cache=True)
@@ -482,12 +497,12 @@ def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, c
     """``_trial_positions_sd`` without the per-node distances and the reuse of an earlier pass."""
     sd_out = np.empty(pos0.shape[0])
     return _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0,
-                               out, contact_out, sd_out, False)
+                               out, contact_out, sd_out, False, np.empty((0, 10)))
 
 
 @njit(cache=True)
 def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
-                        contact_out, sd_out, reuse):
+                        contact_out, sd_out, reuse, Q0):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
     are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
@@ -498,8 +513,12 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     distance after its move (0 for a node not queried). reuse (with clip_faces): out,
     contact_out and sd_out hold the pass without the clip at the same pos0, step and alpha, and
     the nodes that the clip does not stop (their position is the same) keep that pass's answers
-    instead of being queried again: the same result, bit for bit."""
+    instead of being queried again: the same result, bit for bit. Q0 (n, 10): the mold's answers
+    at pos0 with their smooth-surface flags (``_query_nodes``; (0, 10): none): on the smooth
+    surface a free node's segment hit starts from its answer instead of querying pos0 again (the
+    same bits)."""
     q = np.empty(8)
+    q0_known = Q0.shape[0] == pos0.shape[0] and Q0.shape[1] > 9 and margs[0][0] == MOLD_SMOOTH
     p = np.empty(3)
     dd = np.empty(3)
     worst = 0.0
@@ -551,6 +570,14 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 if -sd_out[k] > worst:
                     worst = -sd_out[k]
                 continue
+            elif q0_known:
+                # stop_at_surface with the query at pos0 read from Q0
+                t = smooth_segment_hit_from(margs, pos0[k], p, Q0[k], Q0[k, 8], Q0[k, 9] != 0.0)
+                if t >= 0.0:
+                    hit = True
+                    for a in range(3):
+                        if not fixed[k, a]:
+                            p[a] = pos0[k, a] + t * (p[a] - pos0[k, a])
             else:
                 hit = stop_at_surface(margs, pos0[k], p, fixed[k])
             on_foot = False

@@ -167,7 +167,7 @@ class NewtonLevel:
         # the mold's answers at the nodes (_query_nodes) and the positions they are for: the
         # accepted step's residual queries them, and the next iteration's active set, distances,
         # blocking rules and face clips read them instead of querying the same points again
-        self.Q = np.zeros((n, 9))
+        self.Q = np.zeros((n, 10))
         self._q_pos = None
         self.sd0 = np.full(n, np.inf)
         self.gap = np.zeros(3 * n)  # the step's prescribed gap closure [m] (_gap_closure)
@@ -214,7 +214,7 @@ class NewtonLevel:
         return _residual_q(F, self.model.fixed_axes, contact, self.has_mold, self.margs, self.queries(pos), self.V)
 
     def queries(self, pos):
-        """The mold's answers at the nodes at pos (n,3) [m] (``_query_nodes``: Q (n, 9)), queried
+        """The mold's answers at the nodes at pos (n,3) [m] (``_query_nodes``: Q (n, 10)), queried
         once per set of positions."""
         if self._q_pos is None or not _same(self._q_pos, pos):
             _query_nodes(pos, self.has_mold, self.margs, self.Q)
@@ -416,7 +416,8 @@ class NewtonLevel:
                 # the clipped pass re-queries only the nodes the clip stops (the others' answers
                 # from the pass just before, at the same alpha, stand)
                 pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
-                                          clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip)
+                                          clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip,
+                                          self.queries(pos))
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
