@@ -810,12 +810,21 @@ SMOOTH_SCAN_NOTES = [
     "(28 x 60) along them. Iterations: bands 23-75 (median 34, 2 above 60) -> 19-60 (median 28.5, none "
     "above 60); stocking 14 x 30 77 -> 43, 28 x 60 209 -> 58 (its end game was the same linear tail). "
     "The faceted campaign is unchanged (the term is 0 on facets: the same iterations and residuals, case "
-    "by case), and so is every example on an analytic or faceted mold. Left: the middle of the bands "
+    "by case), and so is every example on an analytic or faceted mold. It costs time on the bands: "
+    "fewer iterations (870 -> 724 over 23 bands) but more and dearer line-search trials (the softer "
+    "model's longer steps are cut more often, and their trial points lie farther from the surface, "
+    "where a smooth query is slower: smpl_neutral at y = 1.12 m, 37 trials of 8 ms -> 70 of 23 ms), "
+    "so 31-35 -> 49-54 ms per iteration and 27-30 -> 36-39 s of CPU for the 23 bands (two interleaved "
+    "runs each; median per band 1.10 -> 1.46 s); the stockings take half the time (14 x 30 4.4 -> "
+    "2.4 s, 28 x 60 41 -> 23 s). Tried and not kept: the full term only after a full step (less "
+    "CPU on the bands; stockings 19 and 84 iterations) leaves 61 iterations at 1.06 and at 1.24 m, "
+    "after a step of alpha >= 0.5 62 and 63. "
+    "Left: the middle of the bands "
     "at 1.06 and 1.24 m (about 40 iterations each): full steps raise the energy by 10 to 400 times their "
     "predicted decrease and the line search cuts them to alpha = 1/2-1/16 (by the energy, never by "
-    "penetration) while the rope slides along the body. Tried and not kept: restoring the kink "
-    "stiffness after any cut step (62 and 57 iterations), raising the shift after alpha < 0.3 (70 "
-    "and 59).", "",
+    "penetration) while the rope slides along the body by 5-15 cm per predicted step. Also not kept: "
+    "restoring the kink stiffness after any cut step (62 and 57 iterations), raising the shift after "
+    "alpha < 0.3 (70 and 59).", "",
 ]
 
 

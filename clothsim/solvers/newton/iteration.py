@@ -20,8 +20,8 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible_q,
-                         _curvature_blocks, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
+                         _block_infeasible_q, _curvature_blocks, _curvature_terms, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
                          _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
@@ -174,6 +174,7 @@ class NewtonLevel:
         self.fd_step = 1e-4 * float(min(model.spacing))
         self._cache = None
         self._curv_full = False  # the Hessian holds all of the curvature term (CURVATURE 3)
+        self._curv_M = np.zeros((n, 3, 3))  # -lam S per node [N/m] (_curvature_terms)
         # the mold's answers at the nodes (_query_nodes) and the positions they are for: the
         # accepted step's residual queries them, and the next iteration's active set, distances,
         # blocking rules and face clips read them instead of querying the same points again
@@ -303,9 +304,8 @@ class NewtonLevel:
     def _curvature_fallback(self):
         """The Hessian K with the positive part of the curvature term (``CURVATURE`` 1) instead of
         all of it, for the rest of the iteration."""
-        pos, F, contact = self._curv_args
         self.K[self.diag] = self._Kd
-        _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step, 1, self.diag, self.K)
+        _add_curvature(self._curv_M, 1, self.diag, self.K)
         self._curv_full = False
 
     def _mg_stale(self, mu_abs):
@@ -353,12 +353,11 @@ class NewtonLevel:
                 # all of -lam S while the linear solve finds the system positive definite (the
                 # banded Cholesky's pivots, the sparse LU's, CG reaching its tolerance), else
                 # its positive part (_solve_linear, _curvature_fallback)
-                self._curv_args = (pos, F, contact)
-                self._Kd = self.K[self.diag].copy()
-                self._curv_full = _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step, 2,
-                                                    self.diag, self.K) > 0
-                if not self._curv_full:
-                    self.K[self.diag] = self._Kd
+                self._curv_M[:] = 0.0
+                if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
+                    self._Kd = self.K[self.diag].copy()
+                    _add_curvature(self._curv_M, 2, self.diag, self.K)
+                    self._curv_full = True
             else:
                 _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step,
                                   1 if CURVATURE == 3 else CURVATURE, self.diag, self.K)
