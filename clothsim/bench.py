@@ -815,7 +815,7 @@ def _plot(rows: list[dict], path: Path) -> None:
 SMOOTH_SCAN_NOTES = [
     "## Newton on the smooth surface: what changed and why", "",
     "- **The contact's curvature term** (`active_set._curvature_blocks`, "
-    "`iteration.CURVATURE = 1`). A node held on a curved surface and pressed onto it by lam = -F.n "
+    "`iteration.CURVATURE = 1`; 3 since, below). A node held on a curved surface and pressed onto it by lam = -F.n "
     "has, along the surface, the Hessian K - lam S (S the shape operator, `smooth.smooth_shape_operator`: "
     "forward differences of grad phi, three phi evaluations, no foot iteration). The tangent-plane model "
     "misses -lam S: on concave parts (S < 0: the small of the back, between ribs) it is too soft, the "
@@ -857,7 +857,40 @@ SMOOTH_SCAN_NOTES = [
     "faceted stocking and torso_band_held, so they are off there. (4) Cost: the mold's answers at the "
     "nodes are queried once per set of positions (`active_set._query_nodes`): the accepted step's "
     "residual queries them and the next iteration's active set, distances, blocking rules and face "
-    "clips read them (they queried the same points three to four times).", "",
+    "clips read them (they queried the same points three to four times).",
+    "- **All of the curvature term where the model has a minimum** (`iteration.CURVATURE = 3`, issue 12 "
+    "item 2). The two bands above 60 (smpl_man at y = 1.06 and 1.24 m: 65 and 75 iterations) ended in "
+    "linear tails: full steps, no contact change, the residual x0.23 and x0.42 per iteration for 9 and 18 "
+    "iterations. The positive part alone leaves out the convex part of -lam S, so the model is too stiff "
+    "along the surface: in a gathered rope whose soft direction (along the body axis) is tilted against "
+    "the torso's principal directions the step falls short by a fixed share. All of -lam S everywhere "
+    "(`CURVATURE = 2`) ends those two bands in 17 and 23 iterations, but at 1.46 and 0.47 J where the "
+    "descent reaches 0.98 and 0.33 J: stationary points the positive definite model had left (at 1.06 m "
+    "it passed 4e-3 N near 1.458 J at iteration 9 and slid away for 45 iterations), saddles that Newton "
+    "with an indefinite Hessian converges to. Now all of the term is added while the projected system "
+    "with it is positive definite (the banded Cholesky's or the sparse LU's pivots all positive, "
+    "`iteration._lu_positive_definite`; CG reaching its tolerance), its positive part otherwise (the "
+    "system solved again): exact Newton near a minimum, the descent near a saddle. Every band ends on "
+    "the same equilibrium as before (energies within 5e-15 J, positions within 6.5e-10 m); the stocking, "
+    "whose slack courses are degenerate, at the same energy (1e-16 relative), 0.4 mm (14 x 30) and 1.2 mm "
+    "(28 x 60) along them. Iterations: bands 23-75 (median 34, 2 above 60) -> 19-60 (median 28.5, none "
+    "above 60); stocking 14 x 30 77 -> 43, 28 x 60 209 -> 58 (its end game was the same linear tail). "
+    "The faceted campaign is unchanged (the term is 0 on facets: the same iterations and residuals, case "
+    "by case), and so is every example on an analytic or faceted mold. It costs time on the bands: "
+    "fewer iterations (870 -> 724 over 23 bands) but more and dearer line-search trials (the softer "
+    "model's longer steps are cut more often, and their trial points lie farther from the surface, "
+    "where a smooth query is slower: smpl_neutral at y = 1.12 m, 37 trials of 8 ms -> 70 of 23 ms), "
+    "so 31-35 -> 49-54 ms per iteration and 27-30 -> 36-39 s of CPU for the 23 bands (two interleaved "
+    "runs each; median per band 1.10 -> 1.46 s); the stockings take half the time (14 x 30 4.4 -> "
+    "2.4 s, 28 x 60 41 -> 23 s). Tried and not kept: the full term only after a full step (less "
+    "CPU on the bands; stockings 19 and 84 iterations) leaves 61 iterations at 1.06 and at 1.24 m, "
+    "after a step of alpha >= 0.5 62 and 63. "
+    "Left: the middle of the bands "
+    "at 1.06 and 1.24 m (about 40 iterations each): full steps raise the energy by 10 to 400 times their "
+    "predicted decrease and the line search cuts them to alpha = 1/2-1/16 (by the energy, never by "
+    "penetration) while the rope slides along the body by 5-15 cm per predicted step. Also not kept: "
+    "restoring the kink stiffness after any cut step (62 and 57 iterations), raising the shift after "
+    "alpha < 0.3 (70 and 59).", "",
 ]
 
 

@@ -659,11 +659,22 @@ def _curvature_blocks(pos, F, contact, has_mold, margs, h, mode, diag, K):
     over h [m]): the tangent-plane model alone misses -lam S. mode 1: only its positive
     semi-definite part (the stiffening of concave parts; the Hessian stays positive definite);
     mode 2: all of it. Nodes pulled off (lam <= 0) get nothing. Returns the number of nodes."""
-    if not has_mold or margs[0][0] != MOLD_SMOOTH or mode == 0:
+    M = np.zeros((pos.shape[0], 3, 3))
+    count = _curvature_terms(pos, F, contact, has_mold, margs, h, M)
+    if count:
+        _add_curvature(M, mode, diag, K)
+    return count
+
+
+@njit(cache=True)
+def _curvature_terms(pos, F, contact, has_mold, margs, h, M):
+    """M (n, 3, 3) [N/m]: -lam S of every contact node on a smooth surface pressed onto it (see
+    ``_curvature_blocks``), 0 elsewhere (M must come in as zeros). Returns how many nodes have
+    one."""
+    if not has_mold or margs[0][0] != MOLD_SMOOTH:
         return 0
     n = np.empty(3)
     S = np.empty((3, 3))
-    M = np.empty((3, 3))
     count = 0
     for k in range(pos.shape[0]):
         if not contact[k]:
@@ -675,19 +686,37 @@ def _curvature_blocks(pos, F, contact, has_mold, margs, h, mode, diag, K):
             continue
         for a in range(3):
             for b in range(3):
-                M[a, b] = -lam * S[a, b]
+                M[k, a, b] = -lam * S[a, b]
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def _add_curvature(M, mode, diag, K):
+    """K[diag[k]] += M[k] (mode 2) or its positive semi-definite part (mode 1) for every node k
+    whose M[k] (``_curvature_terms``) is not 0."""
+    P = np.empty((3, 3))
+    for k in range(M.shape[0]):
+        nz = False
+        for a in range(3):
+            for b in range(3):
+                if M[k, a, b] != 0.0:
+                    nz = True
+        if not nz:
+            continue
+        for a in range(3):
+            for b in range(3):
+                P[a, b] = M[k, a, b]
         if mode == 1:
-            w, v = np.linalg.eigh(M)
+            w, v = np.linalg.eigh(P)
             for a in range(3):
                 for b in range(3):
                     x = 0.0
                     for c in range(3):
                         if w[c] > 0.0:
                             x += w[c] * v[a, c] * v[b, c]
-                    M[a, b] = x
+                    P[a, b] = x
         d = diag[k]
         for a in range(3):
             for b in range(3):
-                K[d, a, b] += M[a, b]
-        count += 1
-    return count
+                K[d, a, b] += P[a, b]

@@ -20,8 +20,8 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import model_mold_args
 from ..options import NewtonOptions
-from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible_q,
-                         _curvature_blocks, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
+from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
+                         _block_infeasible_q, _curvature_blocks, _curvature_terms, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
                          _trial_positions_sd)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
@@ -80,8 +80,17 @@ LM_ALPHA_HIGH = 1.0
 # the banded Cholesky also on the smooth surface of a mesh (no example's equilibrium uses it)
 BAND_ON_SMOOTH = True
 # the contact's curvature term on a smooth surface (_curvature_blocks): 0 off, 1 its positive
-# semi-definite part, 2 all of it
-CURVATURE = 1
+# semi-definite part, 2 all of it, 3 all of it while the projected system with it is positive
+# definite (the banded Cholesky's or the sparse LU's pivots all positive, CG reaching its
+# tolerance), else its positive part (the system is solved again; _curvature_fallback). With 1
+# the convex part (-lam S < 0) is missing from the model, which is then too stiff along the
+# surface: where a gathered rope's soft directions (along the body axis) meet the torso's strong
+# curvature round it, the step falls short by a fixed share and the residual only shrinks by
+# 0.2-0.4 per full step (the last 10-18 iterations of the torso band on smpl_man at y = 1.06 and
+# 1.24; the smooth stocking's slow end game). With 2 the Hessian can be indefinite near a saddle,
+# and Newton converges to it (those two bands: to 1.46 and 0.47 J, where the descent reaches
+# 0.98 and 0.33 J). 3 is exact Newton where the model has a minimum, the descent elsewhere
+CURVATURE = 3
 LM_MAX = 1e4
 # on the smooth surface of a mesh (and on facets with SCAN_RULES_ON_FACETS), the kink stiffness of slack springs is divided by
 # KINK_DECAY after every full step (alpha = 1) that left the contact set as it was, down to
@@ -164,6 +173,8 @@ class NewtonLevel:
         # difference step of the smooth surface's shape operator [m] (_curvature_blocks)
         self.fd_step = 1e-4 * float(min(model.spacing))
         self._cache = None
+        self._curv_full = False  # the Hessian holds all of the curvature term (CURVATURE 3)
+        self._curv_M = np.zeros((n, 3, 3))  # -lam S per node [N/m] (_curvature_terms)
         # the mold's answers at the nodes (_query_nodes) and the positions they are for: the
         # accepted step's residual queries them, and the next iteration's active set, distances,
         # blocking rules and face clips read them instead of querying the same points again
@@ -244,9 +255,16 @@ class NewtonLevel:
                 x = np.empty(n3)
                 if _band_cholesky_solve(self.indptr, self.indices, self.A, inv, bw, rhs, work, x):
                     return x, 1
+                if self._curv_full:
+                    # not positive definite with all of the curvature term: its positive part
+                    self._curvature_fallback()
+                    return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
             M = sp.bsr_matrix((self.A, self.indices, self.indptr), shape=(n3, n3)).tocsc()
             lu = sla.splu(M, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
                           diag_pivot_thresh=1e-3)
+            if self._curv_full and not _lu_positive_definite(lu):
+                self._curvature_fallback()
+                return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
             x = lu.solve(rhs)
             return x, 1
         if x0 is not None:
@@ -275,7 +293,20 @@ class NewtonLevel:
             # the reused preconditioner no longer fits: rebuild and solve again
             self._mg_pi = None
             return self._solve_linear(rhs, mu_abs, tol)
+        if self._curv_full and rel > tol:
+            # CG stopped short with all of the curvature term (a direction of non-positive
+            # curvature, or a preconditioner built on an indefinite matrix): its positive part
+            self._curvature_fallback()
+            self._mg_pi = None
+            return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
         return x, it
+
+    def _curvature_fallback(self):
+        """The Hessian K with the positive part of the curvature term (``CURVATURE`` 1) instead of
+        all of it, for the rest of the iteration."""
+        self.K[self.diag] = self._Kd
+        _add_curvature(self._curv_M, 1, self.diag, self.K)
+        self._curv_full = False
 
     def _mg_stale(self, mu_abs):
         """Rebuild the multigrid hierarchy when the active set changed, the shift changed, or
@@ -316,8 +347,20 @@ class NewtonLevel:
         _assemble(pos, *self.sargs, self.kink, self.slot, self.K)
         if m.seam_count:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
+        self._curv_full = False
         if CURVATURE and self.has_mold:
-            _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step, CURVATURE, self.diag, self.K)
+            if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH:
+                # all of -lam S while the linear solve finds the system positive definite (the
+                # banded Cholesky's pivots, the sparse LU's, CG reaching its tolerance), else
+                # its positive part (_solve_linear, _curvature_fallback)
+                self._curv_M[:] = 0.0
+                if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
+                    self._Kd = self.K[self.diag].copy()
+                    _add_curvature(self._curv_M, 2, self.diag, self.K)
+                    self._curv_full = True
+            else:
+                _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step,
+                                  1 if CURVATURE == 3 else CURVATURE, self.diag, self.K)
         tr = _diag_traces(self.K, self.diag)
         free = ~m.fixed_axes.all(axis=1)
         dsum = tr[free].sum()
@@ -453,6 +496,15 @@ class NewtonLevel:
         if not math.isfinite(v1):
             return v1, E1, 2
         return v1, E1, 0
+
+
+def _lu_positive_definite(lu) -> bool:
+    """Whether the symmetric matrix that scipy's ``splu`` factorised (symmetric mode) is positive
+    definite: its pivots were all taken on the diagonal (the same row and column permutation),
+    so P A P^T = L U = L D L^T with D = diag(U), and all of them are positive (Sylvester)."""
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return False
+    return bool(np.all(lu.U.diagonal() > 0.0))
 
 
 @njit(cache=True)
