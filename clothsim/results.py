@@ -261,18 +261,6 @@ def max_sensor_pressure(positions: np.ndarray, force: np.ndarray, area: np.ndarr
     w = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)   # corners 0..3 of a cell
     pts = np.einsum("qc,mcd->mqd", w, X[c]).reshape(-1, 3)
     return max(peak, float(sensor_pressure_at(X, force, area, pts, radius).max()))
-    rho = np.sqrt(np.maximum(A, 0.0) / np.pi)
-    tree = cKDTree(X)
-    reach = radius + float(rho.max())
-    for s in range(0, centers.size, 2048):   # chunks: bounded memory on big lattices
-        c = centers[s:s + 2048]
-        pairs = cKDTree(X[c]).sparse_distance_matrix(tree, reach, output_type="ndarray")
-        row, k = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
-        f = _lens_fraction(pairs["v"], radius, rho[k])
-        num = np.bincount(row, F[k] * f, c.size)
-        den = np.bincount(row, A[k] * f, c.size)
-        np.divide(num, den, out=out[s:s + 2048], where=den > 0)
-    return out
 
 
 def gathered_line_load(model, positions: np.ndarray, force: np.ndarray, gathered: np.ndarray) -> dict:

@@ -136,11 +136,35 @@ def test_lu_positive_definite_known_answers():
     A = sp.random(n, n, 0.03, random_state=1)
     A = A + A.T
     D = sp.diags(np.abs(A).sum(1).A1 + 0.1)
-    for M, pd in ((A + D, True), (A + D - sp.diags(np.r_[np.zeros(n - 1), 1e3]), False), (A, False)):
+    # (and a positive definite one badly scaled, rows and columns by 10^+-2: threshold pivoting
+    # may take an off-diagonal pivot there; NewtonLevel factorises with diagonal pivots only when
+    # it tests, diag_pivot_thresh 0)
+    S = sp.diags(10.0 ** np.random.default_rng(4).uniform(-2, 2, n))
+    cases = ((A + D, True), (A + D - sp.diags(np.r_[np.zeros(n - 1), 1e3]), False), (A, False),
+             (S @ (A + D) @ S, True))
+    for M, pd in cases:
         assert (np.linalg.eigvalsh(M.toarray()).min() > 0) == pd
         lu = sla.splu(sp.csc_matrix(M), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
-                      diag_pivot_thresh=1e-3)
+                      diag_pivot_thresh=0.0)
         assert _lu_positive_definite(lu) == pd
+
+
+def test_torso_band_on_cg_levels_ends_at_the_minimum(monkeypatch):
+    """The same band solved by CG (``DIRECT_DOFS`` 0) instead of a direct factorisation: CG is no
+    test of positive definiteness (it reached its tolerance on the indefinite system and Newton
+    converged to the saddle, 0.468 J), so CG's levels take the curvature term's positive part and
+    end at the minimum (0.33151 J)."""
+    from clothsim.solvers.newton import iteration
+
+    monkeypatch.setattr(iteration, "DIRECT_DOFS", 0)
+    case = bench.Case("t", "configs/torso_band.yaml",
+                      bench.scan_band_overrides(bench.scan_body_path("smpl_man"), 1.24, "smooth"), ("newton",))
+    model, state, settings = bench._load(case, "newton", 1e-9, None)
+    its, status, worst = _run(model, state, settings, 200)
+    assert status == "converged", (its, status)
+    assert worst <= 1e-9
+    E = iteration.NewtonLevel(model).energy_forces(state.positions, np.zeros((model.node_count, 3)))
+    assert abs(E - 0.3315099495) < 1e-8, E
 
 
 def test_node_held_off_the_surface_closes_its_gap():

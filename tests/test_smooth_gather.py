@@ -220,3 +220,18 @@ def test_slanted_segment_hits_are_the_first_crossing_by_bisection():
         assert abs(t - lo) * L <= 1e-10
         checked += 1
     assert checked == 60
+
+
+def test_face_lists_are_dropped_above_their_memory_cap():
+    """Lists longer in all than ``max_entries`` are not kept (the queries search the BVH, which
+    the test above shows gives the same answers); under the cap they are the full lists."""
+    from clothsim.mold.smooth import FACE_LIST_MAX_ENTRIES, face_vertex_lists
+
+    mold, _, _ = _mold_and_bare()
+    ptr, idx = face_vertex_lists(mold.kernel_args(), FACE_LIST_MAX_ENTRIES)
+    assert np.array_equal(ptr, mold.face_vertex_ptr) and np.array_equal(idx, mold.face_vertex_idx)
+    assert 0 < idx.size < FACE_LIST_MAX_ENTRIES
+    p2, i2 = face_vertex_lists(mold.kernel_args(), idx.size)
+    assert np.array_equal(i2, idx)                       # exactly at the cap: kept
+    p3, i3 = face_vertex_lists(mold.kernel_args(), idx.size - 1)
+    assert p3.size == 0 and i3.size == 0

@@ -390,9 +390,9 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
                               bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64),
                               face_vertex_ptr=None, face_vertex_idx=None)
     # each face's gathering list for the queries started on it (``smooth.face_vertex_lists``)
-    from .smooth import face_vertex_lists
+    from .smooth import FACE_LIST_MAX_ENTRIES, face_vertex_lists
 
-    fptr, fidx = face_vertex_lists(out.kernel_args())
+    fptr, fidx = face_vertex_lists(out.kernel_args(), FACE_LIST_MAX_ENTRIES)
     out = dataclasses.replace(out, face_vertex_ptr=_ro(fptr, np.int64), face_vertex_idx=_ro(fidx, np.int64))
     frac, dev = smooth_departure(out)
     if frac > SMOOTH_WARN_FRACTION:

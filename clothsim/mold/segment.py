@@ -225,9 +225,11 @@ def _smooth_segment_hit(margs, p0, p1):
 
 @njit(cache=True)
 def smooth_segment_hit_from(margs, p0, p1, q0, sd0, smooth0):
-    """``mold_segment_hit`` on the smooth surface with the query at p0 already made: q0 (>= 8) its
-    answer (``_smooth_query_flag`` at p0), sd0 [m] its signed distance, smooth0 its flag (False:
-    the faceted answer). The same steps as without it, so the same bits, one query fewer."""
+    """``mold_segment_hit`` on the smooth surface with the query at p0 already made: p0, p1 (3,)
+    [m] the segment's ends; q0 (>= 8,) its answer (``_smooth_query_flag`` at p0), sd0 [m] its
+    signed distance, smooth0 its flag (False: the faceted answer). Returns the share t in [0, 1]
+    of the segment where it first enters the surface, or -1.0 when it does not. The same steps
+    as without q0, so the same bits, one query fewer."""
     dx = p1[0] - p0[0]
     dy = p1[1] - p0[1]
     dz = p1[2] - p0[2]

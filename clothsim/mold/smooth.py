@@ -129,13 +129,16 @@ _FACE_LIST_SLACK = 1e-9
 
 
 @njit(cache=True)
-def face_vertex_lists(margs):
+def face_vertex_lists(margs, max_entries):
     """Per face f of a smooth mesh, the vertices v whose support reaches within the foot
     iteration's gathering margin (``_GATHER_MARGIN`` median smoothing radii) of some point of f
     (distance from v to the triangle < r_v + margin, with a slack of 1e-9 bounding-box diagonals),
     in the order the BVH search visits them. Returns (ptr int64 (F+1,), idx int64 (M,)): the
     CSR lists (``Mold.face_vertex_ptr``). A point x on f then has, among f's list, every vertex
-    ``_gather`` finds at x, in the same order (``_gather_face``)."""
+    ``_gather`` finds at x, in the same order (``_gather_face``). Empty lists (the queries then
+    search the BVH, the same answers) when they would hold more than ``max_entries`` vertex
+    numbers in all (``FACE_LIST_MAX_ENTRIES``: about 33 a face on the 13.8k-face scan at the
+    default smoothing, 69 at smoothing 0.03 m; memory 8 bytes each)."""
     F = margs.faces
     V = margs.vertices
     J = margs.vertex_jets
@@ -169,8 +172,10 @@ def face_vertex_lists(margs):
             d = math.sqrt((V[v, 0] - qx) ** 2 + (V[v, 1] - qy) ** 2 + (V[v, 2] - qz) ** 2)
             if not (d < J[v, 15] + margin + slack):
                 continue
+            if m >= max_entries:
+                return np.zeros(0, np.int64), np.zeros(0, np.int64)
             if m == idx.shape[0]:
-                bigger = np.empty(2 * idx.shape[0], np.int64)
+                bigger = np.empty(min(2 * idx.shape[0], max_entries), np.int64)
                 bigger[:m] = idx[:m]
                 idx = bigger
             idx[m] = v
@@ -179,11 +184,17 @@ def face_vertex_lists(margs):
     return ptr, idx[:m].copy()
 
 
+#: the largest total length of the face lists (``face_vertex_lists``) a smooth mold keeps (128 MB);
+#: a bigger scan or smoothing radius keeps none and its queries search the BVH
+FACE_LIST_MAX_ENTRIES = 16_000_000
+
+
 @njit(cache=True)
 def _gather_face(margs, f, x, y, z, margin, cand):
-    """``_gather`` at a point x on face f (its faceted closest point) from f's list
-    (``face_vertex_lists``, built for this margin) instead of the BVH: the same vertices in the
-    same order. Returns (cand, count), count -1 when the mesh has no lists."""
+    """``_gather`` at a point (x, y, z) [m] on face f (its faceted closest point) from f's list
+    (``face_vertex_lists``, built for this margin [m]) instead of the BVH: the same vertices in
+    the same order. cand (K,) int64: a buffer, grown when full. Returns (cand, count), count -1
+    when the mesh has no lists."""
     ptr = margs.face_vertex_ptr
     if not (0 <= f < ptr.shape[0] - 1):
         return cand, -1

@@ -659,6 +659,8 @@ def _curvature_blocks(pos, F, contact, has_mold, margs, h, mode, diag, K):
     over h [m]): the tangent-plane model alone misses -lam S. mode 1: only its positive
     semi-definite part (the stiffening of concave parts; the Hessian stays positive definite);
     mode 2: all of it. Nodes pulled off (lam <= 0) get nothing. Returns the number of nodes."""
+    if not has_mold or margs[0][0] != MOLD_SMOOTH:
+        return 0
     M = np.zeros((pos.shape[0], 3, 3))
     count = _curvature_terms(pos, F, contact, has_mold, margs, h, M)
     if count:
@@ -694,7 +696,8 @@ def _curvature_terms(pos, F, contact, has_mold, margs, h, M):
 @njit(cache=True)
 def _add_curvature(M, mode, diag, K):
     """K[diag[k]] += M[k] (mode 2) or its positive semi-definite part (mode 1) for every node k
-    whose M[k] (``_curvature_terms``) is not 0."""
+    whose M[k] (``_curvature_terms``) is not 0. M (n, 3, 3) [N/m]; diag (n,) the slots of the
+    diagonal blocks in K (nb, 3, 3) [N/m], the BSR Hessian's blocks."""
     P = np.empty((3, 3))
     for k in range(M.shape[0]):
         nz = False

@@ -81,8 +81,9 @@ LM_ALPHA_HIGH = 1.0
 BAND_ON_SMOOTH = True
 # the contact's curvature term on a smooth surface (_curvature_blocks): 0 off, 1 its positive
 # semi-definite part, 2 all of it, 3 all of it while the projected system with it is positive
-# definite (the banded Cholesky's or the sparse LU's pivots all positive, CG reaching its
-# tolerance), else its positive part (the system is solved again; _curvature_fallback). With 1
+# definite (the banded Cholesky's or the sparse LU's pivots all positive), else its positive
+# part (the system is solved again; _curvature_fallback); levels solved by CG (above
+# DIRECT_DOFS) take the positive part, since CG offers no such test. With 1
 # the convex part (-lam S < 0) is missing from the model, which is then too stiff along the
 # surface: where a gathered rope's soft directions (along the body axis) meet the torso's strong
 # curvature round it, the step falls short by a fixed share and the residual only shrinks by
@@ -90,6 +91,7 @@ BAND_ON_SMOOTH = True
 # 1.24; the smooth stocking's slow end game). With 2 the Hessian can be indefinite near a saddle,
 # and Newton converges to it (those two bands: to 1.46 and 0.47 J, where the descent reaches
 # 0.98 and 0.33 J). 3 is exact Newton where the model has a minimum, the descent elsewhere
+# (on the direct levels)
 CURVATURE = 3
 LM_MAX = 1e4
 # on the smooth surface of a mesh (and on facets with SCAN_RULES_ON_FACETS), the kink stiffness of slack springs is divided by
@@ -260,8 +262,11 @@ class NewtonLevel:
                     self._curvature_fallback()
                     return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
             M = sp.bsr_matrix((self.A, self.indices, self.indptr), shape=(n3, n3)).tocsc()
+            # (with all of the curvature term, pivots on the diagonal only: stable if the matrix
+            # is positive definite, and then the pivots' signs are the test; with threshold
+            # pivoting a positive definite but badly scaled matrix may take an off-diagonal one)
             lu = sla.splu(M, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
-                          diag_pivot_thresh=1e-3)
+                          diag_pivot_thresh=0.0 if self._curv_full else 1e-3)
             if self._curv_full and not _lu_positive_definite(lu):
                 self._curvature_fallback()
                 return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
@@ -293,12 +298,6 @@ class NewtonLevel:
             # the reused preconditioner no longer fits: rebuild and solve again
             self._mg_pi = None
             return self._solve_linear(rhs, mu_abs, tol)
-        if self._curv_full and rel > tol:
-            # CG stopped short with all of the curvature term (a direction of non-positive
-            # curvature, or a preconditioner built on an indefinite matrix): its positive part
-            self._curvature_fallback()
-            self._mg_pi = None
-            return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
         return x, it
 
     def _curvature_fallback(self):
@@ -349,10 +348,13 @@ class NewtonLevel:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
         self._curv_full = False
         if CURVATURE and self.has_mold:
-            if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH:
-                # all of -lam S while the linear solve finds the system positive definite (the
-                # banded Cholesky's pivots, the sparse LU's, CG reaching its tolerance), else
-                # its positive part (_solve_linear, _curvature_fallback)
+            if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and self.direct:
+                # all of -lam S while the direct solve finds the system positive definite (the
+                # banded Cholesky's pivots, the sparse LU's), else its positive part
+                # (_solve_linear, _curvature_fallback). Not on CG's levels: CG can reach its
+                # tolerance on an indefinite system without meeting a direction of non-positive
+                # curvature, so it is no test (the band at 1.24 m with CG: 0.468 J, the saddle,
+                # against 0.3315 J); they take the positive part (mode 1)
                 self._curv_M[:] = 0.0
                 if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
                     self._Kd = self.K[self.diag].copy()
@@ -409,7 +411,14 @@ class NewtonLevel:
                 _bsr_matvec(self.indptr, self.indices, self.K, self.gap, Kg)
                 PKg = np.empty(3 * self.n)
                 _apply_pi(self.Pi, Kg, PKg)
+                full = self._curv_full
                 dy, cg_it = self._solve_linear(rhs - PKg, mu_abs, tol, None if self.direct else dx)
+                if full and not self._curv_full:
+                    # the solve fell back to the curvature term's positive part: K g again with it
+                    _bsr_matvec(self.indptr, self.indices, self.K, self.gap, Kg)
+                    _apply_pi(self.Pi, Kg, PKg)
+                    dy, cg_it2 = self._solve_linear(rhs - PKg, mu_abs, tol, None if self.direct else dx)
+                    cg_it += cg_it2
                 cg_spent += cg_it
                 if not _all_finite(dy):
                     self.lm = max(self.lm * 100.0, 1e-8)
@@ -448,6 +457,9 @@ class NewtonLevel:
         mesh = self.has_mold and self.margs[0][0] == MOLD_MESH and contact.any()
         face0 = self._face0
         faces_known = False
+        # the smooth surface's segment hits start from the nodes' answers at pos (Q0); other
+        # molds do not read them (and the trial passes' residuals would query pos again)
+        smooth = self.has_mold and self.margs[0][0] == MOLD_SMOOTH
         for _ in range(40):
             self.ls_alpha = alpha
             # the straight step (contact nodes projected back onto the surface); on a mesh mold,
@@ -460,7 +472,7 @@ class NewtonLevel:
                 # from the pass just before, at the same alpha, stand)
                 pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
                                           clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip,
-                                          self.queries(pos))
+                                          self.queries(pos) if smooth else _NO_Q)
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
@@ -496,6 +508,10 @@ class NewtonLevel:
         if not math.isfinite(v1):
             return v1, E1, 2
         return v1, E1, 0
+
+
+# no answers at the step's start for _trial_positions_sd (other molds than the smooth surface)
+_NO_Q = np.empty((0, 10))
 
 
 def _lu_positive_definite(lu) -> bool:
