@@ -876,7 +876,7 @@ SMOOTH_SCAN_NOTES = [
     "the same equilibrium as before (energies within 5e-15 J, positions within 6.5e-10 m); the stocking, "
     "whose slack courses are degenerate, at the same energy (1e-16 relative), 0.4 mm (14 x 30) and 1.2 mm "
     "(28 x 60) along them. Iterations: bands 23-75 (median 34, 2 above 60) -> 19-60 (median 28.5, none "
-    "above 60); stocking 14 x 30 77 -> 43, 28 x 60 209 -> 58 (its end game was the same linear tail). "
+    "above 60); stocking 14 x 30 77 -> 43, 28 x 60 209 -> 58 while CG counted as a test, 209 again on CG's levels now (its end game was the same linear tail). "
     "The faceted campaign is unchanged (the term is 0 on facets: the same iterations and residuals, case "
     "by case), and so is every example on an analytic or faceted mold. It costs time on the bands: "
     "fewer iterations (870 -> 724 over 23 bands) but more and dearer line-search trials (the softer "
