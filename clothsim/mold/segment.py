@@ -204,6 +204,15 @@ def _smooth_bracket(margs, p0, dx, dy, dz, ta, fa, tb, fb, out):
     return ta
 
 
+@njit(cache=True, inline="always")
+def _segment(p0, p1):
+    """The segment p0 -> p1 ((3,) [m] each): its vector's components and its length [m]."""
+    dx = p1[0] - p0[0]
+    dy = p1[1] - p0[1]
+    dz = p1[2] - p0[2]
+    return dx, dy, dz, math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 @njit(cache=True)
 def _smooth_segment_hit(margs, p0, p1):
     """mold_segment_hit on the smooth surface: sphere tracing with the signed distance (a
@@ -212,10 +221,7 @@ def _smooth_segment_hit(margs, p0, p1):
     surface), a point inside is sought at t = 1, at the faceted hit and at the minimum of the
     distance along the segment (where its derivative n . d changes sign), and the first crossing
     before it is bracketed and refined to 1e-12 m."""
-    dx = p1[0] - p0[0]
-    dy = p1[1] - p0[1]
-    dz = p1[2] - p0[2]
-    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    dx, dy, dz, L = _segment(p0, p1)
     if L == 0.0:
         return -1.0
     out = np.empty(8)
@@ -230,10 +236,7 @@ def smooth_segment_hit_from(margs, p0, p1, q0, sd0, smooth0):
     signed distance, smooth0 its flag (False: the faceted answer). Returns the share t in [0, 1]
     of the segment where it first enters the surface, or -1.0 when it does not. The same steps
     as without q0, so the same bits, one query fewer."""
-    dx = p1[0] - p0[0]
-    dy = p1[1] - p0[1]
-    dz = p1[2] - p0[2]
-    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    dx, dy, dz, L = _segment(p0, p1)
     if L == 0.0:
         return -1.0
     out = np.empty(8)

@@ -65,6 +65,29 @@ _FOOT_ITERS = 30
 _GATHER_MARGIN = 0.25
 
 
+@njit(cache=True, inline="always")
+def _reaches(V, J, v, x, y, z, margin):
+    """Whether vertex v's support (radius J[v, 15] [m]) plus margin [m] reaches the point
+    (x, y, z) [m] (strictly; as the gathering loops tested it); V (nv, 3) [m] the vertices, J
+    the jets."""
+    dx = x - V[v, 0]
+    dy = y - V[v, 1]
+    dz = z - V[v, 2]
+    rv = J[v, 15] + margin
+    return not (dx * dx + dy * dy + dz * dz >= rv * rv)
+
+
+@njit(cache=True, inline="always")
+def _push(cand, nc, v):
+    """cand[nc] = v, cand (K,) int64 doubled when full: (cand, nc + 1)."""
+    if nc == cand.shape[0]:
+        bigger = np.empty(2 * cand.shape[0], np.int64)
+        bigger[:nc] = cand[:nc]
+        cand = bigger
+    cand[nc] = v
+    return cand, nc + 1
+
+
 @njit(cache=True)
 def _gather(margs, x, y, z, margin, stack, cand):
     """The vertices whose support reaches within ``margin`` [m] of x (|x - v| < r_v + margin), in
@@ -108,18 +131,8 @@ def _gather(margs, x, y, z, margin, stack, cand):
                 v = F[f, j]
                 if owner_idx[owner_ptr[v]] != f:
                     continue  # each vertex is visited once: from the first face of its ring
-                dx = x - V[v, 0]
-                dy = y - V[v, 1]
-                dz = z - V[v, 2]
-                rv = J[v, 15] + margin
-                if dx * dx + dy * dy + dz * dz >= rv * rv:
-                    continue
-                if nc == cand.shape[0]:
-                    bigger = np.empty(2 * cand.shape[0], np.int64)
-                    bigger[:nc] = cand[:nc]
-                    cand = bigger
-                cand[nc] = v
-                nc += 1
+                if _reaches(V, J, v, x, y, z, margin):
+                    cand, nc = _push(cand, nc, v)
     return cand, nc
 
 
@@ -204,18 +217,8 @@ def _gather_face(margs, f, x, y, z, margin, cand):
     nc = 0
     for i in range(ptr[f], ptr[f + 1]):
         v = lst[i]
-        dx = x - V[v, 0]
-        dy = y - V[v, 1]
-        dz = z - V[v, 2]
-        rv = J[v, 15] + margin
-        if dx * dx + dy * dy + dz * dz >= rv * rv:
-            continue
-        if nc == cand.shape[0]:
-            bigger = np.empty(2 * cand.shape[0], np.int64)
-            bigger[:nc] = cand[:nc]
-            cand = bigger
-        cand[nc] = v
-        nc += 1
+        if _reaches(V, J, v, x, y, z, margin):
+            cand, nc = _push(cand, nc, v)
     return cand, nc
 
 
