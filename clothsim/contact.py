@@ -130,7 +130,13 @@ def stop_at_surface(margs, p0, p, fixed_row):
     """Cut the move p0 -> p (p (3,) in place, free axes only) where it first enters the mold
     (paper 3.2.2: a free node's move that would cross the surface stops on it). Returns True
     when it does."""
-    t = mold_segment_hit(margs, p0, p)
+    return cut_move(p0, p, fixed_row, mold_segment_hit(margs, p0, p))
+
+
+@njit(cache=True)
+def cut_move(p0, p, fixed_row, t):
+    """Cut the move p0 -> p (p (3,) [m] in place, free axes only) at the share t of it where it
+    first enters the mold (t < 0: it does not, p is left alone). Returns True when it is cut."""
     if t < 0.0:
         return False
     for a in range(3):

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, free_axis_normals, stop_at_surface
+from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, cut_move, free_axis_normals, stop_at_surface
 from ...mold import (MOLD_MESH, MOLD_SMOOTH, contact_normals_from_query, mold_contact_normals, mold_query,
                      smooth_shape_operator)
 from ...mold.segment import smooth_segment_hit_from
@@ -572,12 +572,8 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 continue
             elif q0_known:
                 # stop_at_surface with the query at pos0 read from Q0
-                t = smooth_segment_hit_from(margs, pos0[k], p, Q0[k], Q0[k, 8], Q0[k, 9] != 0.0)
-                if t >= 0.0:
-                    hit = True
-                    for a in range(3):
-                        if not fixed[k, a]:
-                            p[a] = pos0[k, a] + t * (p[a] - pos0[k, a])
+                hit = cut_move(pos0[k], p, fixed[k],
+                               smooth_segment_hit_from(margs, pos0[k], p, Q0[k], Q0[k, 8], Q0[k, 9] != 0.0))
             else:
                 hit = stop_at_surface(margs, pos0[k], p, fixed[k])
             on_foot = False
