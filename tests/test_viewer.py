@@ -63,7 +63,8 @@ def settle(app, t: float = 0.15):
     time.sleep(t)
     app.wait_idle(20)
     t0 = time.time()
-    while app.sim.status != "running" and app.pushed_iteration != app.sim.state.iteration and time.time() - t0 < 10:
+    while app.sim.status != "running" and time.time() - t0 < 10 and (
+            app.pushed_iteration != app.sim.state.iteration or app.shown != (app.sim.status, app.sim.version)):
         time.sleep(0.02)
 
 

@@ -157,6 +157,7 @@ class ViewerApp:
         self.upload_dir = Path(tempfile.mkdtemp(prefix="clothsim-uploads-"))  # mkdtemp: mode 0700
         self.frames_pushed = 0
         self.pushed_iteration = -1
+        self.shown = None  # (status, version) of the solver the display last showed
         self.pushed_positions: np.ndarray | None = None
         self.loop_work_s = 0.0
         self.errors: dict[str, str] = {}
@@ -475,6 +476,8 @@ class ViewerApp:
             frame = Frame(sim.state.positions.copy(), sim.state.in_contact.copy(), it, sim.model)
             with self._lock:
                 self._frame = frame
+        if sim.status != "running":  # the run ended: show the still state now, not after the
+            self._wake.set()         # loop's running period (up to 1 s)
 
     # ------------------------------------------------------------------ update loop
     def _loop(self) -> None:
@@ -680,7 +683,8 @@ class ViewerApp:
             frame, self._frame = self._frame, None
         if frame is not None and frame.model is not model:
             frame = None
-        running = sim.status == "running"
+        shown = (sim.status, sim.version)  # read before the frame: the display is at least this new
+        running = shown[0] == "running"
         if not running:  # the state is still: show it exactly (once per change)
             key = (sim.version, sim.state.iteration, id(model))
             if key != self._still_key or self._last_frame is None:
@@ -702,6 +706,7 @@ class ViewerApp:
         self.panels["run"].update_status(running, self._last_frame)
         self.panels["probes"].update(self._last_frame, still=not running)
         self._update_plot(running)
+        self.shown = shown
 
     def _update_plot(self, running: bool) -> None:
         if not self.plot.due(running):
