@@ -201,7 +201,7 @@ def scan_band_overrides(path: Path, height: float, surface: str = "faceted") -> 
     the front towards +y (``rotate: [90, 0, 180]``); the band starts on a cylinder round the body
     axis through the middle of the body's slab [height - 0.1, height + 0.1] (arms excluded:
     |x| < 0.3 m), 2 cm clear of its farthest vertex, centred on the front. ``surface``: the mesh
-    mold's contact surface ("faceted", the default, adds nothing)."""
+    mold's contact surface ("faceted" or "smooth"; always stated: a scan's default is smooth)."""
     import trimesh
 
     V = np.asarray(trimesh.load(str(path), force="mesh").vertices)
@@ -209,7 +209,7 @@ def scan_band_overrides(path: Path, height: float, surface: str = "faceted") -> 
     z0 = 0.5 * float(V[sel, 2].min() + V[sel, 2].max())
     r = float(np.hypot(V[sel, 0], V[sel, 2] - z0).max()) + 0.02
     start = 90.0 - math.degrees(0.25 / r)
-    mold = f"path: {path}, rotate: [90, 0, 180]" + ("" if surface == "faceted" else f", surface: {surface}")
+    mold = f"path: {path}, rotate: [90, 0, 180], surface: {surface}"
     return [f"mold={{{mold}}}",
             f"initial.wrap={{center: [0.0, {z0:.6f}, {height:.4f}], axis: [0, 0, 1], radius: {r:.6f}, "
             f"start_angle: {start:.6f}}}"]
@@ -248,8 +248,7 @@ def run_scan_body(stem: str, heights, surface: str = "faceted") -> list[dict]:
 def run_scan_garment(name: str, stem: str, config: str, overrides, surface: str) -> list[dict]:
     """One garment of the campaign (``SCAN_GARMENTS``) on the ``surface`` of the body ``stem``:
     one row (height None)."""
-    ov = list(overrides) + [f"mold.path={scan_body_path(stem)}"] + \
-        ([] if surface == "faceted" else [f"mold.surface={surface}"])
+    ov = list(overrides) + [f"mold.path={scan_body_path(stem)}", f"mold.surface={surface}"]
     case = Case(name, config, ov, ("newton",), {"newton": SCAN_GARMENT_TIME_LIMIT}, group="scans")
     return [_scan_row(case, name, None, surface, SCAN_GARMENT_TIME_LIMIT)]
 

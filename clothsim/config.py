@@ -670,11 +670,13 @@ class MeshMoldSpec(_Strict):
     closed: true = must be watertight (inside = the enclosed volume), false = an open skin even
     if watertight, omitted = detected; up: the file's up axis, ``z`` (clothsim's own, the
     default) or ``y`` (most scans and glTF): a Y-up file is turned +90 degrees about x before
-    everything else (its y becomes z, its front +z becomes -y); surface: 'faceted' (contact on the triangles themselves:
-    CAD molds with real sharp edges; the default) or 'smooth' (contact on a smooth surface
-    blended from the triangles' planes: scans, whose triangles only sample a smooth body; the
-    pressure then converges under refinement); smoothing [m]: the smooth surface's blending
-    radius (default: the mesh's median edge length; smooth only)."""
+    everything else (its y becomes z, its front +z becomes -y); surface: 'faceted' (contact on
+    the triangles themselves: CAD molds with real sharp edges) or 'smooth' (contact on a smooth
+    surface blended from the triangles' planes: scans, whose triangles only sample a smooth
+    body; the pressure then converges under refinement); omitted: smooth for a mesh that
+    samples a smooth body (more than 10 % of its edges bend by 10-45 degrees: a scan), faceted
+    otherwise (:func:`clothsim.mold.build.auto_surface`); smoothing [m]: the smooth surface's
+    blending radius (default: adaptive, about the mesh's edge length; surface: smooth only)."""
 
     kind: ClassVar[str] = "mesh"
     path: str
@@ -683,7 +685,7 @@ class MeshMoldSpec(_Strict):
     rotate: tuple[float, float, float] | None = None
     closed: StrictBool | None = None
     up: Literal["y", "z"] | None = None
-    surface: Literal["faceted", "smooth"] | None = None  # None: faceted
+    surface: Literal["faceted", "smooth"] | None = None  # None: auto_surface (smooth for a scan)
     smoothing: float | None = None
 
     @field_validator("smoothing")

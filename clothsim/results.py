@@ -368,6 +368,20 @@ def sheet_health(model, positions, in_contact, force=None) -> dict:
     }
 
 
+def surface_report(mold) -> dict:
+    """The contact surface of a mesh mold: {"mold_surface": "faceted" | "smooth"} and, when the
+    scene left it to the default, "mold_surface_reason" (why :func:`clothsim.mold.build.auto_surface`
+    chose it); {} for a primitive mold."""
+    from .mold import MOLD_MESH, MOLD_SMOOTH
+
+    if mold.kind not in (MOLD_MESH, MOLD_SMOOTH):
+        return {}
+    out = {"mold_surface": "smooth" if mold.kind == MOLD_SMOOTH else "faceted"}
+    if mold.surface_note:
+        out["mold_surface_reason"] = "default: " + mold.surface_note
+    return out
+
+
 @dataclass
 class Result:
     """A finished (or stopped) run: the scene, its model, the final state and the solve record."""
@@ -513,6 +527,7 @@ class Result:
             from .contact import max_penetration
 
             out["max_penetration_m"] = float(max_penetration(self.state.positions, self.model.mold.kernel_args()))
+            out.update(surface_report(self.model.mold))
         return out
 
     def undetermined_nodes(self) -> np.ndarray:

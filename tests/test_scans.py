@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clothsim.mold import MOLD_MESH, MoldError, clear_mold_cache, load_mold, load_mold_bytes
+from clothsim.mold import MOLD_MESH, MOLD_SMOOTH, MoldError, clear_mold_cache, load_mold, load_mold_bytes
 
 ROOT = Path(__file__).resolve().parents[1]
 BODIES = ROOT / "static" / "bodies"
@@ -25,7 +25,8 @@ def test_up_y_turns_the_file_to_z_up():
 
     raw = trimesh.load(MAN, force="mesh")
     z_up = load_mold({"path": str(MAN), "up": "y"})
-    assert z_up.kind == MOLD_MESH
+    assert z_up.kind == MOLD_SMOOTH and "a scan" in z_up.surface_note  # a scan's default surface
+    assert load_mold({"path": str(MAN), "up": "y", "surface": "faceted"}).kind == MOLD_MESH
     # each vertex (x, y, z) of the file is at (x, -z, y); trimesh may merge or reorder vertices,
     # so compare the bounding boxes and the vertex sets
     lo, hi = raw.bounds

@@ -302,10 +302,13 @@ def test_defaults_and_config(tmp_path):
     assert mold.smoothing == pytest.approx(SMOOTHING_EDGES * median_edge_length(mold), rel=0.1)
     assert _ico(2, "faceted").kind == MOLD_MESH
     trimesh.creation.icosphere(subdivisions=2, radius=R0).export(tmp_path / "s.stl")
-    a = load_mold({"path": "s.stl"}, tmp_path)
+    a = load_mold({"path": "s.stl", "surface": "faceted"}, tmp_path)
     b = load_mold({"path": "s.stl", "surface": "smooth", "smoothing": 0.02}, tmp_path)
     assert a.kind == MOLD_MESH and b.kind == MOLD_SMOOTH and b.smoothing == 0.02
     assert b.vertices is a.vertices  # the cached mesh is shared
+    # omitted: a coarse sphere's triangles sample a smooth body (auto_surface)
+    c = load_mold({"path": "s.stl"}, tmp_path)
+    assert c.kind == MOLD_SMOOTH and c.vertices is a.vertices and c.surface_note.startswith("smooth: ")
     with pytest.raises(ValueError, match="smoothing"):
         load_mold({"path": "s.stl", "smoothing": 0.02}, tmp_path)
     with pytest.raises(ValueError, match="smoothing"):
@@ -504,3 +507,40 @@ def test_shape_operator_converges_to_the_sphere_curvature():
     _curvature_blocks(pos, F, np.ones(1, bool), True, a, 1e-6, 2, diag, K)
     assert np.allclose(K[0], -2.0 * S, atol=1e-9)
     assert _curvature_blocks(pos, -F, np.ones(1, bool), True, a, 1e-6, 2, diag, K) == 0  # pulled off
+
+
+def test_default_surface_is_smooth_for_scans_and_faceted_for_cad_molds(tmp_path):
+    """``surface`` omitted (``auto_surface``): the bundled scans (a third of their edges bend by
+    10-45 degrees) and a coarse icosphere get the smooth surface; the bundled CAD molds
+    (thermoform, torso, leg cone: flat regions, fine tessellations and creases), a box, and a
+    24-sided cylinder of long slivers (bends of 15 degrees, but the smooth surface departs from
+    all of its faces) stay faceted. The choice and its reason are in the mold and the summary;
+    a stated surface always wins."""
+    from conftest import ROOT
+
+    from clothsim.mold.build import auto_surface, bend_share
+
+    for path, kind in [("static/bodies/smpl_man.stl", MOLD_SMOOTH), ("static/bodies/smpl_neutral.stl", MOLD_SMOOTH),
+                       ("static/molds/thermoform_mold.stl", MOLD_MESH), ("static/molds/torso.stl", MOLD_MESH),
+                       ("static/molds/leg_cone.stl", MOLD_MESH)]:
+        m = load_mold({"path": path}, ROOT)
+        assert m.kind == kind, (path, m.surface_note)
+        assert m.surface_note.startswith("smooth: " if kind == MOLD_SMOOTH else "faceted: ")
+        stated = load_mold({"path": path, "surface": "faceted"}, ROOT)
+        assert stated.kind == MOLD_MESH and stated.surface_note == ""
+    assert 0.3 < bend_share(load_mold({"path": "static/bodies/smpl_man.stl", "surface": "faceted"}, ROOT)) < 0.4
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    assert auto_surface(mold_from_arrays(box.vertices, box.faces))[0].kind == MOLD_MESH
+    cyl = trimesh.creation.cylinder(radius=0.05, height=0.3, sections=24)
+    m, why = auto_surface(mold_from_arrays(cyl.vertices, cyl.faces))
+    assert m.kind == MOLD_MESH and "departs" in why
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=R0)
+    assert auto_surface(mold_from_arrays(ico.vertices, ico.faces))[0].kind == MOLD_SMOOTH
+    # the summary says which surface and why
+    scene = clothsim.load_scene(ROOT / "configs" / "garments" / "stocking.yaml",
+                                ["mold.surface=null", "solver.max_iterations=1", "solver.method=newton"])
+    d = clothsim.solve(scene).summary()
+    assert d["mold_surface"] == "smooth" and d["mold_surface_reason"].startswith("default: smooth: ")
+    d = clothsim.solve(clothsim.load_scene(ROOT / "configs" / "garments" / "stocking.yaml",
+                                         ["solver.max_iterations=1", "solver.method=newton"])).summary()
+    assert d["mold_surface"] == "faceted" and "mold_surface_reason" not in d

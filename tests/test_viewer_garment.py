@@ -186,6 +186,8 @@ def test_mold_surface_and_smoothing_spec():
     spec = draft.mold_spec(label, 1.0, (0, 0, 0), None, "smooth", 0)
     assert spec["surface"] == "smooth" and "smoothing" not in spec
     spec = draft.mold_spec(label, 1.0, (0, 0, 0), None, "faceted", 0.002)
+    assert spec["surface"] == "faceted" and "smoothing" not in spec
+    spec = draft.mold_spec(label, 1.0, (0, 0, 0), None, "auto", 0.002)  # the default: left out
     assert "surface" not in spec and "smoothing" not in spec
     with pytest.raises(Exception, match="surface"):
         draft.mold_spec(label, 1.0, (0, 0, 0), None, "bumpy", 0)
@@ -276,11 +278,12 @@ def test_viewer_mold_surface_widgets():
     try:
         app.wait_idle(60)
         g = app.gui
-        assert g["mold_surface"].value == "faceted"
+        assert g["mold_surface"].value == "auto"            # the scene leaves it to the default
+        assert app.sim.model.mold.kind_name == "mesh"        # ... which is faceted for this CAD mold
         assert app.renderer.h_outlines is None           # a rectangle: no outline drawn
         g["mold_smoothing"].value = 0.003
         _wait_mold(app)
-        assert "smoothing" not in app.draft["mold"]          # faceted: no smoothing
+        assert "smoothing" not in app.draft["mold"]          # auto: no smoothing
         g["mold_surface"].value = "smooth"
         _wait_mold(app)
         assert app.errors["mold"] == "", app.errors["mold"]

@@ -3,6 +3,7 @@ pseudo-normals, the BVH, and the analytic primitives with their parameter checks
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from typing import Mapping
 
@@ -257,6 +258,53 @@ def median_edge_length(mold: Mold) -> float:
     return float(np.median(np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)))
 
 
+#: the default surface of a mesh mold (``surface`` omitted, :func:`auto_surface`): a mesh whose
+#: interior edges bend by between ``BEND_RANGE_DEG`` in more than this share samples a smooth
+#: body at a scan's density (the bundled SMPL bodies 34 %, one Loop subdivision of them 16 %);
+#: CAD exports are flat regions, fine tessellations of curved faces (bends below 10 degrees) and
+#: creases (the bundled thermoform mold 0.5 %, torso and leg cone 0 %)
+SCAN_BEND_SHARE = 0.10
+#: the bends [deg] that sample a smooth body at a scan's density: more than a fine CAD
+#: tessellation's, less than a crease
+BEND_RANGE_DEG = (10.0, 45.0)
+
+
+def bend_share(mold: Mold) -> float:
+    """The share of a mesh mold's interior edges (two faces) whose faces' normals differ by an
+    angle within ``BEND_RANGE_DEG``; 0 without interior edges."""
+    ef = mold.edge_faces
+    ef = ef[(ef[:, 0] >= 0) & (ef[:, 1] >= 0)]
+    if len(ef) == 0:
+        return 0.0
+    N = mold.face_normals
+    c = np.clip(np.einsum("ij,ij->i", N[ef[:, 0]], N[ef[:, 1]]), -1.0, 1.0)
+    a = np.degrees(np.arccos(c))
+    lo, hi = BEND_RANGE_DEG
+    return float(np.mean((a > lo) & (a < hi)))
+
+
+def auto_surface(mold: Mold) -> tuple[Mold, str]:
+    """The default contact surface of a mesh mold (``surface`` omitted): its smooth surface for a
+    mesh that samples a smooth body at a scan's density (more than ``SCAN_BEND_SHARE`` of its
+    interior edges bend by 10 to 45 degrees) and that the smooth surface follows (it departs
+    from at most ``SMOOTH_WARN_FRACTION`` of the face centres, see :func:`smooth_departure`: a
+    coarse cylinder of long slivers does not qualify); the faceted polyhedron otherwise (a CAD
+    mold). A scan refined until its edges bend by less than 10 degrees reads as CAD: state
+    ``surface: smooth``. Returns (the mold on that surface, the reason in words)."""
+    share = bend_share(mold)
+    lo, hi = BEND_RANGE_DEG
+    why = f"{100 * share:.1f} % of its edges bend by {lo:.0f}-{hi:.0f} degrees"
+    if share > SCAN_BEND_SHARE:
+        smooth = with_surface(mold, "smooth", warn=False)
+        frac, _ = smooth_departure(smooth)
+        if frac <= SMOOTH_WARN_FRACTION:
+            note = f"smooth: {why}, a sampled smooth body (a scan); surface: faceted keeps the triangles"
+            return dataclasses.replace(smooth, surface_note=note), note
+        why += f" but the smooth surface departs from {100 * frac:.0f} % of its faces (coarse slivers)"
+    note = f"faceted: {why} (a CAD mold); surface: smooth blends them"
+    return dataclasses.replace(with_surface(mold, "faceted"), surface_note=note), note
+
+
 #: default smoothing radius of a smooth mesh, in median edge lengths
 SMOOTHING_EDGES = 1.5
 #: every vertex's blending radius is at least this many times its longest edge (so every point of
@@ -352,15 +400,14 @@ def _bvh_reach(mold: Mold, rv: np.ndarray) -> np.ndarray:
     return reach
 
 
-def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None) -> Mold:
+def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None = None, warn: bool = True) -> Mold:
     """The same mesh mold with contact on its ``'faceted'`` polyhedron (``MOLD_MESH``) or on its
     ``'smooth'`` blended surface (``MOLD_SMOOTH``, see :mod:`clothsim.mold.smooth`) of smoothing
     radius ``smoothing`` [m] (default: adaptive, ``SMOOTHING_EDGES`` = 1.5 times each vertex's
     mean edge length, so dense parts of a scan, such as hands and face, are not blended over
     the body's coarse scale). The mesh
-    arrays are shared; the smooth surface adds the vertices' fitted jets."""
-    import dataclasses
-
+    arrays are shared; the smooth surface adds the vertices' fitted jets. ``warn``: warn when the
+    smooth surface departs from the mesh (:func:`smooth_departure`)."""
     if mold.kind not in (MOLD_MESH, MOLD_SMOOTH):
         raise MoldError(f"{mold.source}: 'surface' applies to mesh molds only")
     if surface == "faceted":
@@ -394,6 +441,8 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
 
     fptr, fidx = face_vertex_lists(out.kernel_args(), FACE_LIST_MAX_ENTRIES)
     out = dataclasses.replace(out, face_vertex_ptr=_ro(fptr, np.int64), face_vertex_idx=_ro(fidx, np.int64))
+    if not warn:
+        return out
     frac, dev = smooth_departure(out)
     if frac > SMOOTH_WARN_FRACTION:
         warnings.warn(f"{mold.source}: the smooth surface departs from {100 * frac:.0f} % of the "

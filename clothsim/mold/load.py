@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MeshMoldSpec, validate_mold_spec
-from .build import _build_mesh_mold, _vec, mold_primitive, with_surface
+from .build import _build_mesh_mold, _vec, auto_surface, mold_primitive, with_surface
 from .readers import _read_any, mold_file_status, read_mold_file
 from .record import Mold, MoldError
 
@@ -117,11 +117,31 @@ _cache_lock = threading.Lock()
 _cache_stats = {"hits": 0, "misses": 0}
 
 
+_auto: OrderedDict = OrderedDict()  # id(cached mesh) -> (that mesh, its default surface's mold)
+
+
 def clear_mold_cache() -> None:
     """Forget every cached mold (and the hit/miss counts)."""
     with _cache_lock:
         _cache.clear()
+        _auto.clear()
         _cache_stats.update(hits=0, misses=0)
+
+
+def _default_surface(mesh: Mold) -> Mold:
+    """``auto_surface(mesh)``, kept beside the cached mesh (the smooth surface of a scan is built
+    once per cached mesh, not once per load)."""
+    with _cache_lock:
+        hit = _auto.get(id(mesh))
+        if hit is not None and hit[0] is mesh:
+            _auto.move_to_end(id(mesh))
+            return hit[1]
+    mold = auto_surface(mesh)[0]
+    with _cache_lock:
+        _auto[id(mesh)] = (mesh, mold)
+        while len(_auto) > MOLD_CACHE_SIZE:
+            _auto.popitem(last=False)
+    return mold
 
 
 def mold_cache_info() -> dict:
@@ -184,9 +204,9 @@ def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None, progress=None) ->
 def load_mold(spec: Any, base_dir: Path | None = None, progress=None) -> Mold | None:
     """Mold from a spec: ``None``; a typed :data:`clothsim.config.MoldSpec`; or the same as a
     plain mapping (checked by the same model): ``{"path": ..., "scale": s, "translate": [..],
-    "rotate": [..], "closed": bool, "up": "y" | "z", "surface": "faceted" | "smooth",
-    "smoothing": r}`` (relative paths resolve against ``base_dir``; the cached mesh is shared by
-    both surfaces), or one
+    "rotate": [..], "closed": bool, "up": "y" | "z", "surface": "faceted" | "smooth" (omitted:
+    :func:`clothsim.mold.build.auto_surface`, smooth for a scan), "smoothing": r}`` (relative
+    paths resolve against ``base_dir``; the cached mesh is shared by both surfaces), or one
     primitive ``{"sphere": {...}}``, ``{"cylinder": {...}}``, ``{"plane": {...}}``,
     ``{"box": {...}}``. Mesh files are cached (see :func:`_load_mesh_file`); ``progress`` as in
     :func:`load_mold_bytes` (told only when a mesh file is parsed). Raises MoldError."""
@@ -197,6 +217,8 @@ def load_mold(spec: Any, base_dir: Path | None = None, progress=None) -> Mold | 
     except ValueError as e:
         raise MoldError(str(e)) from None
     if isinstance(typed, MeshMoldSpec):
-        return with_surface(_load_mesh_file(typed, base_dir, progress), typed.surface or "faceted",
-                            typed.smoothing)
+        mold = _load_mesh_file(typed, base_dir, progress)
+        if typed.surface is None:  # the default: smooth for a scan, faceted for a CAD mold
+            return _default_surface(mold)
+        return with_surface(mold, typed.surface, typed.smoothing)
     return mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())

@@ -183,6 +183,9 @@ class Mold:
     from this list instead of searching the tree (the same vertices in the same order)."""
     face_vertex_idx: np.ndarray = None  # type: ignore[assignment]
     """int64 (M,) on a smooth mesh, (0,) otherwise: see ``face_vertex_ptr``."""
+    surface_note: str = ""
+    """A mesh mold whose spec left the surface to the default: which surface
+    :func:`clothsim.mold.build.auto_surface` chose and why, in words; empty otherwise."""
 
     def __post_init__(self):
         if self.vertex_jets is None:

@@ -328,8 +328,9 @@ class SceneDraft:
                   smoothing=None) -> dict | None:
         """The spec of mold choice ``label`` with a scale (mesh files) and an offset [m] applied;
         ``up`` ('y' or 'z', mesh files): the file's up axis (None: the choice's own);
-        ``surface`` ('faceted' or 'smooth', mesh files; None: the choice's own) and ``smoothing``
-        [m] (the smooth surface's blending radius; 0 or None: the mesh's own default)."""
+        ``surface`` ('auto', 'faceted' or 'smooth', mesh files; None: the choice's own; 'auto':
+        smooth for a scan, see :func:`clothsim.mold.build.auto_surface`) and ``smoothing`` [m] (the
+        smooth surface's blending radius; 0 or None: the mesh's own default)."""
         opts = self.mold_options()
         if label not in opts:
             raise MoldError(f"unknown mold choice {label[:60]!r}")
@@ -356,10 +357,12 @@ class SceneDraft:
                 else:
                     spec.pop("up", None)
             if surface is not None:
-                if surface not in ("faceted", "smooth"):
-                    raise MoldError(f"surface: must be 'faceted' or 'smooth' (got {str(surface)[:20]!r})")
+                if surface not in ("auto", "faceted", "smooth"):
+                    raise MoldError(f"surface: must be 'auto', 'faceted' or 'smooth' (got {str(surface)[:20]!r})")
                 spec.pop("smoothing", None)
-                if surface == "smooth":
+                if surface == "faceted":
+                    spec["surface"] = "faceted"
+                elif surface == "smooth":
                     spec["surface"] = "smooth"
                     r = as_float(0.0 if smoothing is None else smoothing, "smoothing [m]", 0.0, ABS_LENGTH_MAX)
                     if r > 0:

@@ -108,10 +108,12 @@ class FabricPanel(Panel):
         g["mold_up"] = app.on(gui.add_dropdown("Mold up axis (mesh files)", ("z", "y"), initial_value="z",
                                                hint="y: a Y-up file (most scans) is turned to clothsim's Z-up"),
                               lambda v: self.set_mold(), "mold")
-        g["mold_surface"] = app.on(gui.add_dropdown("Mold surface (mesh files)", ("faceted", "smooth"),
-                                                    initial_value="faceted",
+        g["mold_surface"] = app.on(gui.add_dropdown("Mold surface (mesh files)", ("auto", "faceted", "smooth"),
+                                                    initial_value="auto",
                                                     hint="smooth: contact on a smooth surface blended from the "
-                                                         "triangles (scans); faceted: on the triangles (CAD molds)"),
+                                                         "triangles (scans); faceted: on the triangles (CAD molds); "
+                                                         "auto: smooth if over 10 % of the edges bend by 10-45 "
+                                                         "degrees (a scan), else faceted"),
                                    lambda v: self.set_mold(), "mold")
         g["mold_smoothing"] = app.on(gui.add_number("Mold smoothing [m] (smooth; 0: default)", 0.0, step=0.0005,
                                                     min=0.0, max=big,
@@ -138,7 +140,7 @@ class FabricPanel(Panel):
         g["lift"].value = float(self.app.scene_draft.data.get("initial", {}).get("lift", 0.0))
         with self.app.quiet():
             g["mold_up"].value = (data.get("mold") or {}).get("up") or "z"
-            g["mold_surface"].value = (data.get("mold") or {}).get("surface") or "faceted"
+            g["mold_surface"].value = (data.get("mold") or {}).get("surface") or "auto"
             g["mold_smoothing"].value = float((data.get("mold") or {}).get("smoothing") or 0.0)
         self.refresh_mold_options()
 
