@@ -237,6 +237,11 @@ class Simulation:
             with self._lock:
                 self.status = "error"
                 self.message = f"{type(exc).__name__}: {exc}"
+            if self.on_progress is not None:
+                try:
+                    self.on_progress(self)  # (the viewer shows the error at once)
+                except Exception:  # noqa: BLE001 - the solver's error is the one to report
+                    pass
             raise
         with self._lock:
             self.residual = res.residual

@@ -371,7 +371,7 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
     """Validate every expanded scene and every distinct mold; returns error lines (empty = ok).
 
     Each line names the run, its parameter values, the field and the message."""
-    from .mold import MoldError, load_mold
+    from .mold import MoldError, check_mold
 
     errors: list[str] = []
     molds: dict[str, str | None] = {}
@@ -397,7 +397,7 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
                 key = _canonical([scene.mold, str(scene.base_dir)])
                 if key not in molds:
                     try:
-                        load_mold(scene.mold, scene.base_dir)
+                        check_mold(scene.mold, scene.base_dir)  # the file and mesh, not the surface
                         molds[key] = None
                     except (MoldError, SceneError, OSError, ValueError) as exc:
                         molds[key] = f"mold: {exc}"

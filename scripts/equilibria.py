@@ -51,7 +51,7 @@ def solve(scene: str):
     r = clothsim.solve(s)
     if not r.converged:
         raise RuntimeError(f"{scene}: {r.status}: {r.solve.message}")
-    faceted = s.mold is not None and getattr(s.mold, "path", None) is not None
+    faceted = r.model.mold is not None and r.model.mold.kind_name == "mesh"  # not the smooth surface
     return np.asarray(r.state.positions), float(r.solve.energy), faceted
 
 

@@ -23,7 +23,7 @@ def main():
     ap.add_argument("--points", type=int, default=20000)
     a = ap.parse_args()
     smooth = load_mold({"path": a.mesh, "surface": "smooth"})
-    faceted = load_mold({"path": a.mesh})
+    faceted = load_mold({"path": a.mesh, "surface": "faceted"})
     V = smooth.vertices
     rng = np.random.default_rng(0)
     n = a.points

@@ -522,7 +522,8 @@ def test_default_surface_is_smooth_for_scans_and_faceted_for_cad_molds(tmp_path)
 
     for path, kind in [("static/bodies/smpl_man.stl", MOLD_SMOOTH), ("static/bodies/smpl_neutral.stl", MOLD_SMOOTH),
                        ("static/molds/thermoform_mold.stl", MOLD_MESH), ("static/molds/torso.stl", MOLD_MESH),
-                       ("static/molds/leg_cone.stl", MOLD_MESH)]:
+                       ("static/molds/leg_cone.stl", MOLD_MESH),
+                       ("static/molds/thermoform_mold.txt", MOLD_SMOOTH)]:  # the paper's coarse revolve
         m = load_mold({"path": path}, ROOT)
         assert m.kind == kind, (path, m.surface_note)
         assert m.surface_note.startswith("smooth: " if kind == MOLD_SMOOTH else "faceted: ")
@@ -544,3 +545,28 @@ def test_default_surface_is_smooth_for_scans_and_faceted_for_cad_molds(tmp_path)
     d = clothsim.solve(clothsim.load_scene(ROOT / "configs" / "garments" / "stocking.yaml",
                                          ["solver.max_iterations=1", "solver.method=newton"])).summary()
     assert d["mold_surface"] == "faceted" and "mold_surface_reason" not in d
+
+
+def test_default_surface_is_built_once_and_check_mold_builds_none(monkeypatch):
+    """A scan's default (smooth) surface is built on the first load and kept beside the cached
+    mesh: ``mold_cached`` says so only once it is built (the viewer loads off its update loop
+    until then), the second load returns the same Mold, a stated faceted surface is the bare
+    mesh, and ``check_mold`` (validation) reads the mesh without building a surface."""
+    from conftest import ROOT
+
+    from clothsim.mold import build, check_mold, clear_mold_cache, load, mold_cached
+
+    builds = []
+    real = build.with_surface
+    monkeypatch.setattr(build, "with_surface", lambda *a, **k: builds.append(a[1] if len(a) > 1 else k) or real(*a, **k))
+    clear_mold_cache()
+    spec = {"path": "static/bodies/smpl_man.stl", "up": "y"}
+    check_mold(spec, ROOT)
+    assert builds == [] and not mold_cached(spec, ROOT)
+    assert mold_cached({**spec, "surface": "faceted"}, ROOT)  # the mesh is cached, faceted costs nothing
+    a = load_mold(spec, ROOT)
+    assert a.kind == MOLD_SMOOTH and builds.count("smooth") == 1 and mold_cached(spec, ROOT)
+    assert load_mold(spec, ROOT) is a and builds.count("smooth") == 1
+    assert load_mold({**spec, "surface": "faceted"}, ROOT).kind == MOLD_MESH
+    clear_mold_cache()
+    assert not load._surfaces

@@ -102,7 +102,7 @@ def test_on_the_scanned_body_no_start_node_is_inside(where):
         hull = {"center": [-0.104, 0.034, 0.0], "heights": [0.12, 0.42], "clearance": 0.01,
                 "region": {"min": [-0.3, -0.3, 0.0], "max": [0.0, 0.3, 0.6]}}
         size = (0.3, 0.3)
-    scene = _sheet(hull, size=size, div=(40, 30), mold={"path": MAN, "up": "y"})
+    scene = _sheet(hull, size=size, div=(40, 30), mold={"path": MAN, "up": "y", "surface": "faceted"})
     model, state = compile_scene(scene)    # refuses a start that touches the mold
     sd = _signed(model.mold, state.positions)
     # clearance 1 cm across the axis; where the body's side slants the distance in 3D is less
@@ -118,7 +118,7 @@ def test_a_cylinder_round_the_calf_is_no_substitute():
     follows the leg (the reason for the hull)."""
     scene = _sheet({"center": [-0.104, 0.034, 0.0], "heights": [0.12, 0.42], "clearance": 0.01,
                     "region": {"min": [-0.3, -0.3, 0.0], "max": [0.0, 0.3, 0.6]}},
-                   size=(0.3, 0.3), div=(40, 30), mold={"path": MAN, "up": "y"})
+                   size=(0.3, 0.3), div=(40, 30), mold={"path": MAN, "up": "y", "surface": "faceted"})
     model, state = compile_scene(scene)
     P = state.positions
     ankle = np.abs(P[:, 2] - 0.15) < 0.006
@@ -166,7 +166,7 @@ def test_wrap_hull_errors_name_their_field():
     with pytest.raises(SceneError, match="initial.wrap_hull: needs a mesh mold"):
         compile_model(_sheet({"center": [0, 0, 0]}, mold={"sphere": {"center": [0, 0, 0], "radius": 0.05}}))
     with pytest.raises(SceneError, match="initial.wrap_hull: the mold has no part at height"):
-        compile_model(_sheet({"center": [0, 0, 3.0]}, mold={"path": MAN, "up": "y"}))
+        compile_model(_sheet({"center": [0, 0, 3.0]}, mold={"path": MAN, "up": "y", "surface": "faceted"}))
     with pytest.raises(SceneError, match="initial: give wrap or wrap_hull"):
         _sheet({"center": [0, 0, 0]}, initial={"wrap_hull": {"center": [0, 0, 0]},
                                                "wrap": {"radius": 0.1}})

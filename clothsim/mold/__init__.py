@@ -52,8 +52,8 @@ Mold specs are typed in :mod:`clothsim.config` (``MoldSpec``).
 
 from .build import median_edge_length, mold_from_arrays, mold_primitive, with_surface
 from .checks import SCALE_WARNING_RATIO, mold_reach_warning, mold_scale_warning, mold_size
-from .load import (MOLD_CACHE_SIZE, cache_mold, clear_mold_cache, load_mold, load_mold_bytes, mold_cache_info,
-                   mold_cached)
+from .load import (MOLD_CACHE_SIZE, cache_mold, check_mold, clear_mold_cache, load_mold, load_mold_bytes,
+                   mold_cache_info, mold_cached)
 from .readers import MAX_MOLD_FILE_BYTES
 from .queries import contact_normals_from_query, mold_contact_normals, mold_feature_normals, mold_query, mold_query_many
 from .record import (FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, MESH_KINDS, MOLD_BOX, MOLD_CYLINDER,
@@ -78,6 +78,7 @@ __all__ = [
     "FEATURE_VERTEX",
     "QUERY_OUT_SIZE",
     "load_mold",
+    "check_mold",
     "cache_mold",
     "mold_cached",
     "load_mold_bytes",

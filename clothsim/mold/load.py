@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MeshMoldSpec, validate_mold_spec
-from .build import _build_mesh_mold, _vec, auto_surface, mold_primitive, with_surface
+from .build import SCAN_BEND_SHARE, _build_mesh_mold, _vec, auto_surface, bend_share, mold_primitive, with_surface
 from .readers import _read_any, mold_file_status, read_mold_file
 from .record import Mold, MoldError
 
@@ -117,30 +117,45 @@ _cache_lock = threading.Lock()
 _cache_stats = {"hits": 0, "misses": 0}
 
 
-_auto: OrderedDict = OrderedDict()  # id(cached mesh) -> (that mesh, its default surface's mold)
+# (id(cached mesh), surface asked for (None: the default), smoothing) -> (that mesh, the mold on
+# that surface): the smooth surface of a mesh is built once per cached mesh, not once per load
+_surfaces: OrderedDict = OrderedDict()
 
 
 def clear_mold_cache() -> None:
     """Forget every cached mold (and the hit/miss counts)."""
     with _cache_lock:
         _cache.clear()
-        _auto.clear()
+        _surfaces.clear()
         _cache_stats.update(hits=0, misses=0)
 
 
-def _default_surface(mesh: Mold) -> Mold:
-    """``auto_surface(mesh)``, kept beside the cached mesh (the smooth surface of a scan is built
-    once per cached mesh, not once per load)."""
+def _surface_key(mesh: Mold, typed: MeshMoldSpec):
+    return (id(mesh), typed.surface, typed.smoothing)
+
+
+def _on_surface(mesh: Mold, typed: MeshMoldSpec) -> Mold:
+    """The cached mesh on the spec's contact surface: faceted as it is; smooth, or the default
+    (:func:`clothsim.mold.build.auto_surface`: smooth for a scan), built once per cached mesh and
+    kept beside it (dropped when the mesh leaves the cache)."""
+    if typed.surface == "faceted":
+        return with_surface(mesh, "faceted")
+    key = _surface_key(mesh, typed)
     with _cache_lock:
-        hit = _auto.get(id(mesh))
+        hit = _surfaces.get(key)
         if hit is not None and hit[0] is mesh:
-            _auto.move_to_end(id(mesh))
+            _surfaces.move_to_end(key)
             return hit[1]
-    mold = auto_surface(mesh)[0]
+    if typed.surface is None:
+        mold = auto_surface(mesh)[0]
+    else:
+        mold = with_surface(mesh, typed.surface, typed.smoothing)
     with _cache_lock:
-        _auto[id(mesh)] = (mesh, mold)
-        while len(_auto) > MOLD_CACHE_SIZE:
-            _auto.popitem(last=False)
+        live = {id(h[0]): h[0] for h in _cache.values()}
+        for k in [k for k, h in _surfaces.items() if live.get(k[0]) is not h[0]]:
+            del _surfaces[k]  # its mesh left the cache
+        if live.get(id(mesh)) is mesh:
+            _surfaces[key] = (mesh, mold)
     return mold
 
 
@@ -168,7 +183,34 @@ def mold_cached(spec: Any, base_dir: Path | None = None) -> bool:
     except (ValueError, MoldError):
         return True
     with _cache_lock:
-        return key in _cache
+        hit = _cache.get(key)
+        if hit is None:
+            return False
+        if typed.surface == "faceted":
+            return True
+        # the smooth surface (stated, or the default's for a scan) is built too: cached as well?
+        got = _surfaces.get(_surface_key(hit[0], typed))
+        if got is not None and got[0] is hit[0]:
+            return True
+        mesh = hit[0]
+    # the default on a mesh that is no scan is its faceted self: only the bends to count
+    return typed.surface is None and bend_share(mesh) <= SCAN_BEND_SHARE
+
+
+def check_mold(spec: Any, base_dir: Path | None = None) -> None:
+    """Every check of :func:`load_mold` (the spec, the file, the mesh) without building the
+    contact surface (a scan's smooth surface costs about a second): for validating a scene
+    before it runs. Raises MoldError."""
+    if spec is None:
+        return
+    try:
+        typed = validate_mold_spec(spec)
+    except ValueError as e:
+        raise MoldError(str(e)) from None
+    if isinstance(typed, MeshMoldSpec):
+        _load_mesh_file(typed, base_dir)
+    else:
+        mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())
 
 
 def _load_mesh_file(spec: MeshMoldSpec, base_dir: Path | None, progress=None) -> Mold:
@@ -217,8 +259,5 @@ def load_mold(spec: Any, base_dir: Path | None = None, progress=None) -> Mold | 
     except ValueError as e:
         raise MoldError(str(e)) from None
     if isinstance(typed, MeshMoldSpec):
-        mold = _load_mesh_file(typed, base_dir, progress)
-        if typed.surface is None:  # the default: smooth for a scan, faceted for a CAD mold
-            return _default_surface(mold)
-        return with_surface(mold, typed.surface, typed.smoothing)
+        return _on_surface(_load_mesh_file(typed, base_dir, progress), typed)
     return mold_primitive(typed.kind, getattr(typed, typed.kind).model_dump())

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..config import Scene, SceneError, scene_from_dict
 from ..material import MaterialError, check_table, parse_table_csv
-from ..mold import MoldError, cache_mold, load_mold, load_mold_bytes
+from ..mold import MoldError, cache_mold, check_mold, load_mold, load_mold_bytes
 from ..presets import PRESETS
 
 ROOT = Path(__file__).resolve().parent.parent.parent
@@ -697,7 +697,7 @@ def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> S
     try:
         scene = load_scene(path)
         if scene.mold is not None:
-            load_mold(scene.mold, scene.base_dir)
+            check_mold(scene.mold, scene.base_dir)  # the file and mesh, not the surface
     except (SceneError, MoldError, MaterialError) as exc:
         msg = str(exc).replace(str(path), label).replace(str(dest) + "/", "")
         raise type(exc)(msg) from None

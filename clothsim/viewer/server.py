@@ -706,7 +706,8 @@ class ViewerApp:
         self.panels["run"].update_status(running, self._last_frame)
         self.panels["probes"].update(self._last_frame, still=not running)
         self._update_plot(running)
-        self.shown = shown
+        if sim.model is model:
+            self.shown = shown
 
     def _update_plot(self, running: bool) -> None:
         if not self.plot.due(running):
