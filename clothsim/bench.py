@@ -903,7 +903,7 @@ SMOOTH_SCAN_NOTES = [
     'it lies above the smallest eigenvalue; the margin asks for a converged estimate, and an unconverged '
     'one (a poor preconditioner, a cold start) refuses. The 28 x 60 stocking: 209 -> 50 iterations (all '
     'of the term in 38 of 49 tests), 27-32 -> 7.3-8.1 s of CPU (three runs each, a shared machine), the '
-    'same energy (1.00576876261 J, 2e-13 relative). The 14 x 30 stocking and the bands are direct levels:'
+    'same energy (1.00576876261 J, 2e-13 relative), positions within 0.4 mm (median 2e-13 m: along the slack courses). The 14 x 30 stocking and the bands are direct levels:'
     ' unchanged (43, 60, 57 iterations, the same bits). Soundness, checked with every band forced onto CG'
     " (`DIRECT_DOFS = 0`) and the sparse LU's test alongside each LOBPCG test (24 bands, 714 tests): the "
     'term was never taken where the LU found the system indefinite (and refused 12 times where the LU '
@@ -916,7 +916,9 @@ SMOOTH_SCAN_NOTES = [
     "the fallback, that is slower there than CG's inexact one (not analysed further); a shift sigma x the"
     ' mean diagonal (sigma = 1e-6, 1e-4, 1e-2 in turn, one factorisation each) before the positive part '
     'on direct levels: the 14 x 30 stocking 43 -> 14 iterations and the band at 1.06 m 60 -> 50, but the '
-    'band at 1.24 m ended on the saddle (0.468 J), and the 28 x 60 stocking at the default stays at 209 '
+    'band at 1.24 m ended on the saddle (0.468 J) (sigma = 1e-2 alone: 1.24 m on the saddle, 1.06 m at '
+    '1.316 J after 156 iterations; 1e-1 alone: both bands stalled, at 7.5e-3 and 3.4e-3 N; the 14 x 30 '
+    'stocking 22 and 18), and the 28 x 60 stocking at the default stays at 209 '
     "(its fine level is CG's).", "",
 ]
 
