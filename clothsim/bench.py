@@ -891,7 +891,35 @@ SMOOTH_SCAN_NOTES = [
     "predicted decrease and the line search cuts them to alpha = 1/2-1/16 (by the energy, never by "
     "penetration) while the rope slides along the body by 5-15 cm per predicted step. Also not kept: "
     "restoring the kink stiffness after any cut step (62 and 57 iterations), raising the shift after "
-    "alpha < 0.3 (70 and 59).", "",
+    "alpha < 0.3 (70 and 59).",
+    "- **All of the curvature term on CG's levels too, by an eigenvalue test** "
+    "(`iteration.CURVATURE_CG_TEST = 5`). The 28 x 60 stocking's fine level (2,946 nodes, 8,838 unknowns)"
+    ' is solved by CG, which took the positive part only: 209 iterations, the end game the linear tail '
+    'above. The system with all of the term is now tested there by LOBPCG '
+    "(`iteration._smallest_eigenpair`: block size 1, 5 iterations from the last test's eigenvector, "
+    "preconditioned by the level's V-cycle restricted to the free unknowns) before the first CG solve of "
+    'an iteration: all of the term when the estimate theta of the smallest eigenvalue exceeds its '
+    "residual's norm |A x - theta x| (|x| = 1), else its positive part. theta is a Rayleigh quotient, so "
+    'it lies above the smallest eigenvalue; the margin asks for a converged estimate, and an unconverged '
+    'one (a poor preconditioner, a cold start) refuses. The 28 x 60 stocking: 209 -> 50 iterations (all '
+    'of the term in 38 of 49 tests), 27-32 -> 7.3-8.1 s of CPU (three runs each, a shared machine), the '
+    'same energy (1.00576876261 J, 2e-13 relative), positions within 0.4 mm (median 2e-13 m: along the slack courses). The 14 x 30 stocking and the bands are direct levels:'
+    ' unchanged (43, 60, 57 iterations, the same bits). Soundness, checked with every band forced onto CG'
+    " (`DIRECT_DOFS = 0`) and the sparse LU's test alongside each LOBPCG test (24 bands, 714 tests): the "
+    'term was never taken where the LU found the system indefinite (and refused 12 times where the LU '
+    "found it positive definite); every band ended at the direct solve's energy (within 1e-14 relative; "
+    '0.33151 J at 1.24 m, not the saddle), in 19-58 iterations (24-68 with the positive part on CG). '
+    'Tried and not kept: LOBPCG with 10, 20 or 3 iterations and block size 2, or 10 and block 1: 49-56 '
+    'iterations, 10-17 s (5 and block 1: 50, 6.8 s in the same series); the fine level factorised '
+    "directly (`DIRECT_DOFS = 9000`, the sparse LU's test): 147 iterations, 27 s, and the system with all"
+    ' of the term was positive definite in 145 of the 146 fine iterations, so it is the exact solve, not '
+    "the fallback, that is slower there than CG's inexact one (not analysed further); a shift sigma x the"
+    ' mean diagonal (sigma = 1e-6, 1e-4, 1e-2 in turn, one factorisation each) before the positive part '
+    'on direct levels: the 14 x 30 stocking 43 -> 14 iterations and the band at 1.06 m 60 -> 50, but the '
+    'band at 1.24 m ended on the saddle (0.468 J) (sigma = 1e-2 alone: 1.24 m on the saddle, 1.06 m at '
+    '1.316 J after 156 iterations; 1e-1 alone: both bands stalled, at 7.5e-3 and 3.4e-3 N; the 14 x 30 '
+    'stocking 22 and 18), and the 28 x 60 stocking at the default stays at 209 '
+    "(its fine level is CG's).", "",
 ]
 
 

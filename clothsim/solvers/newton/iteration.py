@@ -83,7 +83,8 @@ BAND_ON_SMOOTH = True
 # semi-definite part, 2 all of it, 3 all of it while the projected system with it is positive
 # definite (the banded Cholesky's or the sparse LU's pivots all positive), else its positive
 # part (the system is solved again; _curvature_fallback); levels solved by CG (above
-# DIRECT_DOFS) take the positive part, since CG offers no such test. With 1
+# DIRECT_DOFS) have no factorisation to test with: CURVATURE_CG_TEST estimates the smallest
+# eigenvalue instead (CG itself is no test, see iterate). With 1
 # the convex part (-lam S < 0) is missing from the model, which is then too stiff along the
 # surface: where a gathered rope's soft directions (along the body axis) meet the torso's strong
 # curvature round it, the step falls short by a fixed share and the residual only shrinks by
@@ -91,8 +92,16 @@ BAND_ON_SMOOTH = True
 # 1.24; the smooth stocking's slow end game). With 2 the Hessian can be indefinite near a saddle,
 # and Newton converges to it (those two bands: to 1.46 and 0.47 J, where the descent reaches
 # 0.98 and 0.33 J). 3 is exact Newton where the model has a minimum, the descent elsewhere
-# (on the direct levels)
+# (on the direct levels; on CG's levels with CURVATURE_CG_TEST)
 CURVATURE = 3
+# CURVATURE 3 on the levels solved by CG: all of the term when LOBPCG's estimate theta of the
+# smallest eigenvalue of the projected system with it (CURVATURE_CG_TEST iterations of block size
+# 1 from the last estimate's eigenvector, preconditioned by the level's V-cycle: _smallest_eigenpair)
+# is positive by more than its residual's norm |A x - theta x| (|x| = 1), else its positive part;
+# 0: the positive part always. The 28 x 60 stocking (its fine level on CG) took 209 iterations
+# with the positive part (a linear tail), 50 with the test; the torso bands at 1.06 and 1.24 m
+# forced onto CG end at their minima (see docs/benchmarks_scans_smooth.md)
+CURVATURE_CG_TEST = 5
 LM_MAX = 1e4
 # on the smooth surface of a mesh (and on facets with SCAN_RULES_ON_FACETS), the kink stiffness of slack springs is divided by
 # KINK_DECAY after every full step (alpha = 1) that left the contact set as it was, down to
@@ -176,6 +185,9 @@ class NewtonLevel:
         self.fd_step = 1e-4 * float(min(model.spacing))
         self._cache = None
         self._curv_full = False  # the Hessian holds all of the curvature term (CURVATURE 3)
+        self._curv_test = False  # CG's level: test the system with all of the term at the next solve
+        self._eig_x = None  # the last test's eigenvector estimate (3n,), the next test's start
+        self._eig_rng = np.random.default_rng(0)  # the first test's start
         self._curv_M = np.zeros((n, 3, 3))  # -lam S per node [N/m] (_curvature_terms)
         # the mold's answers at the nodes (_query_nodes) and the positions they are for: the
         # accepted step's residual queries them, and the next iteration's active set, distances,
@@ -208,6 +220,8 @@ class NewtonLevel:
         self._mg_age = 0
         self._last_cg = 0
         self.v_prev = None
+        self._eig_x = None
+        self._eig_rng = np.random.default_rng(0)
 
     # -- helpers ---------------------------------------------------------------------------
     def energy_forces(self, pos, F):
@@ -287,6 +301,9 @@ class NewtonLevel:
             self.mg.setup(self.indptr, self.indices, A, self._mg_pi)
             self._mg_age = 0
         self._mg_age += 1
+        if self._curv_test:
+            self._curv_test = False
+            self._curvature_cg_test()
         indptr, indices, A = self.indptr, self.indices, self.A
 
         def mv(v, out):
@@ -299,6 +316,49 @@ class NewtonLevel:
             self._mg_pi = None
             return self._solve_linear(rhs, mu_abs, tol)
         return x, it
+
+    def _curvature_cg_test(self):
+        """On a CG level whose projected system A (the positive part of the curvature term; its
+        multigrid hierarchy built) is about to be solved: A and the Hessian K with all of the term
+        instead (``_curv_full``) when ``_smallest_eigenpair``'s estimate theta of the smallest
+        eigenvalue of the system with it, on the free dofs, exceeds its residual's norm. Returns
+        whether it took all of the term."""
+        Kf = self._Kd + self._curv_M  # the diagonal blocks with all of -lam S [N/m]
+        N = Kf - self.K[self.diag]  # ... minus those with its positive part: its negative part
+        if not N.any():
+            return False
+        Pi = self.Pi
+        Af = self.A.copy()
+        Af[self.diag] += np.einsum("kab,kbc,kcd->kad", Pi, N, Pi)
+        indptr, indices = self.indptr, self.indices
+        n3 = 3 * self.n
+
+        def mv(v):
+            y = np.empty(n3)
+            _bsr_matvec(indptr, indices, Af, v, y)
+            return y
+
+        def pc(v):
+            # the V-cycle on the free dofs (a held dof's row of A is the identity's)
+            w = np.empty(n3)
+            _apply_pi(Pi, v, w)
+            z = self.mg.vcycle(w)
+            _apply_pi(Pi, z, w)
+            return w
+
+        x0 = self._eig_x if self._eig_x is not None else self._eig_rng.standard_normal(n3)
+        p0 = np.empty(n3)
+        _apply_pi(Pi, x0, p0)
+        if not (_dot(p0, p0) > 0.0):
+            return False
+        theta, r, x = _smallest_eigenpair(mv, pc, p0, CURVATURE_CG_TEST)
+        self._eig_x = x
+        if not (theta > r):
+            return False
+        self.A[:] = Af
+        self.K[self.diag] = Kf
+        self._curv_full = True
+        return True
 
     def _curvature_fallback(self):
         """The Hessian K with the positive part of the curvature term (``CURVATURE`` 1) instead of
@@ -347,6 +407,7 @@ class NewtonLevel:
         if m.seam_count:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
         self._curv_full = False
+        self._curv_test = False
         if CURVATURE and self.has_mold:
             if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and self.direct:
                 # all of -lam S while the direct solve finds the system positive definite (the
@@ -354,12 +415,22 @@ class NewtonLevel:
                 # (_solve_linear, _curvature_fallback). Not on CG's levels: CG can reach its
                 # tolerance on an indefinite system without meeting a direction of non-positive
                 # curvature, so it is no test (the band at 1.24 m with CG: 0.468 J, the saddle,
-                # against 0.3315 J); they take the positive part (mode 1)
+                # against 0.3315 J); they take the positive part (mode 1), all of the term only
+                # as CURVATURE_CG_TEST decides
                 self._curv_M[:] = 0.0
                 if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
                     self._Kd = self.K[self.diag].copy()
                     _add_curvature(self._curv_M, 2, self.diag, self.K)
                     self._curv_full = True
+            elif CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and CURVATURE_CG_TEST:
+                # CG's levels: its positive part, and all of it when the first solve's LOBPCG
+                # estimate finds the system with it positive definite (_curvature_cg_test; CG
+                # alone is no test: see above)
+                self._curv_M[:] = 0.0
+                if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
+                    self._Kd = self.K[self.diag].copy()
+                    _add_curvature(self._curv_M, 1, self.diag, self.K)
+                    self._curv_test = True
             else:
                 _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step,
                                   1 if CURVATURE == 3 else CURVATURE, self.diag, self.K)
@@ -521,6 +592,41 @@ def _lu_positive_definite(lu) -> bool:
     if not np.array_equal(lu.perm_r, lu.perm_c):
         return False
     return bool(np.all(lu.U.diagonal() > 0.0))
+
+
+def _smallest_eigenpair(matvec, prec, x0, iters):
+    """LOBPCG's estimate (block size 1, ``iters`` iterations from x0) of the smallest eigenvalue of
+    a symmetric operator A: (theta, |A x - theta x|, x) with x (m,) its unit eigenvector estimate.
+    matvec(v) -> A v and prec(v) -> M v (M symmetric positive definite: the preconditioner) on
+    vectors (m,). theta is a Rayleigh quotient, so it is at least the smallest eigenvalue; the
+    caller takes A as positive definite only when theta exceeds the residual's norm.
+
+    Reference: Knyazev A. V., Toward the optimal preconditioned eigensolver: locally optimal block
+    preconditioned conjugate gradient method, SIAM J. Sci. Comput. 23 (2001)."""
+    import warnings
+
+    m = x0.shape[0]
+
+    def mm(X):
+        X = np.asarray(X).reshape(m, -1)
+        return np.column_stack([matvec(np.ascontiguousarray(X[:, c])) for c in range(X.shape[1])])
+
+    def pm(X):
+        X = np.asarray(X).reshape(m, -1)
+        return np.column_stack([prec(np.ascontiguousarray(X[:, c])) for c in range(X.shape[1])])
+
+    A = sla.LinearOperator((m, m), matvec=mm, matmat=mm, dtype=float)
+    M = sla.LinearOperator((m, m), matvec=pm, matmat=pm, dtype=float)
+    with warnings.catch_warnings():
+        # (LOBPCG warns when it stops at maxiter before its tolerance: the usual case here)
+        warnings.simplefilter("ignore")
+        _, V = sla.lobpcg(A, x0.reshape(m, 1), M=M, tol=1e-30, maxiter=iters, largest=False)
+    x = np.ascontiguousarray(V[:, 0])
+    x /= math.sqrt(_dot(x, x))
+    Ax = matvec(x)
+    theta = _dot(x, Ax)
+    res = Ax - theta * x
+    return theta, math.sqrt(_dot(res, res)), x
 
 
 @njit(cache=True)
