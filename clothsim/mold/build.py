@@ -283,15 +283,17 @@ def bend_share(mold: Mold) -> float:
     return float(np.mean((a > lo) & (a < hi)))
 
 
-def auto_surface(mold: Mold) -> tuple[Mold, str]:
+def auto_surface(mold: Mold, share: float | None = None) -> tuple[Mold, str]:
     """The default contact surface of a mesh mold (``surface`` omitted): its smooth surface for a
     mesh that samples a smooth body at a scan's density (more than ``SCAN_BEND_SHARE`` of its
     interior edges bend by 10 to 45 degrees) and that the smooth surface follows (it departs
     from at most ``SMOOTH_WARN_FRACTION`` of the face centres, see :func:`smooth_departure`: a
     coarse cylinder of long slivers does not qualify); the faceted polyhedron otherwise (a CAD
     mold). A scan refined until its edges bend by less than 10 degrees reads as CAD: state
-    ``surface: smooth``. Returns (the mold on that surface, the reason in words)."""
-    share = bend_share(mold)
+    ``surface: smooth``. ``share``: ``bend_share(mold)`` if already known. Returns (the mold on
+    that surface, the reason in words)."""
+    if share is None:
+        share = bend_share(mold)
     lo, hi = BEND_RANGE_DEG
     why = f"{100 * share:.1f} % of its edges bend by {lo:.0f}-{hi:.0f} degrees"
     if share > SCAN_BEND_SHARE:

@@ -150,13 +150,19 @@ def _on_surface(mesh: Mold, typed: MeshMoldSpec) -> Mold:
         mold = auto_surface(mesh)[0]
     else:
         mold = with_surface(mesh, typed.surface, typed.smoothing)
+    _remember(mesh, key, mold)
+    return mold
+
+
+def _remember(mesh: Mold, key, mold: Mold) -> None:
+    """Keep ``mold`` (``mesh`` on a surface) beside the cached mesh, under ``key``; drop those
+    whose mesh left the cache."""
     with _cache_lock:
         live = {id(h[0]): h[0] for h in _cache.values()}
         for k in [k for k, h in _surfaces.items() if live.get(k[0]) is not h[0]]:
             del _surfaces[k]  # its mesh left the cache
         if live.get(id(mesh)) is mesh:
             _surfaces[key] = (mesh, mold)
-    return mold
 
 
 def mold_cache_info() -> dict:
@@ -173,8 +179,10 @@ def _freeze(v: Any):
 
 def mold_cached(spec: Any, base_dir: Path | None = None) -> bool:
     """True if :func:`load_mold` of ``spec`` would cost nothing worth waiting for: a primitive, a
-    mesh file already in the cache, or a spec that is refused at once (its error is left to
-    :func:`load_mold`)."""
+    mesh file already in the cache (with its smooth surface built too when the spec asks for it
+    or, left out, when the mesh is a scan), or a spec that is refused at once (its error is left
+    to :func:`load_mold`). For a cached mesh that is no scan, it keeps the default (faceted)
+    surface's mold it decided on, for the load that follows."""
     try:
         typed = validate_mold_spec(spec)
         if not isinstance(typed, MeshMoldSpec):
@@ -193,8 +201,15 @@ def mold_cached(spec: Any, base_dir: Path | None = None) -> bool:
         if got is not None and got[0] is hit[0]:
             return True
         mesh = hit[0]
-    # the default on a mesh that is no scan is its faceted self: only the bends to count
-    return typed.surface is None and bend_share(mesh) <= SCAN_BEND_SHARE
+    if typed.surface is not None:
+        return False
+    # the default on a mesh that is no scan is its faceted self: only the bends to count (kept,
+    # so that the load that follows does not count them again)
+    share = bend_share(mesh)
+    if share > SCAN_BEND_SHARE:
+        return False
+    _remember(mesh, _surface_key(mesh, typed), auto_surface(mesh, share)[0])
+    return True
 
 
 def check_mold(spec: Any, base_dir: Path | None = None) -> None:

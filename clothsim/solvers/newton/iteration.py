@@ -409,28 +409,20 @@ class NewtonLevel:
         self._curv_full = False
         self._curv_test = False
         if CURVATURE and self.has_mold:
-            if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and self.direct:
-                # all of -lam S while the direct solve finds the system positive definite (the
-                # banded Cholesky's pivots, the sparse LU's), else its positive part
-                # (_solve_linear, _curvature_fallback). Not on CG's levels: CG can reach its
-                # tolerance on an indefinite system without meeting a direction of non-positive
-                # curvature, so it is no test (the band at 1.24 m with CG: 0.468 J, the saddle,
-                # against 0.3315 J); they take the positive part (mode 1), all of the term only
-                # as CURVATURE_CG_TEST decides
+            if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and (self.direct or CURVATURE_CG_TEST):
+                # direct levels: all of -lam S while the direct solve finds the system positive
+                # definite (the banded Cholesky's pivots, the sparse LU's), else its positive part
+                # (_solve_linear, _curvature_fallback). CG's levels: its positive part, and all of
+                # it when the first solve's LOBPCG estimate finds the system with it positive
+                # definite (_curvature_cg_test). CG alone is no test: it can reach its tolerance
+                # on an indefinite system without meeting a direction of non-positive curvature
+                # (the band at 1.24 m with CG: 0.468 J, the saddle, against 0.3315 J)
                 self._curv_M[:] = 0.0
                 if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
                     self._Kd = self.K[self.diag].copy()
-                    _add_curvature(self._curv_M, 2, self.diag, self.K)
-                    self._curv_full = True
-            elif CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and CURVATURE_CG_TEST:
-                # CG's levels: its positive part, and all of it when the first solve's LOBPCG
-                # estimate finds the system with it positive definite (_curvature_cg_test; CG
-                # alone is no test: see above)
-                self._curv_M[:] = 0.0
-                if _curvature_terms(pos, F, contact, self.has_mold, self.margs, self.fd_step, self._curv_M):
-                    self._Kd = self.K[self.diag].copy()
-                    _add_curvature(self._curv_M, 1, self.diag, self.K)
-                    self._curv_test = True
+                    _add_curvature(self._curv_M, 2 if self.direct else 1, self.diag, self.K)
+                    self._curv_full = self.direct
+                    self._curv_test = not self.direct
             else:
                 _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step,
                                   1 if CURVATURE == 3 else CURVATURE, self.diag, self.K)
