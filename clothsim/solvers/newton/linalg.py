@@ -806,6 +806,99 @@ def _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, 
 
 
 @njit(cache=True)
+def _galerkin_terms(indptr, indices, pidx, pw, cptr, cchild, cw, nc, cip, cidx):
+    """The terms of :func:`_galerkin_values`' sums, grouped by the coarse block they add to:
+    coarse block z (of the pattern cip, cidx) is the sum over e = eptr[z] .. eptr[z+1]-1, in
+    that order, of ew[e] x (fine block esrc[e]; for esrc[e] < 0 the diagonal block of fine row
+    -esrc[e]-1, whose slot is fdiag[that row]), in the order _galerkin_values adds them. Returns
+    (eptr (nzc+1,), esrc (ne,) int64, ew (ne,), fdiag (n,)); ew[e] = cw x pw, the same product.
+    The terms depend on the patterns and the interpolation alone."""
+    n = indptr.shape[0] - 1
+    nzc = cip[nc]
+    slot = np.empty(nc, np.int64)
+    eptr = np.zeros(nzc + 1, np.int64)
+    # count the terms of every coarse block
+    for c in range(nc):
+        for t in range(cip[c], cip[c + 1]):
+            slot[cidx[t]] = t
+        for qc in range(cptr[c], cptr[c + 1]):
+            k = cchild[qc]
+            for q in range(indptr[k], indptr[k + 1]):
+                l = indices[q]
+                for t in range(pidx.shape[1]):
+                    d = pidx[l, t]
+                    if d >= 0:
+                        eptr[slot[d] + 1] += 1
+    for z in range(nzc):
+        eptr[z + 1] += eptr[z]
+    fill = eptr[:-1].copy()
+    esrc = np.empty(eptr[nzc], np.int64)
+    ew = np.empty(eptr[nzc])
+    fdiag = -np.ones(n, np.int64)
+    for c in range(nc):
+        for t in range(cip[c], cip[c + 1]):
+            slot[cidx[t]] = t
+        for qc in range(cptr[c], cptr[c + 1]):
+            k = cchild[qc]
+            wk = cw[qc]
+            for q in range(indptr[k], indptr[k + 1]):
+                l = indices[q]
+                if l == k:
+                    fdiag[k] = q
+                for t in range(pidx.shape[1]):
+                    d = pidx[l, t]
+                    if d < 0:
+                        continue
+                    z = slot[d]
+                    e = fill[z]
+                    esrc[e] = -(k + 1) if l == k else q
+                    ew[e] = wk * pw[l, t]
+                    fill[z] = e + 1
+    return eptr, esrc, ew, fdiag
+
+
+@njit(cache=True)
+def _galerkin_sum(data, Pi, use_pi, eptr, esrc, ew, fdiag):
+    """:func:`_galerkin_values` from its terms (:func:`_galerkin_terms`): the same blocks, bit
+    for bit (each coarse block's terms added in the same order, from 0), summed in registers
+    one coarse block at a time instead of by read-modify-writes of the coarse blocks.
+    Returns cdat (nzc, 3, 3)."""
+    nzc = eptr.shape[0] - 1
+    n = fdiag.shape[0]
+    # the fine diagonal blocks, less their (I - Pi) part with use_pi
+    dg = np.empty((n, 3, 3))
+    for k in range(n):
+        q = fdiag[k]
+        if q < 0:
+            continue
+        for r in range(3):
+            for cc in range(3):
+                v = data[q, r, cc]
+                if use_pi:
+                    v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
+                dg[k, r, cc] = v
+    cdat = np.empty((nzc, 3, 3))
+    for z in range(nzc):
+        a00 = 0.0; a01 = 0.0; a02 = 0.0
+        a10 = 0.0; a11 = 0.0; a12 = 0.0
+        a20 = 0.0; a21 = 0.0; a22 = 0.0
+        for e in range(eptr[z], eptr[z + 1]):
+            s = esrc[e]
+            w = ew[e]
+            if s >= 0:
+                B = data[s]
+            else:
+                B = dg[-s - 1]
+            a00 += w * B[0, 0]; a01 += w * B[0, 1]; a02 += w * B[0, 2]
+            a10 += w * B[1, 0]; a11 += w * B[1, 1]; a12 += w * B[1, 2]
+            a20 += w * B[2, 0]; a21 += w * B[2, 1]; a22 += w * B[2, 2]
+        cdat[z, 0, 0] = a00; cdat[z, 0, 1] = a01; cdat[z, 0, 2] = a02
+        cdat[z, 1, 0] = a10; cdat[z, 1, 1] = a11; cdat[z, 1, 2] = a12
+        cdat[z, 2, 0] = a20; cdat[z, 2, 1] = a21; cdat[z, 2, 2] = a22
+    return cdat
+
+
+@njit(cache=True)
 def _restrict(r, cptr, cchild, cw, Pi, use_pi, out):
     """out = (Pi P)^T r blockwise (Pi only when use_pi)."""
     nc = cptr.shape[0] - 1
@@ -1033,6 +1126,11 @@ def _trimmed_spans(pad, nx1, ny1):
     return out[0], out[1]
 
 
+# Multigrid.setup sums the Galerkin products from their terms grouped by coarse block
+# (_galerkin_terms, made once per pattern, and _galerkin_sum: the same blocks, bit for bit, in
+# about a third of _galerkin_values' time); False: _galerkin_values
+GALERKIN_TERMS = True
+
 # PaddedMultigrid's smoother lines leave out the padding at their ends (same V-cycle, fewer nodes
 # swept: 225^2 padded nodes for the 39,877 of issue 11's circle); False: whole lines
 TRIM_PADDING = True
@@ -1122,17 +1220,23 @@ class Multigrid:
                 # the same fine pattern as an earlier multigrid's of this topology: its patterns
                 self._sym = (indptr, indices) + got[2:]
             else:
-                self._sym = (indptr, indices, [], [], [], [])
+                self._sym = (indptr, indices, [], [], [], [], [])
             if lay is not None:
                 lay.sym = (indptr.copy(), indices.copy()) + self._sym[2:]
-        pats, slots, chains, trans = self._sym[2], self._sym[3], self._sym[4], self._sym[5]
+        pats, slots, chains, trans, terms = self._sym[2:7]
         for lv, tr in enumerate(self.transfers):
             F = levels[-1]
             if lv == len(pats):
                 pats.append(_galerkin_pattern(F.indptr, F.indices, tr.pidx, tr.cptr, tr.cchild, tr.nc))
             cip, cidx = pats[lv]
-            cdat = _galerkin_values(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
-                                    tr.nc, Pi, lv == 0, cip, cidx)
+            if GALERKIN_TERMS:
+                if lv == len(terms):
+                    terms.append(_galerkin_terms(F.indptr, F.indices, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
+                                                 tr.nc, cip, cidx))
+                cdat = _galerkin_sum(F.data, Pi, lv == 0, *terms[lv])
+            else:
+                cdat = _galerkin_values(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
+                                        tr.nc, Pi, lv == 0, cip, cidx)
             C = _Level()
             C.indptr, C.indices, C.data = cip, cidx, cdat
             C.n = tr.nc
