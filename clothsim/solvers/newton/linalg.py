@@ -149,13 +149,60 @@ def _assemble(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, kin
 
 
 @njit(cache=True)
+def _projector_kinds(Pi):
+    """Per node (n,) int8: 1 where Pi[k] is exactly the identity, 2 where it is exactly zero, 3
+    another finite projector, 0 one with a non-finite entry."""
+    n = Pi.shape[0]
+    kind = np.empty(n, np.int8)
+    for k in range(n):
+        ident = True
+        zero = True
+        finite = True
+        for r in range(3):
+            for c in range(3):
+                v = Pi[k, r, c]
+                if v != (1.0 if r == c else 0.0):
+                    ident = False
+                if v != 0.0:
+                    zero = False
+                if not math.isfinite(v):
+                    finite = False
+        kind[k] = 1 if ident else (2 if zero else (3 if finite else 0))
+    return kind
+
+
+@njit(cache=True)
 def _project_system(indptr, indices, data, diag, Pi, mu_abs, out):
-    """out = Pi K Pi + mu Pi + (I - Pi) blockwise (Pi (n,3,3) symmetric projectors)."""
+    """out = Pi K Pi + mu Pi + (I - Pi) blockwise (Pi (n,3,3) symmetric projectors).
+
+    A finite block K_ij is copied (+ 0.0) where Pi_i and Pi_j are the identity, and is 0 where
+    Pi_j is zero (Pi_i finite) or Pi_i is zero and Pi_j the identity: the products' exact
+    results, bit for bit (each sum starts from 0.0, so a -0.0 entry becomes 0.0 either way), at
+    the cost of a copy: on a sheet most nodes are free (identity) and a held node's is zero."""
     n = indptr.shape[0] - 1
     tmp = np.empty((3, 3))
+    kind = _projector_kinds(Pi)
     for i in range(n):
+        ki = kind[i]
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
+            kj = kind[j]
+            if (kj == 2 and ki != 0) or (ki == 2 and kj == 1) or (ki == 1 and kj == 1):
+                finite = True
+                for r in range(3):
+                    for c in range(3):
+                        if not math.isfinite(data[q, r, c]):
+                            finite = False
+                if finite:
+                    if ki == 1 and kj == 1:
+                        for r in range(3):
+                            for c in range(3):
+                                out[q, r, c] = data[q, r, c] + 0.0
+                    else:
+                        for r in range(3):
+                            for c in range(3):
+                                out[q, r, c] = 0.0
+                    continue
             # tmp = K_ij Pi_j
             for r in range(3):
                 for c in range(3):
