@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from .mold import mold_contact_normals, mold_query, mold_segment_hit
+from .mold.queries import is_primitive, primitive_contact_normals, primitive_query
 
 MAX_FEATURE_NORMALS = 64
 
@@ -187,12 +188,25 @@ def residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V):
     qbuf = np.empty(8)
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     vmax = 0.0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for k in range(pos.shape[0]):
         if in_contact[k] and has_mold:
             R[0] = F[k, 0]
             R[1] = F[k, 1]
             R[2] = F[k, 2]
-            v = node_residual(R, fixed[k], True, pos[k], has_mold, margs, qbuf, nbuf)
+            if prim:
+                # node_residual's contact case from (kind, prm) (see queries.is_primitive)
+                for a in range(3):
+                    if fixed[k, a]:
+                        R[a] = 0.0
+                primitive_query(kind, prm, pos[k, 0], pos[k, 1], pos[k, 2], qbuf)
+                m = primitive_contact_normals(kind, prm, qbuf, nbuf)
+                free_axis_normals(fixed[k], nbuf, m)
+                v = cone_distance(R, nbuf, m)
+            else:
+                v = node_residual(R, fixed[k], True, pos[k], has_mold, margs, qbuf, nbuf)
         else:
             # a free node: |R| over its free axes (node_residual's first case, without the
             # array views that cost a reference count each)

@@ -33,8 +33,9 @@ def table_eval(x, y, cum, start, comp, t, s):
 
     x, y, cum (P,) are the packed tables' strains, tensions [N/m] and integrals of T up to each
     point [N/m]; start (T+1,) their offsets; comp (T,) 1 where a table takes compression.
-    ``forces_and_energy``, ``node_force`` and ``solvers.newton.settle.node_spring_block`` repeat
-    this lookup inline (for speed: see there); a change here must be made there too
+    ``forces_and_energy``, ``node_force``, ``solvers.newton.settle.node_spring_block`` and
+    ``solvers.newton.linalg._assemble`` repeat this lookup inline (for speed: see there); a
+    change here must be made there too
     (tests/test_kernel_lookup.py checks they agree).
     """
     a = start[t]

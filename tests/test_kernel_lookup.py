@@ -145,3 +145,33 @@ def test_node_spring_block_equals_table_eval():
             assert lmin == rest[sid[ptr[k]:ptr[k + 1]]].min()
             checked += 1
         assert checked > 40
+
+
+def test_assemble_equals_spring_hessian_block():
+    """linalg._assemble (the Newton matrix; its lookup inline): each block is the sum, in spring
+    order, of the springs' spring_hessian_block (+ on the diagonal blocks, - off it; a slack
+    spring at its kink stiffness), to rounding."""
+    from clothsim.kernels import spring_hessian_block
+    from clothsim.solvers.newton.linalg import _assemble, _bsr_pattern
+
+    for seed in range(4):
+        pos, sn, rest, width, table, x, y, cum, start, comp, ext = _scene(seed)
+        n, s = pos.shape[0], sn.shape[0]
+        kink = np.random.default_rng(seed).uniform(0.0, 50.0, s) * (seed % 2)
+        d = pos[sn[3:9, 1]] - pos[sn[3:9, 0]]
+        rest[3:9] = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])  # strain 0
+        indptr, indices, slot, diag = _bsr_pattern(n, sn)
+        data = np.full((indices.shape[0], 3, 3), np.nan)
+        _assemble(pos, sn, rest, width, table, x, y, cum, start, comp, kink, slot, data)
+        ref = np.zeros_like(data)
+        Kb = np.empty((3, 3))
+        for sp in range(s):
+            spring_hessian_block(pos[sn[sp, 0]], pos[sn[sp, 1]], rest[sp], width[sp], x, y, cum, start, comp,
+                                 table[sp], kink[sp], Kb)
+            if np.linalg.norm(pos[sn[sp, 1]] - pos[sn[sp, 0]]) < 1e-14:
+                continue
+            for q, sg in zip(slot[sp], (1.0, 1.0, -1.0, -1.0)):
+                ref[q] += sg * Kb
+        scale = np.abs(ref).max()
+        assert scale > 0
+        np.testing.assert_allclose(data, ref, rtol=1e-12, atol=1e-12 * scale)

@@ -120,3 +120,32 @@ def test_multigrids_of_one_topology_share_their_patterns_not_their_values(monkey
     ref = L.Multigrid(topo)
     ref.setup(ip2, ix2, d2, Pi)
     assert np.array_equal(third.vcycle(b), ref.vcycle(b))
+
+
+def test_project_system_fast_blocks_are_the_products():
+    """_project_system copies the blocks between two identity projectors and zeroes those next to
+    a zero one: the same numbers as Pi K Pi + mu Pi + (I - Pi) computed in full."""
+    nx1, ny1 = 7, 6
+    indptr, indices, data = _grid_system(nx1, ny1, 4, nine_point=True)
+    n = nx1 * ny1
+    rng = np.random.default_rng(0)
+    Pi = np.tile(np.eye(3), (n, 1, 1))
+    kinds = rng.integers(0, 3, n)
+    Pi[kinds == 1] = 0.0
+    for k in np.nonzero(kinds == 2)[0]:
+        v = rng.normal(size=3)
+        v /= np.linalg.norm(v)
+        Pi[k] = np.eye(3) - np.outer(v, v)
+    data[0, 0, 1] = -0.0
+    diag = np.array([L._find_block(indptr, indices, k, k) for k in range(n)], np.int64)
+    out = np.empty_like(data)
+    mu = 0.3
+    L._project_system(indptr, indices, data, diag, Pi, mu, out)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    ref = np.einsum("qab,qbc,qcd->qad", Pi[rows], data, Pi[indices])
+    ref[diag] += mu * Pi + (np.eye(3) - Pi)
+    np.testing.assert_allclose(out, ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+    both = (kinds[rows] == 0) & (kinds[indices] == 0) & (rows != indices)
+    assert both.any() and np.array_equal(out[both], data[both] + 0.0)
+    zero = (kinds[indices] == 1) & (rows != indices)
+    assert zero.any() and not out[zero].any() and not np.signbit(out[zero]).any()

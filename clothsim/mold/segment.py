@@ -352,7 +352,13 @@ def mold_segment_hit(margs, p0, p1):
         return _mesh_segment_hit(margs, p0, p1)
     if kind == MOLD_SMOOTH:
         return _smooth_segment_hit(margs, p0, p1)
-    prm = margs.params
+    return primitive_segment_hit(kind, margs.params, p0, p1)
+
+
+@njit(cache=True)
+def primitive_segment_hit(kind, prm, p0, p1):
+    """:func:`mold_segment_hit` on an analytic mold (``queries.is_primitive``; prm: margs.params),
+    from (kind, prm) alone."""
     dx = p1[0] - p0[0]
     dy = p1[1] - p0[1]
     dz = p1[2] - p0[2]

@@ -17,7 +17,8 @@ from numba import njit
 from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, cut_move, free_axis_normals, stop_at_surface
 from ...mold import (MOLD_MESH, MOLD_SMOOTH, contact_normals_from_query, mold_contact_normals, mold_query,
                      smooth_shape_operator)
-from ...mold.segment import smooth_segment_hit_from
+from ...mold.queries import is_primitive, primitive_contact_normals, primitive_query
+from ...mold.segment import primitive_segment_hit, smooth_segment_hit_from
 from ...mold.smooth import _smooth_query_flag
 
 # after a projection onto the mold, a node may be inside by at most this [m]
@@ -98,6 +99,15 @@ def _query_nodes(pos, has_mold, margs, Q):
     (``_trial_positions_sd``)."""
     smooth = has_mold and margs[0][0] == MOLD_SMOOTH
     flag = Q.shape[1] > 9
+    kind = margs.info[0]
+    if has_mold and is_primitive(kind):
+        # (a loop of its own: see queries.is_primitive)
+        prm = margs.params
+        for k in range(pos.shape[0]):
+            Q[k, 8] = primitive_query(kind, prm, pos[k, 0], pos[k, 1], pos[k, 2], Q[k])
+            if flag:
+                Q[k, 9] = 1.0
+        return
     for k in range(pos.shape[0]):
         if smooth:
             sd, ok = _smooth_query_flag(margs, pos[k, 0], pos[k, 1], pos[k, 2], Q[k])
@@ -122,6 +132,9 @@ def _residual_q(F, fixed, in_contact, has_mold, margs, Q, V):
     R = np.empty(3)
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     vmax = 0.0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for k in range(F.shape[0]):
         r0 = 0.0 if fixed[k, 0] else F[k, 0]
         r1 = 0.0 if fixed[k, 1] else F[k, 1]
@@ -130,7 +143,8 @@ def _residual_q(F, fixed, in_contact, has_mold, margs, Q, V):
             R[0] = r0
             R[1] = r1
             R[2] = r2
-            m = contact_normals_from_query(margs, Q[k], nbuf)
+            m = (primitive_contact_normals(kind, prm, Q[k], nbuf) if prim else
+                 contact_normals_from_query(margs, Q[k], nbuf))
             free_axis_normals(fixed[k], nbuf, m)
             v = cone_distance(R, nbuf, m)
         else:
@@ -203,12 +217,16 @@ def _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, QA):
     R = np.empty(3)
     Q = np.empty((6, 3))
     released = 0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for k in range(pos.shape[0]):
         nq = held_axis_rows(fixed, k, Q)
         if in_contact[k] and has_mold and nq < 3:
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
-            m = contact_normals_from_query(margs, QA[k], nbuf)
+            m = (primitive_contact_normals(kind, prm, QA[k], nbuf) if prim else
+                 contact_normals_from_query(margs, QA[k], nbuf))
             free_axis_normals(fixed[k], nbuf, m)
             na = cone_active(R, nbuf, m, act)
             if na >= 2 and QA[k, 6] != 0.0 and probe > 0.0:
@@ -287,6 +305,9 @@ def _block_infeasible_q(pos, dx, contact, has_mold, margs, probe, Pi, Q):
     p = np.empty(3)
     nbuf = np.empty((MAX_FEATURE_NORMALS, 3))
     blocked = 0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for k in range(pos.shape[0]):
         if not contact[k]:
             continue
@@ -301,10 +322,11 @@ def _block_infeasible_q(pos, dx, contact, has_mold, margs, probe, Pi, Q):
         p[0] = pos[k, 0] + probe * d0 / dn
         p[1] = pos[k, 1] + probe * d1 / dn
         p[2] = pos[k, 2] + probe * d2 / dn
-        sd = mold_query(margs, p, q)
+        sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
         if not (sd < -1e-3 * probe):
             continue
-        m = contact_normals_from_query(margs, Q[k], nbuf)
+        m = (primitive_contact_normals(kind, prm, Q[k], nbuf) if prim else
+             contact_normals_from_query(margs, Q[k], nbuf))
         best = 0.0
         jb = -1
         for j in range(m):
@@ -353,6 +375,9 @@ def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share)
     nrm = np.empty((n, 3))
     total = 0.0
     part = 0.0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for k in range(n):
         dec = rhs[3 * k] * dx[3 * k] + rhs[3 * k + 1] * dx[3 * k + 1] + rhs[3 * k + 2] * dx[3 * k + 2]
         total += dec
@@ -364,7 +389,10 @@ def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share)
         dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if dn == 0.0:
             continue
-        mold_query(margs, pos[k], q)
+        if prim:
+            primitive_query(kind, prm, pos[k, 0], pos[k, 1], pos[k, 2], q)
+        else:
+            mold_query(margs, pos[k], q)
         if not (d0 * q[3] + d1 * q[4] + d2 * q[5] < -1e-6 * dn):
             continue
         enter[k] = True
@@ -522,6 +550,9 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     p = np.empty(3)
     dd = np.empty(3)
     worst = 0.0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for k in range(pos0.shape[0]):
         moved = False
         d2 = 0.0
@@ -574,13 +605,15 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 # stop_at_surface with the query at pos0 read from Q0
                 hit = cut_move(pos0[k], p, fixed[k],
                                smooth_segment_hit_from(margs, pos0[k], p, Q0[k], Q0[k, 8], Q0[k, 9] != 0.0))
+            elif prim:
+                hit = cut_move(pos0[k], p, fixed[k], primitive_segment_hit(kind, prm, pos0[k], p))
             else:
                 hit = stop_at_surface(margs, pos0[k], p, fixed[k])
             on_foot = False
             if margs[0][0] == MOLD_SMOOTH:
                 sd, on_foot = _smooth_query_flag(margs, p[0], p[1], p[2], q)
             else:
-                sd = mold_query(margs, p, q)
+                sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
             if gap > 0.0:
                 gap = (1.0 - frac) * gap if frac < 1.0 else 0.0
             if c and sd > gap + RELEASE_GAP and q[6] != 0.0:
@@ -608,7 +641,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                     # PENETRATION_TOL): no query needed to know that it is not inside
                     sd = 0.0
                 else:
-                    sd = mold_query(margs, p, q)
+                    sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
                     # a node with constrained axes moved onto the foot point along its free axes
                     # only is still inside where the surface curves (by about its constrained
                     # offset times the curvature): the line search then rejects any step longer
@@ -629,7 +662,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                         for a in range(3):
                             if not fixed[k, a]:
                                 p[a] -= sd * q[3 + a] / nf2
-                        sd = mold_query(margs, p, q)
+                        sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
             sdk = sd
             if -sd > worst:
                 worst = -sd

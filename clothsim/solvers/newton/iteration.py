@@ -138,6 +138,11 @@ class NewtonLevel:
         nb = self.indices.shape[0]
         self.K = np.zeros((nb, 3, 3))
         self.A = np.zeros((nb, 3, 3))
+        # the array the multigrid hierarchy was built on and reads in its V-cycles (or None), and
+        # a second buffer: while the hierarchy holds A, the next projected system is written to
+        # the other one (_solve_linear) instead of giving the hierarchy a copy of A
+        self._mg_A = None
+        self._A_spare = None
         t = model.tables
         self.kink = np.array([kink * first_slope(t.x, t.y, t.start, int(tb)) for tb in
                               range(len(t.start) - 1)])[model.spring_table] if kink > 0 else np.zeros(
@@ -263,6 +268,10 @@ class NewtonLevel:
         (x (3n,) [m], CG iterations). x0: CG's start (None: 0); reuse: keep the multigrid
         hierarchy even if the projectors changed since it was built (it is rebuilt when CG then
         does not reach tol)."""
+        if self.A is self._mg_A:
+            if self._A_spare is None:
+                self._A_spare = np.empty_like(self.A)
+            self.A, self._A_spare = self._A_spare, self.A
         _project_system(self.indptr, self.indices, self.K, self.diag, self.Pi, mu_abs, self.A)
         n3 = 3 * self.n
         if self.direct:
@@ -295,10 +304,11 @@ class NewtonLevel:
                 return x0.copy(), 0
         if not (reuse and self._mg_pi is not None and self._mg_mu == mu_abs) and self._mg_stale(mu_abs):
             self._mg_pi = self.Pi.copy()
-            # (a preconditioner that keeps the matrix gets a copy: A is rewritten by the next
-            # _project_system; the padded multigrid copies it into its rectangle itself)
-            A = self.A if getattr(self.mg, "copies_matrix", False) else self.A.copy()
-            self.mg.setup(self.indptr, self.indices, A, self._mg_pi)
+            # (a preconditioner that keeps the matrix keeps A itself: the next systems are
+            # written to the other buffer while it holds it; the padded multigrid copies it into
+            # its rectangle)
+            self._mg_A = None if getattr(self.mg, "copies_matrix", False) else self.A
+            self.mg.setup(self.indptr, self.indices, self.A, self._mg_pi)
             self._mg_age = 0
         self._mg_age += 1
         if self._curv_test:
@@ -355,7 +365,7 @@ class NewtonLevel:
         self._eig_x = x
         if not (theta > r):
             return False
-        self.A[:] = Af
+        self.A = Af  # (the multigrid keeps the array it was built on)
         self.K[self.diag] = Kf
         self._curv_full = True
         return True

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ...kernels import LENGTH_EPS, spring_vector, table_eval
+from ...kernels import LENGTH_EPS, spring_vector
 from .objcache import per_object
 
 # multigrid: stop coarsening at this many nodes
@@ -92,7 +92,11 @@ def _assemble(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, kin
 
     Per spring the block of ``kernels.spring_hessian_block`` (the same formula, written with
     scalars): K = (w/l0) T'(s) u u^T + max(w T / l, 0) (I - u u^T), with T' replaced by
-    kink[s] [N/m] at and below strain 0 on tension-only springs."""
+    kink[s] [N/m] at and below strain 0 on tension-only springs.
+
+    The table lookup is ``table_eval``'s (T and dT) written out in the loop, the same operations
+    in the same order (see ``kernels.forces_and_energy``: a call that takes the table's arrays
+    costs numba a reference count on each of them per spring, about half this loop's time)."""
     data[:] = 0.0
     for s in range(spring_nodes.shape[0]):
         dx, dy, dz, length = spring_vector(pos, spring_nodes[s, 0], spring_nodes[s, 1])
@@ -102,7 +106,20 @@ def _assemble(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, kin
         w = width[s]
         t = table[s]
         st = length / l0 - 1.0
-        T, dT, W = table_eval(x, y, cum, start, comp, t, st)
+        m = start[t]
+        if st <= 0.0:
+            if comp[t] == 0:
+                T = 0.0
+                dT = 0.0
+            else:
+                dT = (y[m + 1] - y[m]) / (x[m + 1] - x[m])
+                T = y[m] + dT * st
+        else:
+            end = start[t + 1] - 2
+            while m < end and st >= x[m + 1]:
+                m += 1
+            dT = (y[m + 1] - y[m]) / (x[m + 1] - x[m])
+            T = y[m] + dT * (st - x[m])
         if st <= 0.0 and comp[t] == 0 and kink[s] > 0.0:
             dT = kink[s]
         u0 = dx / length
@@ -132,13 +149,60 @@ def _assemble(pos, spring_nodes, rest, width, table, x, y, cum, start, comp, kin
 
 
 @njit(cache=True)
+def _projector_kinds(Pi):
+    """Per node (n,) int8: 1 where Pi[k] is exactly the identity, 2 where it is exactly zero, 3
+    another finite projector, 0 one with a non-finite entry."""
+    n = Pi.shape[0]
+    kind = np.empty(n, np.int8)
+    for k in range(n):
+        ident = True
+        zero = True
+        finite = True
+        for r in range(3):
+            for c in range(3):
+                v = Pi[k, r, c]
+                if v != (1.0 if r == c else 0.0):
+                    ident = False
+                if v != 0.0:
+                    zero = False
+                if not math.isfinite(v):
+                    finite = False
+        kind[k] = 1 if ident else (2 if zero else (3 if finite else 0))
+    return kind
+
+
+@njit(cache=True)
 def _project_system(indptr, indices, data, diag, Pi, mu_abs, out):
-    """out = Pi K Pi + mu Pi + (I - Pi) blockwise (Pi (n,3,3) symmetric projectors)."""
+    """out = Pi K Pi + mu Pi + (I - Pi) blockwise (Pi (n,3,3) symmetric projectors).
+
+    A finite block K_ij is copied (+ 0.0) where Pi_i and Pi_j are the identity, and is 0 where
+    Pi_j is zero (Pi_i finite) or Pi_i is zero and Pi_j the identity: the products' exact
+    results, bit for bit (each sum starts from 0.0, so a -0.0 entry becomes 0.0 either way), at
+    the cost of a copy: on a sheet most nodes are free (identity) and a held node's is zero."""
     n = indptr.shape[0] - 1
     tmp = np.empty((3, 3))
+    kind = _projector_kinds(Pi)
     for i in range(n):
+        ki = kind[i]
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
+            kj = kind[j]
+            if (kj == 2 and ki != 0) or (ki == 2 and kj == 1) or (ki == 1 and kj == 1):
+                finite = True
+                for r in range(3):
+                    for c in range(3):
+                        if not math.isfinite(data[q, r, c]):
+                            finite = False
+                if finite:
+                    if ki == 1 and kj == 1:
+                        for r in range(3):
+                            for c in range(3):
+                                out[q, r, c] = data[q, r, c] + 0.0
+                    else:
+                        for r in range(3):
+                            for c in range(3):
+                                out[q, r, c] = 0.0
+                    continue
             # tmp = K_ij Pi_j
             for r in range(3):
                 for c in range(3):
@@ -806,6 +870,99 @@ def _galerkin_values(indptr, indices, data, pidx, pw, cptr, cchild, cw, nc, Pi, 
 
 
 @njit(cache=True)
+def _galerkin_terms(indptr, indices, pidx, pw, cptr, cchild, cw, nc, cip, cidx):
+    """The terms of :func:`_galerkin_values`' sums, grouped by the coarse block they add to:
+    coarse block z (of the pattern cip, cidx) is the sum over e = eptr[z] .. eptr[z+1]-1, in
+    that order, of ew[e] x (fine block esrc[e]; for esrc[e] < 0 the diagonal block of fine row
+    -esrc[e]-1, whose slot is fdiag[that row]), in the order _galerkin_values adds them. Returns
+    (eptr (nzc+1,), esrc (ne,) int64, ew (ne,), fdiag (n,)); ew[e] = cw x pw, the same product.
+    The terms depend on the patterns and the interpolation alone."""
+    n = indptr.shape[0] - 1
+    nzc = cip[nc]
+    slot = np.empty(nc, np.int64)
+    eptr = np.zeros(nzc + 1, np.int64)
+    # count the terms of every coarse block
+    for c in range(nc):
+        for t in range(cip[c], cip[c + 1]):
+            slot[cidx[t]] = t
+        for qc in range(cptr[c], cptr[c + 1]):
+            k = cchild[qc]
+            for q in range(indptr[k], indptr[k + 1]):
+                l = indices[q]
+                for t in range(pidx.shape[1]):
+                    d = pidx[l, t]
+                    if d >= 0:
+                        eptr[slot[d] + 1] += 1
+    for z in range(nzc):
+        eptr[z + 1] += eptr[z]
+    fill = eptr[:-1].copy()
+    esrc = np.empty(eptr[nzc], np.int64)
+    ew = np.empty(eptr[nzc])
+    fdiag = -np.ones(n, np.int64)
+    for c in range(nc):
+        for t in range(cip[c], cip[c + 1]):
+            slot[cidx[t]] = t
+        for qc in range(cptr[c], cptr[c + 1]):
+            k = cchild[qc]
+            wk = cw[qc]
+            for q in range(indptr[k], indptr[k + 1]):
+                l = indices[q]
+                if l == k:
+                    fdiag[k] = q
+                for t in range(pidx.shape[1]):
+                    d = pidx[l, t]
+                    if d < 0:
+                        continue
+                    z = slot[d]
+                    e = fill[z]
+                    esrc[e] = -(k + 1) if l == k else q
+                    ew[e] = wk * pw[l, t]
+                    fill[z] = e + 1
+    return eptr, esrc, ew, fdiag
+
+
+@njit(cache=True)
+def _galerkin_sum(data, Pi, use_pi, eptr, esrc, ew, fdiag):
+    """:func:`_galerkin_values` from its terms (:func:`_galerkin_terms`): the same blocks, bit
+    for bit (each coarse block's terms added in the same order, from 0), summed in registers
+    one coarse block at a time instead of by read-modify-writes of the coarse blocks.
+    Returns cdat (nzc, 3, 3)."""
+    nzc = eptr.shape[0] - 1
+    n = fdiag.shape[0]
+    # the fine diagonal blocks, less their (I - Pi) part with use_pi
+    dg = np.empty((n, 3, 3))
+    for k in range(n):
+        q = fdiag[k]
+        if q < 0:
+            continue
+        for r in range(3):
+            for cc in range(3):
+                v = data[q, r, cc]
+                if use_pi:
+                    v -= (1.0 if r == cc else 0.0) - Pi[k, r, cc]
+                dg[k, r, cc] = v
+    cdat = np.empty((nzc, 3, 3))
+    for z in range(nzc):
+        a00 = 0.0; a01 = 0.0; a02 = 0.0
+        a10 = 0.0; a11 = 0.0; a12 = 0.0
+        a20 = 0.0; a21 = 0.0; a22 = 0.0
+        for e in range(eptr[z], eptr[z + 1]):
+            s = esrc[e]
+            w = ew[e]
+            if s >= 0:
+                B = data[s]
+            else:
+                B = dg[-s - 1]
+            a00 += w * B[0, 0]; a01 += w * B[0, 1]; a02 += w * B[0, 2]
+            a10 += w * B[1, 0]; a11 += w * B[1, 1]; a12 += w * B[1, 2]
+            a20 += w * B[2, 0]; a21 += w * B[2, 1]; a22 += w * B[2, 2]
+        cdat[z, 0, 0] = a00; cdat[z, 0, 1] = a01; cdat[z, 0, 2] = a02
+        cdat[z, 1, 0] = a10; cdat[z, 1, 1] = a11; cdat[z, 1, 2] = a12
+        cdat[z, 2, 0] = a20; cdat[z, 2, 1] = a21; cdat[z, 2, 2] = a22
+    return cdat
+
+
+@njit(cache=True)
 def _restrict(r, cptr, cchild, cw, Pi, use_pi, out):
     """out = (Pi P)^T r blockwise (Pi only when use_pi)."""
     nc = cptr.shape[0] - 1
@@ -1033,6 +1190,11 @@ def _trimmed_spans(pad, nx1, ny1):
     return out[0], out[1]
 
 
+# Multigrid.setup sums the Galerkin products from their terms grouped by coarse block
+# (_galerkin_terms, made once per pattern, and _galerkin_sum: the same blocks, bit for bit, in
+# about a third of _galerkin_values' time); False: _galerkin_values
+GALERKIN_TERMS = True
+
 # PaddedMultigrid's smoother lines leave out the padding at their ends (same V-cycle, fewer nodes
 # swept: 225^2 padded nodes for the 39,877 of issue 11's circle); False: whole lines
 TRIM_PADDING = True
@@ -1122,17 +1284,23 @@ class Multigrid:
                 # the same fine pattern as an earlier multigrid's of this topology: its patterns
                 self._sym = (indptr, indices) + got[2:]
             else:
-                self._sym = (indptr, indices, [], [], [], [])
+                self._sym = (indptr, indices, [], [], [], [], [])
             if lay is not None:
                 lay.sym = (indptr.copy(), indices.copy()) + self._sym[2:]
-        pats, slots, chains, trans = self._sym[2], self._sym[3], self._sym[4], self._sym[5]
+        pats, slots, chains, trans, terms = self._sym[2:7]
         for lv, tr in enumerate(self.transfers):
             F = levels[-1]
             if lv == len(pats):
                 pats.append(_galerkin_pattern(F.indptr, F.indices, tr.pidx, tr.cptr, tr.cchild, tr.nc))
             cip, cidx = pats[lv]
-            cdat = _galerkin_values(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
-                                    tr.nc, Pi, lv == 0, cip, cidx)
+            if GALERKIN_TERMS:
+                if lv == len(terms):
+                    terms.append(_galerkin_terms(F.indptr, F.indices, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
+                                                 tr.nc, cip, cidx))
+                cdat = _galerkin_sum(F.data, Pi, lv == 0, *terms[lv])
+            else:
+                cdat = _galerkin_values(F.indptr, F.indices, F.data, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
+                                        tr.nc, Pi, lv == 0, cip, cidx)
             C = _Level()
             C.indptr, C.indices, C.data = cip, cidx, cdat
             C.n = tr.nc

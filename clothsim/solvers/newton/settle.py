@@ -23,9 +23,11 @@ import math
 import numpy as np
 from numba import njit
 
-from ...contact import MAX_FEATURE_NORMALS, cone_active, free_axis_normals, stop_at_surface
+from ...contact import MAX_FEATURE_NORMALS, cone_active, cut_move, free_axis_normals, stop_at_surface
 from ...kernels import LENGTH_EPS
 from ...mold import contact_normals_from_query, mold_query
+from ...mold.queries import is_primitive, primitive_contact_normals, primitive_query
+from ...mold.segment import primitive_segment_hit
 from .active_set import held_axis_rows, orthonormal_rows
 
 # band half-width around the rim [lattice hops] and the number of sweeps over it
@@ -217,6 +219,9 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
     Q = np.empty((3, 3))
     Hp = np.empty((3, 3))
     changes = 0
+    kind = margs.info[0]
+    prim = is_primitive(kind)
+    prm = margs.params
     for sweep in range(sweeps):
         changes = 0
         for t in range(band.shape[0]):
@@ -227,10 +232,14 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
             # constraint directions: held axes, then the active contact normals
             nq = held_axis_rows(fixed, k, Q)
             if contact[k]:
-                mold_query(margs, pos[k], q)
+                if prim:
+                    primitive_query(kind, prm, pos[k, 0], pos[k, 1], pos[k, 2], q)
+                else:
+                    mold_query(margs, pos[k], q)
                 for a in range(3):
                     R[a] = 0.0 if fixed[k, a] else f[a]
-                m = contact_normals_from_query(margs, q, nbuf)
+                m = (primitive_contact_normals(kind, prm, q, nbuf) if prim else
+                     contact_normals_from_query(margs, q, nbuf))
                 free_axis_normals(fixed[k], nbuf, m)
                 na = cone_active(R, nbuf, m, act)
                 if na == 0:
@@ -269,12 +278,17 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
                 p[a] = pos[k, a] + (0.0 if fixed[k, a] else dx[a])
             if contact[k]:
                 # back onto the surface (the closest point), held axes kept
-                mold_query(margs, p, q)
+                if prim:
+                    primitive_query(kind, prm, p[0], p[1], p[2], q)
+                else:
+                    mold_query(margs, p, q)
                 for a in range(3):
                     if not fixed[k, a]:
                         pos[k, a] = q[a]
             else:
-                if stop_at_surface(margs, pos[k], p, fixed[k]):
+                hit = (cut_move(pos[k], p, fixed[k], primitive_segment_hit(kind, prm, pos[k], p)) if prim else
+                       stop_at_surface(margs, pos[k], p, fixed[k]))
+                if hit:
                     contact[k] = True
                     changes += 1
                 for a in range(3):
