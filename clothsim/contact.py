@@ -197,7 +197,8 @@ def residual_from_forces(pos, F, fixed, in_contact, has_mold, margs, V):
             R[1] = F[k, 1]
             R[2] = F[k, 2]
             if prim:
-                # node_residual's contact case from (kind, prm) (see queries.is_primitive)
+                # node_residual's contact case from (kind, prm) (see queries.is_primitive): the
+                # same steps; change both together (tests/test_contact.py compares them)
                 for a in range(3):
                     if fixed[k, a]:
                         R[a] = 0.0

@@ -223,3 +223,35 @@ def test_node_starting_exactly_on_mesh_edge_or_vertex(where, method):
     assert max_penetration(state.positions, mold.kernel_args()) <= 1e-9
     assert res.converged, res.message
     assert res.iterations > 5 and state.in_contact.sum() > 5
+
+
+@pytest.mark.parametrize("kind, params", [("sphere", {"center": [0, 0, 0], "radius": 0.1}),
+                                          ("cylinder", {"center": [0, 0, 0], "axis": [0, 0, 1], "radius": 0.1,
+                                                        "length": 0.2}),
+                                          ("box", {"min": [-0.1, -0.1, -0.1], "max": [0.1, 0.1, 0.1]})])
+def test_residual_from_forces_on_analytic_molds_equals_node_residual(kind, params):
+    """``residual_from_forces`` computes an analytic mold's contact entries from (kind, params)
+    alone (no mold tuple per node): the same numbers as ``node_residual``, node by node, at points
+    on faces, edges and corners, with free and held axes."""
+    from clothsim.contact import node_residual, residual_from_forces
+    from clothsim.mold import mold_primitive, mold_query
+
+    margs = mold_primitive(kind, params).kernel_args()
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(40, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    pos = np.vstack([0.1 * d, [[0.1, 0.1, 0.1], [0.1, 0.0, 0.1], [0.1, 0.0, 0.0]]])
+    q = np.empty(8)
+    for k in range(len(pos)):  # onto the surface
+        mold_query(margs, pos[k], q)
+        pos[k] = q[:3]
+    F = rng.normal(size=pos.shape)
+    fixed = rng.random(pos.shape) < 0.2
+    contact = rng.random(len(pos)) < 0.8
+    V = np.empty(len(pos))
+    residual_from_forces(pos, F, fixed, contact, True, margs, V)
+    qbuf = np.empty(8)
+    nbuf = np.empty((8, 3))
+    for k in range(len(pos)):
+        R = F[k].copy()
+        assert V[k] == node_residual(R, fixed[k], contact[k], pos[k], True, margs, qbuf, nbuf), k

@@ -109,6 +109,7 @@ def test_multigrids_of_one_topology_share_their_patterns_not_their_values(monkey
     assert all(a is b for a, b in zip(second.transfers, first.transfers))
     second.setup(indptr.copy(), indices.copy(), 3.0 * data, Pi)
     assert second._sym[2] is first._sym[2] and second._sym[5] is first._sym[5]   # patterns shared
+    assert second._sym[6] is first._sym[6] and len(first._sym[6]) == len(first.transfers)  # Galerkin terms
     assert second.levels[1].data is not first.levels[1].data                     # values not
     assert np.array_equal(second.vcycle(b), fresh.vcycle(b))
     assert np.allclose(first.vcycle(b), 3.0 * second.vcycle(b))
@@ -136,16 +137,63 @@ def test_project_system_fast_blocks_are_the_products():
         v = rng.normal(size=3)
         v /= np.linalg.norm(v)
         Pi[k] = np.eye(3) - np.outer(v, v)
-    data[0, 0, 1] = -0.0
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    between = np.nonzero((kinds[rows] == 0) & (kinds[indices] == 0) & (rows != indices))[0]
+    qz, qi = between[0], between[1]
+    data[qz, 0, 1] = -0.0     # a copied block: -0.0 + 0.0 is +0.0, as the full product gives
+    data[qi, 1, 1] = np.inf   # not finite: the full product (0 x inf is NaN off its row)
     diag = np.array([L._find_block(indptr, indices, k, k) for k in range(n)], np.int64)
     out = np.empty_like(data)
     mu = 0.3
     L._project_system(indptr, indices, data, diag, Pi, mu, out)
-    rows = np.repeat(np.arange(n), np.diff(indptr))
-    ref = np.einsum("qab,qbc,qcd->qad", Pi[rows], data, Pi[indices])
+    with np.errstate(invalid="ignore"):
+        ref = np.einsum("qab,qbc,qcd->qad", Pi[rows], data, Pi[indices])
     ref[diag] += mu * Pi + (np.eye(3) - Pi)
-    np.testing.assert_allclose(out, ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+    assert out[qz, 0, 1] == 0.0 and not np.signbit(out[qz, 0, 1])
+    assert np.array_equal(np.isnan(out[qi]), np.isnan(ref[qi])) and np.isnan(out[qi]).any()
+    assert out[qi, 1, 1] == np.inf
+    fin = np.ones(len(out), bool)
+    fin[qi] = False
+    np.testing.assert_allclose(out[fin], ref[fin], rtol=1e-13, atol=1e-13 * np.abs(ref[fin]).max())
     both = (kinds[rows] == 0) & (kinds[indices] == 0) & (rows != indices)
+    both[qi] = False
     assert both.any() and np.array_equal(out[both], data[both] + 0.0)
     zero = (kinds[indices] == 1) & (rows != indices)
     assert zero.any() and not out[zero].any() and not np.signbit(out[zero]).any()
+
+
+@pytest.mark.parametrize("use_pi", [False, True])
+def test_galerkin_sum_equals_galerkin_values(use_pi):
+    """The Galerkin product from its terms grouped by coarse block (``_galerkin_terms``,
+    ``_galerkin_sum``) equals the direct product (``_galerkin_values``) bit for bit, on every
+    level of a grid with general, zero and identity projectors and non-finite and -0.0 entries."""
+    nx1, ny1 = 17, 13
+    topo = Topology.rectangle(nx1 - 1, ny1 - 1)
+    mg = L.Multigrid(topo)
+    indptr, indices, data = _grid_system(nx1, ny1, 7, nine_point=True)
+    n = nx1 * ny1
+    rng = np.random.default_rng(1)
+    Pi = np.tile(np.eye(3), (n, 1, 1))
+    kinds = rng.integers(0, 3, n)
+    Pi[kinds == 1] = 0.0
+    for k in np.nonzero(kinds == 2)[0]:
+        v = rng.normal(size=3)
+        Pi[k] = np.eye(3) - np.outer(v, v) / (v @ v)
+    data[5, 0, 0] = -0.0
+    data[9, 2, 1] = np.inf
+    data[14, 1, 0] = np.nan
+    data[20, 0, 2] = 1e308
+    fip, fix, fdat = indptr, indices, data
+    for lv, tr in enumerate(mg.transfers):
+        cip, cidx = L._galerkin_pattern(fip, fix, tr.pidx, tr.cptr, tr.cchild, tr.nc)
+        first = use_pi and lv == 0
+        with np.errstate(all="ignore"):
+            direct = L._galerkin_values(fip, fix, fdat, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw, tr.nc, Pi,
+                                        first, cip, cidx)
+            terms = L._galerkin_terms(fip, fix, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw, tr.nc, cip, cidx)
+            summed = L._galerkin_sum(fdat, Pi, first, *terms)
+        assert direct.shape == summed.shape
+        assert np.array_equal(direct.view(np.int64), summed.view(np.int64)), lv  # the same bits
+        if lv == 0:
+            assert np.isnan(direct).any() and np.isfinite(direct).any()
+        fip, fix, fdat = cip, cidx, np.nan_to_num(direct)

@@ -273,3 +273,25 @@ def test_trapezoid_energy_change_below_the_energys_resolution():
     expect = -F0.reshape(-1) @ dv + 0.5 * dv @ (K @ dv)
     assert abs(expect) < ENERGY_RESOLUTION * abs(E0)
     assert _trapezoid_change(pos, pos + d, F0, F1) == pytest.approx(expect, rel=1e-6)
+
+
+def test_multigrid_keeps_its_matrix_while_the_next_system_is_written_elsewhere():
+    """The multigrid hierarchy keeps the projected matrix it was set up on (no copy): the next
+    system (here with a doubled Hessian, the hierarchy reused) is written to the Newton level's
+    second buffer, so the hierarchy's fine values stay those it was built on."""
+    from clothsim import bench
+    from clothsim.solvers.newton.iteration import NewtonLevel
+
+    case = bench.Case("t", "configs/sphere_cap.yaml", ["fabric.divisions=[20,20]"], ("newton",))
+    model, state, _ = bench._load(case, "newton", 1e-9, None)
+    lev = NewtonLevel(model, use_multigrid=True)
+    lev.iterate(state, np.inf)
+    fine = lev.mg.levels[0].data
+    assert fine is lev._mg_A
+    kept = fine.copy()
+    lev.K *= 2.0
+    rhs = np.random.default_rng(0).normal(size=3 * lev.n)
+    _solve = lev._solve_linear(rhs, lev._mg_mu, 1e-8, None, True)
+    assert lev.mg.levels[0].data is fine and np.array_equal(fine, kept)
+    assert lev.A is not fine and not np.array_equal(lev.A, fine)
+    assert np.all(np.isfinite(_solve[0]))

@@ -737,7 +737,8 @@ def contact_normals_from_query(margs, out, normals_out):
 @njit(cache=True)
 def primitive_contact_normals(kind, prm, out, normals_out):
     """:func:`contact_normals_from_query` on an analytic mold (``is_primitive``; prm:
-    margs.params)."""
+    margs.params): out (>= 8,) a query's answer, normals_out (K, 3) filled with the contact
+    cone's unit normals; returns their number."""
     k = primitive_feature_normals(kind, prm, int(out[6]), int(out[7]), normals_out)
     if k > 0:
         return k

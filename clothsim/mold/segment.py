@@ -358,7 +358,8 @@ def mold_segment_hit(margs, p0, p1):
 @njit(cache=True)
 def primitive_segment_hit(kind, prm, p0, p1):
     """:func:`mold_segment_hit` on an analytic mold (``queries.is_primitive``; prm: margs.params),
-    from (kind, prm) alone."""
+    from (kind, prm) alone: p0, p1 (3,) [m] the segment's ends; returns the share t in [0, 1]
+    where it first enters the mold, or -1.0."""
     dx = p1[0] - p0[0]
     dy = p1[1] - p0[1]
     dz = p1[2] - p0[2]

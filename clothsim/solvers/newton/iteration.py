@@ -303,12 +303,15 @@ class NewtonLevel:
             if math.sqrt(_dot(r0, r0)) <= tol * math.sqrt(_dot(rhs, rhs)):
                 return x0.copy(), 0
         if not (reuse and self._mg_pi is not None and self._mg_mu == mu_abs) and self._mg_stale(mu_abs):
-            self._mg_pi = self.Pi.copy()
             # (a preconditioner that keeps the matrix keeps A itself: the next systems are
             # written to the other buffer while it holds it; the padded multigrid copies it into
-            # its rectangle)
+            # its rectangle, PyAMG into its CSR). Recorded only once the set-up has succeeded: a
+            # set-up that raises leaves the last hierarchy, and its buffer, as they were
+            self._mg_pi = None
+            Pi = self.Pi.copy()
+            self.mg.setup(self.indptr, self.indices, self.A, Pi)
+            self._mg_pi = Pi
             self._mg_A = None if getattr(self.mg, "copies_matrix", False) else self.A
-            self.mg.setup(self.indptr, self.indices, self.A, self._mg_pi)
             self._mg_age = 0
         self._mg_age += 1
         if self._curv_test:

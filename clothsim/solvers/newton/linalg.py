@@ -9,6 +9,7 @@ Shapes: n nodes, S springs, nb stored 3x3 blocks; vectors are flat (3n,) in node
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -925,8 +926,9 @@ def _galerkin_terms(indptr, indices, pidx, pw, cptr, cchild, cw, nc, cip, cidx):
 def _galerkin_sum(data, Pi, use_pi, eptr, esrc, ew, fdiag):
     """:func:`_galerkin_values` from its terms (:func:`_galerkin_terms`): the same blocks, bit
     for bit (each coarse block's terms added in the same order, from 0), summed in registers
-    one coarse block at a time instead of by read-modify-writes of the coarse blocks.
-    Returns cdat (nzc, 3, 3)."""
+    one coarse block at a time instead of by read-modify-writes of the coarse blocks. data
+    (nzf, 3, 3) the fine BSR values [N/m], Pi (n, 3, 3) the fine projectors (applied when
+    use_pi), eptr/esrc/ew/fdiag the terms. Returns cdat (nzc, 3, 3) [N/m]."""
     nzc = eptr.shape[0] - 1
     n = fdiag.shape[0]
     # the fine diagonal blocks, less their (I - Pi) part with use_pi
@@ -1192,7 +1194,9 @@ def _trimmed_spans(pad, nx1, ny1):
 
 # Multigrid.setup sums the Galerkin products from their terms grouped by coarse block
 # (_galerkin_terms, made once per pattern, and _galerkin_sum: the same blocks, bit for bit, in
-# about a third of _galerkin_values' time); False: _galerkin_values
+# about a third of _galerkin_values' time); False: _galerkin_values. The terms are kept with the
+# topology's layout (LAYOUT_CACHE of them, for grids and for panels each): about 27 MB for all
+# the levels of a 201^2 grid with a 5-point fine pattern, 68 MB with a 13-point one
 GALERKIN_TERMS = True
 
 # PaddedMultigrid's smoother lines leave out the padding at their ends (same V-cycle, fewer nodes
@@ -1266,7 +1270,14 @@ class Multigrid:
         """Build the hierarchy for the projected fine matrix (BSR arrays). pad_scale: when given,
         a coarse node whose diagonal block the Galerkin product leaves zero (no lattice node
         among its children: padding) gets pad_scale x I3, decoupled (its right-hand sides are
-        zero, so it stays at zero)."""
+        zero, so it stays at zero). The per-level patterns, slots and Galerkin terms that
+        multigrids of one topology share are built lazily under ``_SHARED_LOCK``: two threads
+        setting up on one topology (the viewer's warm-up beside its worker) never append a
+        level's entry twice."""
+        with _SHARED_LOCK:
+            self._setup(indptr, indices, data, Pi, pad_scale)
+
+    def _setup(self, indptr, indices, data, Pi, pad_scale):
         self.Pi = Pi
         levels = []
         L = _Level()
@@ -1655,6 +1666,11 @@ class PaddedMultigrid:
         return self.mg.vcycle(bf.ravel()).reshape(-1, 3)[self.emb].ravel()
 
 
+# guards the lazily built per-level lists that the multigrids of one topology share
+# (``Multigrid.setup``)
+_SHARED_LOCK = threading.RLock()
+
+
 class AlgebraicMultigrid:
     """PyAMG's smoothed aggregation on the projected BSR matrix, used as the CG preconditioner
     where the lattice is not one full rectangle (cut panels, several panels), so the line
@@ -1663,6 +1679,9 @@ class AlgebraicMultigrid:
     References: Vanek, Mandel, Brezina, *Algebraic multigrid by smoothed aggregation for second
     and fourth order elliptic problems*, Computing 56 (1996); PyAMG (Bell, Olson, Schroder).
     Limitations: set-up costs more than the geometric multigrid's Galerkin products on a grid."""
+
+    # PyAMG builds its own CSR copy: the Newton level need not keep the matrix for it
+    copies_matrix = True
 
     def __init__(self):
         self._M = None
