@@ -123,13 +123,10 @@ def test_multigrids_of_one_topology_share_their_patterns_not_their_values(monkey
     assert np.array_equal(third.vcycle(b), ref.vcycle(b))
 
 
-def test_project_system_fast_blocks_are_the_products():
-    """_project_system copies the blocks between two identity projectors and zeroes those next to
-    a zero one: the same numbers as Pi K Pi + mu Pi + (I - Pi) computed in full."""
-    nx1, ny1 = 7, 6
-    indptr, indices, data = _grid_system(nx1, ny1, 4, nine_point=True)
-    n = nx1 * ny1
-    rng = np.random.default_rng(0)
+def _projectors(n, seed):
+    """Random node projectors (n, 3, 3) and their kinds (n,): 0 identity (free), 1 zero (held),
+    2 a plane's (I - v v^T, a contact node)."""
+    rng = np.random.default_rng(seed)
     Pi = np.tile(np.eye(3), (n, 1, 1))
     kinds = rng.integers(0, 3, n)
     Pi[kinds == 1] = 0.0
@@ -137,6 +134,16 @@ def test_project_system_fast_blocks_are_the_products():
         v = rng.normal(size=3)
         v /= np.linalg.norm(v)
         Pi[k] = np.eye(3) - np.outer(v, v)
+    return Pi, kinds
+
+
+def test_project_system_fast_blocks_are_the_products():
+    """_project_system copies the blocks between two identity projectors and zeroes those next to
+    a zero one: the same numbers as Pi K Pi + mu Pi + (I - Pi) computed in full."""
+    nx1, ny1 = 7, 6
+    indptr, indices, data = _grid_system(nx1, ny1, 4, nine_point=True)
+    n = nx1 * ny1
+    Pi, kinds = _projectors(n, 0)
     rows = np.repeat(np.arange(n), np.diff(indptr))
     between = np.nonzero((kinds[rows] == 0) & (kinds[indices] == 0) & (rows != indices))[0]
     qz, qi = between[0], between[1]
@@ -172,13 +179,7 @@ def test_galerkin_sum_equals_galerkin_values(use_pi):
     mg = L.Multigrid(topo)
     indptr, indices, data = _grid_system(nx1, ny1, 7, nine_point=True)
     n = nx1 * ny1
-    rng = np.random.default_rng(1)
-    Pi = np.tile(np.eye(3), (n, 1, 1))
-    kinds = rng.integers(0, 3, n)
-    Pi[kinds == 1] = 0.0
-    for k in np.nonzero(kinds == 2)[0]:
-        v = rng.normal(size=3)
-        Pi[k] = np.eye(3) - np.outer(v, v) / (v @ v)
+    Pi, _ = _projectors(n, 1)
     data[5, 0, 0] = -0.0
     data[9, 2, 1] = np.inf
     data[14, 1, 0] = np.nan
