@@ -570,3 +570,42 @@ def test_default_surface_is_built_once_and_check_mold_builds_none(monkeypatch):
     assert load_mold({**spec, "surface": "faceted"}, ROOT).kind == MOLD_MESH
     clear_mold_cache()
     assert not load._surfaces
+
+
+def test_two_threads_loading_one_scan_build_its_surface_once(monkeypatch):
+    """Two threads loading the same scan on its smooth surface at once (the viewer's worker beside
+    a run) build the surface once: the second waits for the first's build and gets the same Mold."""
+    import threading
+    import time
+
+    from conftest import ROOT
+
+    from clothsim.mold import build, clear_mold_cache, load
+
+    builds = []
+    real = build.with_surface
+
+    def slow(mesh, surface, *a, **k):
+        if surface != "faceted":
+            builds.append(surface)
+            time.sleep(0.3)  # hold the build open while the other thread asks
+        return real(mesh, surface, *a, **k)
+
+    monkeypatch.setattr(build, "with_surface", slow)
+    monkeypatch.setattr(load, "with_surface", slow)
+    clear_mold_cache()
+    spec = {"path": "static/bodies/smpl_man.stl", "up": "y", "surface": "smooth"}
+    load_mold({**spec, "surface": "faceted"}, ROOT)  # the mesh cached first: only the surface is raced
+    got = [None, None]
+
+    def run(i):
+        got[i] = load_mold(spec, ROOT)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(builds) == 1 and got[0] is got[1] and got[0].kind == MOLD_SMOOTH
+    assert not load._building
+    clear_mold_cache()

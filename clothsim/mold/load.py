@@ -120,6 +120,8 @@ _cache_stats = {"hits": 0, "misses": 0}
 # (id(cached mesh), surface asked for (None: the default), smoothing) -> (that mesh, the mold on
 # that surface): the smooth surface of a mesh is built once per cached mesh, not once per load
 _surfaces: OrderedDict = OrderedDict()
+# _surface_key -> the lock held while that surface is built (``_on_surface``)
+_building: dict = {}
 
 
 def clear_mold_cache() -> None:
@@ -142,16 +144,26 @@ def _on_surface(mesh: Mold, typed: MeshMoldSpec) -> Mold:
         return with_surface(mesh, "faceted")
     key = _surface_key(mesh, typed)
     with _cache_lock:
-        hit = _surfaces.get(key)
-        if hit is not None and hit[0] is mesh:
-            _surfaces.move_to_end(key)
-            return hit[1]
-    if typed.surface is None:
-        mold = auto_surface(mesh)[0]
-    else:
-        mold = with_surface(mesh, typed.surface, typed.smoothing)
-    _remember(mesh, key, mold)
-    return mold
+        build = _building.setdefault(key, threading.Lock())
+    # one build per key: a second thread asking for the same surface meanwhile (the viewer's
+    # worker beside a run) waits for the first's and takes it from the cache
+    try:
+        with build:
+            with _cache_lock:
+                hit = _surfaces.get(key)
+                if hit is not None and hit[0] is mesh:
+                    _surfaces.move_to_end(key)
+                    return hit[1]
+            if typed.surface is None:
+                mold = auto_surface(mesh)[0]
+            else:
+                mold = with_surface(mesh, typed.surface, typed.smoothing)
+            _remember(mesh, key, mold)
+            return mold
+    finally:
+        with _cache_lock:
+            if _building.get(key) is build:
+                del _building[key]  # later loads find it in the cache (or build it again if it left)
 
 
 def _remember(mesh: Mold, key, mold: Mold) -> None:
