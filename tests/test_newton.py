@@ -242,10 +242,19 @@ def test_band_cholesky_solve_matches_sparse_lu():
     n3 = 3 * lvl.n
     b = np.random.default_rng(3).normal(size=n3)
     x = np.empty(n3)
-    assert la._band_cholesky_solve(lvl.indptr, lvl.indices, lvl.A, inv, bw, b, np.empty((n3, 3 * bw + 3)), x)
+    L = np.empty((n3, 3 * bw + 3))
+    assert la._band_cholesky_solve(lvl.indptr, lvl.indices, lvl.A, inv, bw, b, L, x)
     M = sp.bsr_matrix((lvl.A, lvl.indices, lvl.indptr), shape=(n3, n3)).tocsc()
     ref = sla.spsolve(M, b)
     assert np.abs(x - ref).max() <= 1e-9 * np.abs(ref).max()
+    # the factor it leaves solves again, bit for bit (the negative-curvature search's
+    # preconditioner), for another right-hand side too
+    x2 = np.empty(n3)
+    la._band_factored_solve(L, inv, b, x2)
+    assert np.array_equal(x2, x)
+    b2 = np.random.default_rng(4).normal(size=n3)
+    la._band_factored_solve(L, inv, b2, x2)
+    assert np.abs(x2 - sla.spsolve(M, b2)).max() <= 1e-9 * np.abs(x2).max()
     bad = -lvl.A
     assert not la._band_cholesky_solve(lvl.indptr, lvl.indices, bad, inv, bw, b, np.empty((n3, 3 * bw + 3)), x)
 

@@ -104,24 +104,79 @@ def test_torso_band_on_the_smooth_scan_converges_in_60_iterations():
     assert worst <= 1e-9
 
 
-def test_torso_band_ends_at_the_minimum_not_the_saddle():
+@pytest.mark.parametrize("height, energy", [(1.24, 0.3315099495), (1.06, 0.9820114560)])
+def test_torso_band_ends_at_the_minimum_not_the_saddle(height, energy):
     """smpl_man's smooth surface at y = 1.24 m (75 iterations with the positive part of the
     contact's curvature term alone, ``iteration.CURVATURE`` 1: a linear tail, the residual
     x0.42 per full step): with all of the term while the system stays positive definite
     (``CURVATURE`` 3) it converges within 60 iterations to the same minimum (0.33151 J), not to
-    the saddle all of the term everywhere (2) converges to (0.468 J)."""
+    the saddle all of the term everywhere (2) converges to (0.468 J). At y = 1.06 m the path
+    passes a saddle (3.9e-3 N at 1.458 J by its 9th iteration); without the step along the
+    negative curvature (``NEG_CURV_MOVE`` 0) it crept away from it for 62 iterations, with it
+    48."""
     from clothsim.solvers.newton import iteration
 
     assert iteration.CURVATURE == 3
     case = bench.Case("t", "configs/torso_band.yaml",
-                      bench.scan_band_overrides(bench.scan_body_path("smpl_man"), 1.24, "smooth"), ("newton",))
+                      bench.scan_band_overrides(bench.scan_body_path("smpl_man"), height, "smooth"), ("newton",))
     model, state, settings = bench._load(case, "newton", 1e-9, None)
     its, status, worst = _run(model, state, settings, 100)
     assert status == "converged", (its, status)
     assert its <= 60
     assert worst <= 1e-9
     E = iteration.NewtonLevel(model).energy_forces(state.positions, np.zeros((model.node_count, 3)))
-    assert abs(E - 0.3315099495) < 1e-8, E
+    assert abs(E - energy) < 1e-8, E
+
+
+def test_negative_curvature_direction_is_the_smallest_eigenvector(monkeypatch):
+    """``NewtonLevel._negative_curvature`` on the smooth band at y = 1.06 m, at each of its first
+    three calls (the system with all of the curvature term indefinite): v lies in the free space
+    (Pi v = v), and its Rayleigh quotient on the projected system with all of the term is
+    negative and equals that system's smallest eigenvalue on the free dofs, from a dense
+    eigensolver, to 1e-6 of the spectrum's scale."""
+    from clothsim.solvers.newton import iteration
+    from clothsim.solvers.newton.linalg import _project_system
+
+    checked = []
+    orig = iteration.NewtonLevel._negative_curvature
+
+    def spy(self, mu_abs):
+        v = orig(self, mu_abs)
+        if v is None or len(checked) >= 3:
+            return v
+        Kf = self.K.copy()
+        Kf[self.diag] = self._Kd + self._curv_M
+        Af = np.empty_like(Kf)
+        _project_system(self.indptr, self.indices, Kf, self.diag, self.Pi, mu_abs, Af)
+        n3 = 3 * self.n
+        import scipy.sparse as sp
+        A = sp.bsr_matrix((Af, self.indices, self.indptr), shape=(n3, n3)).toarray()
+        # an orthonormal basis of the free space: the projectors' unit eigenvectors
+        B = []
+        for k in range(self.n):
+            w, U = np.linalg.eigh(self.Pi[k])
+            for a in range(3):
+                if w[a] > 0.5:
+                    e = np.zeros(n3)
+                    e[3 * k:3 * k + 3] = U[:, a]
+                    B.append(e)
+        B = np.array(B).T
+        lam = np.linalg.eigvalsh(B.T @ A @ B)
+        Pv = np.einsum("kab,kb->ka", self.Pi, v.reshape(-1, 3)).ravel()
+        checked.append((lam[0], v @ A @ v / (v @ v), np.abs(Pv - v).max() / np.abs(v).max(),
+                        np.abs(lam).max()))
+        return v
+
+    monkeypatch.setattr(iteration.NewtonLevel, "_negative_curvature", spy)
+    case = bench.Case("t", "configs/torso_band.yaml",
+                      bench.scan_band_overrides(bench.scan_body_path("smpl_man"), 1.06, "smooth"), ("newton",))
+    model, state, settings = bench._load(case, "newton", 1e-9, None)
+    _run(model, state, settings, 30)
+    assert len(checked) == 3
+    for lam0, rq, off, scale in checked:
+        assert lam0 < 0.0 and rq < 0.0
+        assert off <= 1e-12
+        assert abs(rq - lam0) <= 1e-6 * scale, (rq, lam0, scale)
 
 
 def test_lu_positive_definite_known_answers():

@@ -23,7 +23,7 @@ from ..options import NewtonOptions
 from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
                          _block_infeasible_q, _curvature_blocks, _curvature_terms, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
                          _trial_positions_sd)
-from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve,
+from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve, _band_factored_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
 # systems with at most this many unknowns are factorised directly (no multigrid)
@@ -114,6 +114,22 @@ LM_MAX = 1e4
 # equilibria stay)
 KINK_DECAY = 10.0
 KINK_FLOOR = 1e-4
+# near a saddle (CURVATURE 3 on a direct level, where the system with all of the curvature term
+# is indefinite and its positive part is solved instead), the step also moves along the
+# direction of negative curvature v: the unit eigenvector of the smallest eigenvalue theta of the
+# projected system with all of the term (``_negative_curvature``: NEG_CURV_ITERS iterations of
+# LOBPCG, preconditioned by the positive part's factor), taken when theta < -|A v - theta v|, its
+# sign making it a descent direction, scaled so that its largest node move is NEG_CURV_MOVE
+# lattice spacings (0: off); the line search then cuts the combined step as any other. The
+# positive part alone leaves a saddle's escape direction nearly flat, so Newton crept away from
+# it: smpl_man's band at 1.06 m on the smooth surface sat at 3.9e-3 N by its 9th iteration and
+# needed 62 in all. With the step the 24-band smooth campaign's iterations went 19-62 (744 in
+# all) -> 18-48 (707), every band at the same minimum (energies within 4e-15 J, positions within
+# 4e-10 m). Measured moves: 0.4 -> at most 47 iterations, 0.8 -> 46, 1.6 -> 56; 5 LOBPCG
+# iterations (0.8): 48, 10: 46, at about 3 ms a test. Not on CG's levels (their test is
+# _curvature_cg_test's) and not on facets or analytic molds (no curvature term there)
+NEG_CURV_MOVE = 0.8
+NEG_CURV_ITERS = 5
 
 
 class NewtonLevel:
@@ -188,6 +204,8 @@ class NewtonLevel:
         self.probe = 1e-6 * float(min(model.spacing))
         # difference step of the smooth surface's shape operator [m] (_curvature_blocks)
         self.fd_step = 1e-4 * float(min(model.spacing))
+        self.spacing = float(min(model.spacing))
+        self._refactor = None  # the last direct solve's factor: rhs (3n,) -> A^-1 rhs
         self._cache = None
         self._curv_full = False  # the Hessian holds all of the curvature term (CURVATURE 3)
         self._curv_test = False  # CG's level: test the system with all of the term at the next solve
@@ -279,6 +297,7 @@ class NewtonLevel:
                 inv, bw, work = self._band
                 x = np.empty(n3)
                 if _band_cholesky_solve(self.indptr, self.indices, self.A, inv, bw, rhs, work, x):
+                    self._refactor = self._band_again
                     return x, 1
                 if self._curv_full:
                     # not positive definite with all of the curvature term: its positive part
@@ -294,6 +313,7 @@ class NewtonLevel:
                 self._curvature_fallback()
                 return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
             x = lu.solve(rhs)
+            self._refactor = lu.solve
             return x, 1
         if x0 is not None:
             # a start that already meets tol needs no hierarchy (and no rebuild)
@@ -373,6 +393,54 @@ class NewtonLevel:
         self._curv_full = True
         return True
 
+    def _negative_curvature(self, mu_abs):
+        """On a direct level whose system with all of the curvature term was found indefinite
+        (the last solve, with its positive part, left its factor in ``_refactor``): LOBPCG's
+        unit eigenvector v (3n,) of the smallest eigenvalue theta [N/m] of the projected system
+        with all of the term (shift mu_abs [N/m]) on the free dofs, when theta < -|A v - theta v|
+        (a converged negative eigenvalue), else None. Starts from the last estimate's vector
+        (``_eig_x``)."""
+        Kf = self.K.copy()
+        Kf[self.diag] = self._Kd + self._curv_M
+        Af = np.empty_like(Kf)
+        _project_system(self.indptr, self.indices, Kf, self.diag, self.Pi, mu_abs, Af)
+        n3 = 3 * self.n
+        indptr, indices = self.indptr, self.indices
+        solve = self._refactor
+        Pi = self.Pi
+
+        def mv(v):
+            y = np.empty(n3)
+            _bsr_matvec(indptr, indices, Af, v, y)
+            return y
+
+        def pc(v):
+            w = np.empty(n3)
+            _apply_pi(Pi, v, w)
+            z = solve(w)
+            _apply_pi(Pi, z, w)
+            return w
+
+        x0 = self._eig_x if self._eig_x is not None else self._eig_rng.standard_normal(n3)
+        p0 = np.empty(n3)
+        _apply_pi(Pi, x0, p0)
+        if not (_dot(p0, p0) > 0.0):
+            return None
+        theta, r, x = _smallest_eigenpair(mv, pc, p0, NEG_CURV_ITERS)
+        self._eig_x = x
+        if not (theta < -r):
+            return None
+        v = np.empty(n3)
+        _apply_pi(Pi, x, v)  # (in the free space up to rounding: exactly there)
+        return v
+
+    def _band_again(self, rhs):
+        """A^-1 rhs (3n,) with the banded Cholesky factor the last solve left in the work array."""
+        inv, _, work = self._band
+        x = np.empty(3 * self.n)
+        _band_factored_solve(work, inv, rhs, x)
+        return x
+
     def _curvature_fallback(self):
         """The Hessian K with the positive part of the curvature term (``CURVATURE`` 1) instead of
         all of it, for the rest of the iteration."""
@@ -421,6 +489,7 @@ class NewtonLevel:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
         self._curv_full = False
         self._curv_test = False
+        curv_had = False  # a direct level with the curvature term (and so its definiteness test)
         if CURVATURE and self.has_mold:
             if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and (self.direct or CURVATURE_CG_TEST):
                 # direct levels: all of -lam S while the direct solve finds the system positive
@@ -436,6 +505,7 @@ class NewtonLevel:
                     _add_curvature(self._curv_M, 2 if self.direct else 1, self.diag, self.K)
                     self._curv_full = self.direct
                     self._curv_test = not self.direct
+                    curv_had = self.direct
             else:
                 _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step,
                                   1 if CURVATURE == 3 else CURVATURE, self.diag, self.K)
@@ -501,6 +571,19 @@ class NewtonLevel:
                     continue
                 dx = dy + self.gap
                 slope = -_dot(rhs, dy) - _dot(f, self.gap)
+            if NEG_CURV_MOVE > 0.0 and curv_had and not self._curv_full and slope < 0.0:
+                # indefinite with all of the curvature term: a step along its negative
+                # curvature too (NEG_CURV_MOVE)
+                v = self._negative_curvature(mu_abs)
+                big = np.abs(v).max() if v is not None else 0.0
+                if big > 0.0:
+                    gv = _dot(rhs, v)
+                    if gv < 0.0:
+                        v = -v
+                        gv = -gv
+                    tau = NEG_CURV_MOVE * self.spacing / big
+                    dx = dx + tau * v
+                    slope -= tau * gv
             if not (slope < 0.0):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue

@@ -675,8 +675,20 @@ def _band_cholesky_solve(indptr, indices, data, inv, bw, rhs, L, x):
     """Solve A x = rhs for the symmetric positive definite BSR matrix A (3x3 blocks) by a banded
     Cholesky factorisation in the node order ``inv`` (old -> new node; half-bandwidth bw nodes).
     L (3n, 3 bw + 3) is work space: row i holds L[i, i - w + 1 .. i] (w = 3 bw + 3 columns, the
-    diagonal last), so the inner products run over contiguous memory. Returns False (x
-    undefined) when a pivot is not positive: the caller falls back to the sparse LU."""
+    diagonal last), so the inner products run over contiguous memory; on success it holds the
+    factor (``_band_factored_solve`` solves with it again). Returns False (x undefined) when a
+    pivot is not positive: the caller falls back to the sparse LU."""
+    if not _band_scatter_factor(indptr, indices, data, inv, L):
+        return False
+    _band_factored_solve(L, inv, rhs, x)
+    return True
+
+
+@njit(cache=True)
+def _band_scatter_factor(indptr, indices, data, inv, L):
+    """L (3n, w): the banded Cholesky factor of the BSR matrix (indptr, indices, data (nb, 3, 3))
+    in the node order ``inv`` (see ``_band_cholesky_solve``). Returns False when a pivot is not
+    positive."""
     n = indptr.shape[0] - 1
     n3 = 3 * n
     w = L.shape[1]
@@ -696,8 +708,16 @@ def _band_cholesky_solve(indptr, indices, data, inv, bw, rhs, L, x):
                     c = 3 * jn + b
                     if c <= r:
                         L[r, w - 1 - (r - c)] = data[q, a, b]
-    if not _band_factor(L):
-        return False
+    return _band_factor(L)
+
+
+@njit(cache=True)
+def _band_factored_solve(L, inv, rhs, x):
+    """x (3n,) = A^-1 rhs (3n,) with A's banded Cholesky factor L (3n, w) in the node order inv
+    (``_band_scatter_factor``)."""
+    n3 = L.shape[0]
+    n = n3 // 3
+    w = L.shape[1]
     # forward: L y = P rhs
     y = np.empty(n3)
     for k in range(n):
@@ -728,7 +748,6 @@ def _band_cholesky_solve(indptr, indices, data, inv, bw, rhs, L, x):
         kn = inv[k]
         for a in range(3):
             x[3 * k + a] = y[3 * kn + a]
-    return True
 
 
 @njit(cache=True)
