@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 WRAP_FUNCS = ("_query_nodes", "_projectors_q", "_free_distances_q", "_residual_q", "_apply_pi", "_assemble",
-              "_curvature_blocks", "_diag_traces", "_band_cholesky_solve_reuse", "_project_system",
+              "_curvature_blocks", "_diag_traces", "_complete_queries", "_project_system",
               "_block_infeasible_q", "_block_entering", "_trial_positions_sd", "_contact_faces_q", "_same",
               "_all_finite", "_dot", "forces_and_energy")
 WRAP_METHODS = ("iterate", "_line_search", "_solve_linear", "residual", "queries", "energy_forces", "_accept")

@@ -79,7 +79,7 @@ def _run(model, state, settings, max_iterations):
 
 def test_smooth_stocking_converges_without_penetrating():
     """The stocking on the leg's smooth surface: ~420 iterations before (a held column creeping
-    at alpha = 0.25, then nodes churning in and out of contact), then 77, now 43; no node is inside
+    at alpha = 0.25, then nodes churning in and out of contact), then 77, then 43, now 23; no node is inside
     the leg by more than 1e-9 m after any iteration."""
     scene = clothsim.load_scene(ROOT / "configs" / "garments" / "stocking.yaml", ["mold.surface=smooth"])
     from clothsim.simulation import prepare
@@ -335,3 +335,56 @@ def test_faceted_calf_band_converges_with_newton_alone():
     assert s["status"] == "converged", s["status"]
     assert s["iterations"] <= 30 and s["residual"] <= 1e-9
     assert max_penetration(res.state.positions, res.model.mold.kernel_args()) <= PENETRATION_TOL
+
+
+def test_line_search_records_give_the_fresh_answers(monkeypatch):
+    """On the smooth surface the line search traces each free node's segment once
+    (``_trial_positions_sd``'s memo) and the accepted step's mold answers come from its trial pass
+    (Qt, ``_complete_queries``). In the first 12 iterations of smpl_man's band at y = 1.06 m,
+    every trial pass equals the same pass without the records (positions within 1e-9 m, the same
+    contact set and depth), and every completed set of answers equals ``_query_nodes``' at the
+    accepted positions (foot points and distances within 1e-12 m, normals within 1e-9)."""
+    from clothsim.solvers.newton import active_set, iteration
+
+    passes = []
+    accepts = []
+    orig_tp = iteration._trial_positions_sd
+
+    def tp(*args):
+        a = list(args)
+        out, cout = a[11], a[12]
+        pen = orig_tp(*args)
+        if a[16].shape[0] == 0:
+            return pen
+        ref, rc, rsd = np.empty_like(out), np.empty_like(cout), np.empty(out.shape[0])
+        a[11], a[12], a[13], a[16], a[17] = ref, rc, rsd, active_set._NO_MEMO, active_set._NO_QT
+        pen_ref = orig_tp(*a)
+        passes.append((np.abs(out - ref).max(), int((cout != rc).sum()), abs(pen - pen_ref),
+                       int((args[16][:, 0] > 0.0).sum()), float(args[4])))
+        return pen
+
+    orig_cq = iteration._complete_queries
+
+    def cq(pos, Qt, q_pos, has_mold, margs, Q):
+        n = orig_cq(pos, Qt, q_pos, has_mold, margs, Q)
+        F = np.empty_like(Q)
+        active_set._query_nodes(pos, has_mold, margs, F)
+        accepts.append((np.abs(Q[:, :3] - F[:, :3]).max(), np.abs(Q[:, 3:6] - F[:, 3:6]).max(),
+                        np.abs(Q[:, 8] - F[:, 8]).max(), bool(np.array_equal(Q[:, 9], F[:, 9])),
+                        int(Qt[:, 10].sum()), n))
+        return n
+
+    monkeypatch.setattr(iteration, "_trial_positions_sd", tp)
+    monkeypatch.setattr(iteration, "_complete_queries", cq)
+    case = bench.Case("t", "configs/torso_band.yaml",
+                      bench.scan_band_overrides(bench.scan_body_path("smpl_man"), 1.06, "smooth"), ("newton",))
+    model, state, settings = bench._load(case, "newton", 1e-9, None)
+    _run(model, state, settings, 12)
+    assert len(passes) >= 12 and len(accepts) >= 6
+    for dpos, dcontact, dpen, traced, alpha in passes:
+        assert dpos <= 1e-9 and dcontact == 0 and dpen <= 1e-12, (dpos, dcontact, dpen)
+    # the records were used: shorter steps read traces, accepted steps took the trial's answers
+    assert any(p[3] > 0 and p[4] < 1.0 for p in passes)
+    for dfoot, dnormal, dsd, flags, known, queried in accepts:
+        assert dfoot <= 1e-12 and dsd <= 1e-12 and dnormal <= 1e-9 and flags, (dfoot, dsd, dnormal, flags)
+        assert known > queried

@@ -125,6 +125,24 @@ def _query_nodes(pos, has_mold, margs, Q):
 
 
 @njit(cache=True)
+def _complete_queries(pos, Qt, q_pos, has_mold, margs, Q):
+    """Q (n, 10) for the positions pos (n,3) [m] (``_query_nodes``' answers) from what is known:
+    a node's row of Qt (n, 11) where Qt[k, 10] = 1 (the trial pass's answers at pos,
+    ``_trial_positions_sd``), its row of Q where it has not moved from q_pos (n,3) [m] (the
+    positions Q was queried at, bit for bit), and a query otherwise. Returns how many nodes were
+    queried."""
+    count = 0
+    for k in range(pos.shape[0]):
+        if Qt[k, 10] != 0.0:
+            for a in range(10):
+                Q[k, a] = Qt[k, a]
+        elif not (pos[k, 0] == q_pos[k, 0] and pos[k, 1] == q_pos[k, 1] and pos[k, 2] == q_pos[k, 2]):
+            _query_nodes(pos[k:k + 1], has_mold, margs, Q[k:k + 1])
+            count += 1
+    return count
+
+
+@njit(cache=True)
 def _residual_q(F, fixed, in_contact, has_mold, margs, Q, V):
     """``contact.residual_from_forces`` (the same arithmetic) with the mold's answers at the nodes
     read from Q (``_query_nodes``) instead of queried: V (n,) filled with eq. (6)'s entries,
@@ -519,18 +537,23 @@ def _face_exit(margs, f, p0, d):
     return max(t, 0.0)
 
 
+# no records for _trial_positions_sd (molds other than the smooth surface; callers without them)
+_NO_MEMO = np.zeros((0, 6))
+_NO_QT = np.zeros((0, 11))
+
+
 @njit(cache=True)
 def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
                      contact_out):
     """``_trial_positions_sd`` without the per-node distances and the reuse of an earlier pass."""
     sd_out = np.empty(pos0.shape[0])
     return _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0,
-                               out, contact_out, sd_out, False, np.empty((0, 10)))
+                               out, contact_out, sd_out, False, np.empty((0, 10)), _NO_MEMO, _NO_QT)
 
 
 @njit(cache=True)
 def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
-                        contact_out, sd_out, reuse, Q0):
+                        contact_out, sd_out, reuse, Q0, memo=_NO_MEMO, Qt=_NO_QT):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
     are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
@@ -544,9 +567,25 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     instead of being queried again: the same result, bit for bit. Q0 (n, 10): the mold's answers
     at pos0 with their smooth-surface flags (``_query_nodes``; (0, 10): none): on the smooth
     surface a free node's segment hit starts from its answer instead of querying pos0 again (the
-    same bits)."""
+    same bits).
+
+    On the smooth surface (with Q0), two records that make a line search's shorter steps cheap:
+    memo (n, 6) (``(0, 6)``: none), the free nodes' segment traces of this line search (the
+    caller zeroes column 0 when a line search starts): memo[k, 0] the alpha of node k's trace
+    (0: none yet), memo[k, 1] the share of that segment where it first enters the surface (-1:
+    nowhere), memo[k, 2:5] [m] and memo[k, 5] [m] the node's position and signed distance after
+    the hit. A shorter step's segment is a prefix of the traced one (the same start and
+    direction), so its first entry is the same point, or none when the prefix ends before it:
+    each free node is traced once per line search (a grazing segment takes up to 64 queries).
+    Qt (n, 11) (``(0, 11)``: none): each node's mold answer at its trial position where this pass
+    knows it (Qt[k, 0:10] as ``_query_nodes``' Q row, Qt[k, 10] = 1; 0 where it does not): the
+    query of a point left where it was queried, and for a node put on the surface its foot
+    point's answer (the foot, the normal there, distance 0: a converged foot point is on the
+    surface to 1e-13 m); ``NewtonLevel._accept`` reads it instead of querying them again."""
     q = np.empty(8)
     q0_known = Q0.shape[0] == pos0.shape[0] and Q0.shape[1] > 9 and margs[0][0] == MOLD_SMOOTH
+    use_memo = q0_known and memo.shape[0] == pos0.shape[0]
+    use_qt = q0_known and Qt.shape[0] == pos0.shape[0]
     p = np.empty(3)
     dd = np.empty(3)
     worst = 0.0
@@ -554,6 +593,9 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     prim = is_primitive(kind)
     prm = margs.params
     for k in range(pos0.shape[0]):
+        if use_qt:
+            Qt[k, 10] = 0.0
+        traced = False
         moved = False
         d2 = 0.0
         for a in range(3):
@@ -601,10 +643,25 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 if -sd_out[k] > worst:
                     worst = -sd_out[k]
                 continue
+            elif use_memo and memo[k, 0] > 0.0:
+                # traced on a longer step of this line search: the hit, if this step reaches it
+                if memo[k, 1] >= 0.0 and alpha >= memo[k, 0] * memo[k, 1]:
+                    for a in range(3):
+                        out[k, a] = memo[k, 2 + a]
+                    contact_out[k] = True
+                    sd_out[k] = memo[k, 5]
+                    if -memo[k, 5] > worst:
+                        worst = -memo[k, 5]
+                    continue
+                hit = False
             elif q0_known:
                 # stop_at_surface with the query at pos0 read from Q0
-                hit = cut_move(pos0[k], p, fixed[k],
-                               smooth_segment_hit_from(margs, pos0[k], p, Q0[k], Q0[k, 8], Q0[k, 9] != 0.0))
+                t_hit = smooth_segment_hit_from(margs, pos0[k], p, Q0[k], Q0[k, 8], Q0[k, 9] != 0.0)
+                hit = cut_move(pos0[k], p, fixed[k], t_hit)
+                if use_memo:
+                    memo[k, 0] = alpha
+                    memo[k, 1] = t_hit
+                    traced = hit
             elif prim:
                 hit = cut_move(pos0[k], p, fixed[k], primitive_segment_hit(kind, prm, pos0[k], p))
             else:
@@ -612,6 +669,13 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
             on_foot = False
             if margs[0][0] == MOLD_SMOOTH:
                 sd, on_foot = _smooth_query_flag(margs, p[0], p[1], p[2], q)
+                if use_qt:
+                    # the answer at p, where the node stays unless it is put on the surface
+                    for a in range(8):
+                        Qt[k, a] = q[a]
+                    Qt[k, 8] = sd
+                    Qt[k, 9] = 1.0 if on_foot else 0.0
+                    Qt[k, 10] = 1.0
             else:
                 sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
             if gap > 0.0:
@@ -640,7 +704,15 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                     # point of the smooth surface is on it to its 1e-13 m tolerance (far below
                     # PENETRATION_TOL): no query needed to know that it is not inside
                     sd = 0.0
+                    if use_qt:
+                        if gap == 0.0:
+                            # at the foot point: itself, the same normal, distance 0
+                            Qt[k, 8] = 0.0
+                        else:
+                            Qt[k, 10] = 0.0
                 else:
+                    if use_qt:
+                        Qt[k, 10] = 0.0
                     sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
                     # a node with constrained axes moved onto the foot point along its free axes
                     # only is still inside where the surface curves (by about its constrained
@@ -666,6 +738,10 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
             sdk = sd
             if -sd > worst:
                 worst = -sd
+            if traced:
+                for a in range(3):
+                    memo[k, 2 + a] = p[a]
+                memo[k, 5] = sd
         elif reuse:
             # not moved, or a free node that cannot reach the mold: as in the earlier pass
             continue

@@ -22,7 +22,7 @@ from ..common import model_mold_args
 from ..options import NewtonOptions
 from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
                          _block_infeasible_q, _curvature_blocks, _curvature_terms, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
-                         _trial_positions_sd)
+                         _trial_positions_sd, _complete_queries, _NO_MEMO, _NO_QT)
 from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve, _band_factored_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
@@ -114,6 +114,10 @@ LM_MAX = 1e4
 # equilibria stay)
 KINK_DECAY = 10.0
 KINK_FLOOR = 1e-4
+# on the smooth surface, the line search traces each free node's segment once (its shorter steps
+# read the trace) and the accepted step's mold answers come from its trial pass
+# (``_trial_positions_sd``'s memo and Qt): see docs/benchmarks_scans_smooth.md
+LINE_SEARCH_RECORDS = True
 # near a saddle (CURVATURE 3 on a direct level, where the system with all of the curvature term
 # is indefinite and its positive part is solved instead), the step also moves along the
 # direction of negative curvature v: the unit eigenvector of the smallest eigenvalue theta of the
@@ -220,6 +224,12 @@ class NewtonLevel:
         self.sd0 = np.full(n, np.inf)
         self.gap = np.zeros(3 * n)  # the step's prescribed gap closure [m] (_gap_closure)
         self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
+        # on the smooth surface: the line search's segment traces, and the mold's answers at the
+        # trial positions (_trial_positions_sd's memo and Qt; _accept completes Q from them)
+        smooth = self.has_mold and self.margs[0][0] == MOLD_SMOOTH and LINE_SEARCH_RECORDS
+        self._memo = np.zeros((n, 6)) if smooth else _NO_MEMO
+        self._Qt = np.zeros((n, 11)) if smooth else _NO_QT
+        self._qt_for = None  # the trial positions Qt is for (None: none)
         self._face0 = -np.ones(n, np.int64)
         self.ls_alpha = 0.0
         self._mg_pi = None
@@ -619,6 +629,8 @@ class NewtonLevel:
         # the smooth surface's segment hits start from the nodes' answers at pos (Q0); other
         # molds do not read them (and the trial passes' residuals would query pos again)
         smooth = self.has_mold and self.margs[0][0] == MOLD_SMOOTH
+        if self._memo.shape[0]:
+            self._memo[:, 0] = 0.0  # no segment traced yet in this line search
         for _ in range(40):
             self.ls_alpha = alpha
             # the straight step (contact nodes projected back onto the surface); on a mesh mold,
@@ -631,7 +643,8 @@ class NewtonLevel:
                 # from the pass just before, at the same alpha, stand)
                 pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
                                           clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip,
-                                          self.queries(pos) if smooth else _NO_Q)
+                                          self.queries(pos) if smooth else _NO_Q, self._memo, self._Qt)
+                self._qt_for = self.trial if self._Qt.shape[0] else None
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
@@ -657,6 +670,12 @@ class NewtonLevel:
         return None
 
     def _accept(self, state, E1, v1=None, F=None):
+        if self._qt_for is self.trial and self._q_pos is not None and not _same(self._q_pos, self.trial):
+            # the mold's answers at the accepted positions: the trial pass's where it knows them,
+            # the last ones for nodes that did not move, a query for the rest
+            _complete_queries(self.trial, self._Qt, self._q_pos, self.has_mold, self.margs, self.Q)
+            self._q_pos[:] = self.trial
+        self._qt_for = None
         state.positions[:] = self.trial
         state.in_contact[:] = self.trial_contact
         if v1 is None:
