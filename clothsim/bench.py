@@ -919,7 +919,42 @@ SMOOTH_SCAN_NOTES = [
     'band at 1.24 m ended on the saddle (0.468 J) (sigma = 1e-2 alone: 1.24 m on the saddle, 1.06 m at '
     '1.316 J after 156 iterations; 1e-1 alone: both bands stalled, at 7.5e-3 and 3.4e-3 N; the 14 x 30 '
     'stocking 22 and 18), and the 28 x 60 stocking at the default stays at 209 '
-    "(its fine level is CG's).", "",
+    "(its fine level is CG's).",
+    "- **A step along the negative curvature near saddles** (`iteration.NEG_CURV_MOVE = 0.8` lattice "
+    "spacings, issue 12 item 2, 2026-12-02). Main at 420f8fd took 62 iterations at smpl_man y = 1.06 m (60 "
+    "in the 08:05 run: the path follows the rounding, and later commits changed it). Traced: by its 9th iteration "
+    "the band is at 3.9e-3 N and 1.458 J, next to a saddle; the system with all of the curvature term is "
+    "indefinite there, its positive part leaves the escape direction nearly flat, and Newton crept away "
+    "for 30 iterations with steps growing about 15 % each. Now, on a direct level where the banded "
+    "Cholesky (or the sparse LU) finds the system with all of the term indefinite, LOBPCG "
+    "(`iteration._negative_curvature`: 5 iterations from the last vector, preconditioned by the positive "
+    "part's factor, `linalg._band_factored_solve`, about 3 ms) estimates its smallest eigenpair; when "
+    "theta < -|A v - theta v| the step gains v, signed to descend and scaled to a largest node move of "
+    "0.8 spacings, and the line search cuts the sum as any step. The 24 bands: 19-62 iterations (744 in "
+    "all) -> 18-48 (718), every band at the same energy (within 4e-15 J) and positions (within 7e-10 m); "
+    "the estimate was a converged negative eigenvalue in 194 of the campaign's 196 tests (in the first 33, at "
+    "1.06 and 1.24 m: theta -3.6e-4 to -0.23 N/m, |A v - theta v| 4e-12 to 2e-5); a test against a "
+    "dense eigensolver is in tests/test_newton_scans.py. Scale measured: 0.4 spacings at most 47 iterations, 0.8 46, 1.6 56; 5 LOBPCG iterations "
+    "48, 10 46. The stockings never take it (their indefinite systems' estimates are not converged "
+    "negative ones): unchanged. The middle of the band at 1.06 m still takes about 25 iterations with "
+    "alpha = 1/4-1/8: the rope sliding 10-20 cm down the body.",
+    "- **The line search traced and queried once** (`iteration.LINE_SEARCH_RECORDS`, issue 12 item 3). "
+    "A shorter step's segment is a prefix of the longer one's (the same start and direction), so its "
+    "first entry into the surface is the same point, or none when the prefix ends before it: each free "
+    "node's segment is traced once per line search and the shorter steps read the trace "
+    "(`_trial_positions_sd`'s memo). The accepted step's mold answers come from its trial pass (the "
+    "query of a node left where it was queried; for a node put on the surface its foot point, the "
+    "normal there and distance 0), the nodes that did not move keep theirs, and only the rest are "
+    "queried (`active_set._complete_queries`: about 100 of 451). Checked in a test against the fresh "
+    "pass and the fresh queries (positions within 3e-11 m, answers within 1e-13). smpl_man at 1.10 m "
+    "(`scripts/newton_phases.py --surface smooth`): 22.0 -> 14.2 ms per iteration (a line search's "
+    "first pass 6.3 ms, its later ones 1.4 ms); the 24 bands 18.7 -> 10.9 s of CPU, 18-52 iterations, the "
+    "same minima (`app.py bench --scans --surface smooth` 13:04: 18-52 iterations, median 15.5 ms and 1,578 WU "
+    "per iteration, 11.9 s for the 24 bands; 19-60, 33.0 ms, 1,822 WU and 25.6 s in the 08:05 run on a "
+    "busier machine). Not kept: the first pass traces grazing free nodes (about 100, 50 us each, up to "
+    "500 us: 64 sphere-tracing steps of 5-10 us queries, then the minimum search); capping the steps "
+    "at 16 gave 6.1 -> 5.1 ms but moved the iterations, and stopping the minimum search by the "
+    "1-Lipschitz bound (the same answers) 6.3 -> 6.1 ms.", "",
 ]
 
 
