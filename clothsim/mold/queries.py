@@ -754,6 +754,25 @@ def primitive_contact_normals(kind, prm, out, normals_out):
     return _put(normals_out, 0, out[3], out[4], out[5])
 
 
+@njit(cache=True, inline="always")
+def query_at(prim, kind, prm, margs, p, out):
+    """:func:`mold_query` (margs, p, out) at p (3,) [m]; on an analytic mold (prim =
+    ``is_primitive(kind)``, prm = margs.params) through :func:`primitive_query`, the same answer
+    without passing margs to a call (inlined: a loop over nodes pays no reference counts)."""
+    if prim:
+        return primitive_query(kind, prm, p[0], p[1], p[2], out)
+    return mold_query(margs, p, out)
+
+
+@njit(cache=True, inline="always")
+def contact_normals_at(prim, kind, prm, margs, out, normals_out):
+    """:func:`contact_normals_from_query` (margs, out, normals_out), through
+    :func:`primitive_contact_normals` on an analytic mold (see :func:`query_at`)."""
+    if prim:
+        return primitive_contact_normals(kind, prm, out, normals_out)
+    return contact_normals_from_query(margs, out, normals_out)
+
+
 @njit(cache=True)
 def mold_query_many(margs, P, signed_dist_out, closest_out, normal_out, feature_out):
     """:func:`mold_query` over the rows of P (float64 (N, 3) [m]).
@@ -770,7 +789,7 @@ def mold_query_many(margs, P, signed_dist_out, closest_out, normal_out, feature_
         p[0] = P[i, 0]
         p[1] = P[i, 1]
         p[2] = P[i, 2]
-        signed_dist_out[i] = primitive_query(kind, prm, p[0], p[1], p[2], out) if prim else mold_query(margs, p, out)
+        signed_dist_out[i] = query_at(prim, kind, prm, margs, p, out)
         for k in range(3):
             closest_out[i, k] = out[k]
             normal_out[i, k] = out[3 + k]

@@ -15,9 +15,8 @@ import numpy as np
 from numba import njit
 
 from ...contact import MAX_FEATURE_NORMALS, cone_active, cone_distance, cut_move, free_axis_normals, stop_at_surface
-from ...mold import (MOLD_MESH, MOLD_SMOOTH, contact_normals_from_query, mold_contact_normals, mold_query,
-                     smooth_shape_operator)
-from ...mold.queries import is_primitive, primitive_contact_normals, primitive_query
+from ...mold import MOLD_MESH, MOLD_SMOOTH, mold_query, smooth_shape_operator
+from ...mold.queries import contact_normals_at, is_primitive, primitive_query, query_at
 from ...mold.segment import primitive_segment_hit, smooth_segment_hit_from
 from ...mold.smooth import _smooth_query_flag
 
@@ -161,8 +160,7 @@ def _residual_q(F, fixed, in_contact, has_mold, margs, Q, V):
             R[0] = r0
             R[1] = r1
             R[2] = r2
-            m = (primitive_contact_normals(kind, prm, Q[k], nbuf) if prim else
-                 contact_normals_from_query(margs, Q[k], nbuf))
+            m = contact_normals_at(prim, kind, prm, margs, Q[k], nbuf)
             free_axis_normals(fixed[k], nbuf, m)
             v = cone_distance(R, nbuf, m)
         else:
@@ -243,8 +241,7 @@ def _projectors_q(pos, F, fixed, in_contact, has_mold, margs, Pi, probe, QA):
         if in_contact[k] and has_mold and nq < 3:
             for a in range(3):
                 R[a] = 0.0 if fixed[k, a] else F[k, a]
-            m = (primitive_contact_normals(kind, prm, QA[k], nbuf) if prim else
-                 contact_normals_from_query(margs, QA[k], nbuf))
+            m = contact_normals_at(prim, kind, prm, margs, QA[k], nbuf)
             free_axis_normals(fixed[k], nbuf, m)
             na = cone_active(R, nbuf, m, act)
             if na >= 2 and QA[k, 6] != 0.0 and probe > 0.0:
@@ -340,11 +337,10 @@ def _block_infeasible_q(pos, dx, contact, has_mold, margs, probe, Pi, Q):
         p[0] = pos[k, 0] + probe * d0 / dn
         p[1] = pos[k, 1] + probe * d1 / dn
         p[2] = pos[k, 2] + probe * d2 / dn
-        sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
+        sd = query_at(prim, kind, prm, margs, p, q)
         if not (sd < -1e-3 * probe):
             continue
-        m = (primitive_contact_normals(kind, prm, Q[k], nbuf) if prim else
-             contact_normals_from_query(margs, Q[k], nbuf))
+        m = contact_normals_at(prim, kind, prm, margs, Q[k], nbuf)
         best = 0.0
         jb = -1
         for j in range(m):
@@ -677,7 +673,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                     Qt[k, 9] = 1.0 if on_foot else 0.0
                     Qt[k, 10] = 1.0
             else:
-                sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
+                sd = query_at(prim, kind, prm, margs, p, q)
             if gap > 0.0:
                 gap = (1.0 - frac) * gap if frac < 1.0 else 0.0
             if c and sd > gap + RELEASE_GAP and q[6] != 0.0:
@@ -713,7 +709,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 else:
                     if use_qt:
                         Qt[k, 10] = 0.0
-                    sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
+                    sd = query_at(prim, kind, prm, margs, p, q)
                     # a node with constrained axes moved onto the foot point along its free axes
                     # only is still inside where the surface curves (by about its constrained
                     # offset times the curvature): the line search then rejects any step longer
@@ -734,7 +730,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                         for a in range(3):
                             if not fixed[k, a]:
                                 p[a] -= sd * q[3 + a] / nf2
-                        sd = primitive_query(kind, prm, p[0], p[1], p[2], q) if prim else mold_query(margs, p, q)
+                        sd = query_at(prim, kind, prm, margs, p, q)
             sdk = sd
             if -sd > worst:
                 worst = -sd

@@ -25,8 +25,7 @@ from numba import njit
 
 from ...contact import MAX_FEATURE_NORMALS, cone_active, cut_move, free_axis_normals, stop_at_surface
 from ...kernels import LENGTH_EPS
-from ...mold import contact_normals_from_query, mold_query
-from ...mold.queries import is_primitive, primitive_contact_normals, primitive_query
+from ...mold.queries import contact_normals_at, is_primitive, query_at
 from ...mold.segment import primitive_segment_hit
 from .active_set import held_axis_rows, orthonormal_rows
 
@@ -232,14 +231,10 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
             # constraint directions: held axes, then the active contact normals
             nq = held_axis_rows(fixed, k, Q)
             if contact[k]:
-                if prim:
-                    primitive_query(kind, prm, pos[k, 0], pos[k, 1], pos[k, 2], q)
-                else:
-                    mold_query(margs, pos[k], q)
+                query_at(prim, kind, prm, margs, pos[k], q)
                 for a in range(3):
                     R[a] = 0.0 if fixed[k, a] else f[a]
-                m = (primitive_contact_normals(kind, prm, q, nbuf) if prim else
-                     contact_normals_from_query(margs, q, nbuf))
+                m = contact_normals_at(prim, kind, prm, margs, q, nbuf)
                 free_axis_normals(fixed[k], nbuf, m)
                 na = cone_active(R, nbuf, m, act)
                 if na == 0:
@@ -278,10 +273,7 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
                 p[a] = pos[k, a] + (0.0 if fixed[k, a] else dx[a])
             if contact[k]:
                 # back onto the surface (the closest point), held axes kept
-                if prim:
-                    primitive_query(kind, prm, p[0], p[1], p[2], q)
-                else:
-                    mold_query(margs, p, q)
+                query_at(prim, kind, prm, margs, p, q)
                 for a in range(3):
                     if not fixed[k, a]:
                         pos[k, a] = q[a]
