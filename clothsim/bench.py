@@ -929,7 +929,7 @@ SMOOTH_SCAN_NOTES = [
     "Cholesky (or the sparse LU) finds the system with all of the term indefinite, LOBPCG "
     "(`iteration._negative_curvature`: 5 iterations from the last vector, preconditioned by the positive "
     "part's factor, `linalg._band_factored_solve`, about 3 ms) estimates its smallest eigenpair; when "
-    "theta < -|A v - theta v| the step gains v, signed to descend and scaled to a largest node move of "
+    "theta < -|A v - theta v| the step gains v, signed to descend and scaled to a largest coordinate move of "
     "0.8 spacings, and the line search cuts the sum as any step. The 24 bands: 19-62 iterations (744 in "
     "all) -> 18-48 (718), every band at the same energy (within 4e-15 J) and positions (within 7e-10 m); "
     "the estimate was a converged negative eigenvalue in 194 of the campaign's 196 tests (in the first 33, at "

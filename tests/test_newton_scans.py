@@ -37,7 +37,7 @@ def _sphere_trial(steps):
         active_set.FIXED_PROJECTION_EVERYWHERE = True
         pen = _trial_positions_sd.py_func(pos, np.array([True]), np.zeros(1), step, 1.0, fixed, True, margs, False,
                                           -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False,
-                                          np.empty((0, 10)))
+                                          np.empty((0, 10)), active_set._NO_MEMO, active_set._NO_QT)
     finally:
         active_set.FIXED_PROJECTION_STEPS, active_set.FIXED_PROJECTION_EVERYWHERE = old
     return pen, out[0], cout[0], rho0, z0, margs
@@ -176,7 +176,7 @@ def test_negative_curvature_direction_is_the_smallest_eigenvector(monkeypatch):
     for lam0, rq, off, scale in checked:
         assert lam0 < 0.0 and rq < 0.0
         assert off <= 1e-12
-        assert abs(rq - lam0) <= 1e-6 * scale, (rq, lam0, scale)
+        assert abs(rq - lam0) <= 1e-3 * abs(lam0), (rq, lam0, scale)
 
 
 def test_lu_positive_definite_known_answers():
@@ -285,7 +285,7 @@ def test_node_held_off_the_surface_closes_its_gap():
     for alpha in (1.0, 0.5):
         pen = _trial_positions_sd.py_func(pos, contact, sd0, step, alpha, fixed, True, margs, False,
                                           -np.ones(2, np.int64), np.zeros((2, 3)), out, cout, np.zeros(2), False,
-                                          np.empty((0, 10)))
+                                          np.empty((0, 10)), active_set._NO_MEMO, active_set._NO_QT)
         assert pen == 0.0 and cout.all()
         assert out[0, 2] == pytest.approx((1 - alpha) * gap, rel=0, abs=1e-20)
         assert np.allclose(out[0, :2], pos[0, :2] + alpha * step[:2], rtol=0, atol=1e-15)
@@ -353,14 +353,16 @@ def test_line_search_records_give_the_fresh_answers(monkeypatch):
     def tp(*args):
         a = list(args)
         out, cout = a[11], a[12]
+        memo, alpha = args[16], float(args[4])
+        # free nodes traced on a longer step of this line search: this pass reads their traces
+        read = int(((memo[:, 0] > 0.0) & (memo[:, 0] > alpha)).sum()) if memo.shape[0] else 0
         pen = orig_tp(*args)
         if a[16].shape[0] == 0:
             return pen
         ref, rc, rsd = np.empty_like(out), np.empty_like(cout), np.empty(out.shape[0])
         a[11], a[12], a[13], a[16], a[17] = ref, rc, rsd, active_set._NO_MEMO, active_set._NO_QT
         pen_ref = orig_tp(*a)
-        passes.append((np.abs(out - ref).max(), int((cout != rc).sum()), abs(pen - pen_ref),
-                       int((args[16][:, 0] > 0.0).sum()), float(args[4])))
+        passes.append((np.abs(out - ref).max(), int((cout != rc).sum()), abs(pen - pen_ref), read))
         return pen
 
     orig_cq = iteration._complete_queries
@@ -381,10 +383,11 @@ def test_line_search_records_give_the_fresh_answers(monkeypatch):
     model, state, settings = bench._load(case, "newton", 1e-9, None)
     _run(model, state, settings, 12)
     assert len(passes) >= 12 and len(accepts) >= 6
-    for dpos, dcontact, dpen, traced, alpha in passes:
+    for dpos, dcontact, dpen, read in passes:
+        # (a re-entry after a start on the surface may differ by more: 1.75e-8 m on the stocking)
         assert dpos <= 1e-9 and dcontact == 0 and dpen <= 1e-12, (dpos, dcontact, dpen)
     # the records were used: shorter steps read traces, accepted steps took the trial's answers
-    assert any(p[3] > 0 and p[4] < 1.0 for p in passes)
+    assert sum(p[3] for p in passes) > 0
     for dfoot, dnormal, dsd, flags, known, queried in accepts:
         assert dfoot <= 1e-12 and dsd <= 1e-12 and dnormal <= 1e-9 and flags, (dfoot, dsd, dnormal, flags)
         assert known > queried

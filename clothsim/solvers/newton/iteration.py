@@ -123,8 +123,10 @@ LINE_SEARCH_RECORDS = True
 # direction of negative curvature v: the unit eigenvector of the smallest eigenvalue theta of the
 # projected system with all of the term (``_negative_curvature``: NEG_CURV_ITERS iterations of
 # LOBPCG, preconditioned by the positive part's factor), taken when theta < -|A v - theta v|, its
-# sign making it a descent direction, scaled so that its largest node move is NEG_CURV_MOVE
-# lattice spacings (0: off); the line search then cuts the combined step as any other. The
+# sign making it a descent direction, scaled so that its largest coordinate move is NEG_CURV_MOVE
+# lattice spacings (0: off); the line search then cuts the combined step as any other (v does
+# not pass the blocking rules: a free node it takes into the mold is stopped at the surface by
+# the trial positions). The
 # positive part alone leaves a saddle's escape direction nearly flat, so Newton crept away from
 # it: smpl_man's band at 1.06 m on the smooth surface sat at 3.9e-3 N by its 9th iteration and
 # needed 62 in all. With the step the 24-band smooth campaign's iterations went 19-62 (744 in
