@@ -8,7 +8,6 @@ Shapes: n nodes; positions/forces (n, 3) [m]/[N]; residuals ||V||_inf [N]; energ
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -375,29 +374,11 @@ class NewtonLevel:
         Pi = self.Pi
         Af = self.A.copy()
         Af[self.diag] += np.einsum("kab,kbc,kcd->kad", Pi, N, Pi)
-        indptr, indices = self.indptr, self.indices
-        n3 = 3 * self.n
-
-        def mv(v):
-            y = np.empty(n3)
-            _bsr_matvec(indptr, indices, Af, v, y)
-            return y
-
-        def pc(v):
-            # the V-cycle on the free dofs (a held dof's row of A is the identity's)
-            w = np.empty(n3)
-            _apply_pi(Pi, v, w)
-            z = self.mg.vcycle(w)
-            _apply_pi(Pi, z, w)
-            return w
-
-        x0 = self._eig_x if self._eig_x is not None else self._eig_rng.standard_normal(n3)
-        p0 = np.empty(n3)
-        _apply_pi(Pi, x0, p0)
-        if not (_dot(p0, p0) > 0.0):
+        # (preconditioned by the V-cycle on the free dofs; a held dof's row of A is the identity's)
+        est = self._free_eigenpair(Af, self.mg.vcycle, CURVATURE_CG_TEST)
+        if est is None:
             return False
-        theta, r, x = _smallest_eigenpair(mv, pc, p0, CURVATURE_CG_TEST)
-        self._eig_x = x
+        theta, r, _ = est
         if not (theta > r):
             return False
         self.A = Af  # (the multigrid keeps the array it was built on)
@@ -416,10 +397,24 @@ class NewtonLevel:
         Kf[self.diag] = self._Kd + self._curv_M
         Af = np.empty_like(Kf)
         _project_system(self.indptr, self.indices, Kf, self.diag, self.Pi, mu_abs, Af)
+        est = self._free_eigenpair(Af, self._refactor, NEG_CURV_ITERS)
+        if est is None:
+            return None
+        theta, r, x = est
+        if not (theta < -r):
+            return None
+        v = np.empty(3 * self.n)
+        _apply_pi(self.Pi, x, v)  # (in the free space up to rounding: exactly there)
+        return v
+
+    def _free_eigenpair(self, Af, inner, iters):
+        """LOBPCG's estimate (``_smallest_eigenpair``, ``iters`` iterations) of the smallest
+        eigenpair of the projected system Af (nb, 3, 3) [N/m] (this level's BSR pattern) on the
+        free dofs, preconditioned by inner (rhs (3n,) -> (3n,)) between projections by Pi, from
+        the last estimate's vector (``_eig_x``; at first a random one): (theta [N/m],
+        |Af x - theta x|, x (3n,) unit), or None when the start projects to 0."""
         n3 = 3 * self.n
-        indptr, indices = self.indptr, self.indices
-        solve = self._refactor
-        Pi = self.Pi
+        indptr, indices, Pi = self.indptr, self.indices, self.Pi
 
         def mv(v):
             y = np.empty(n3)
@@ -429,7 +424,7 @@ class NewtonLevel:
         def pc(v):
             w = np.empty(n3)
             _apply_pi(Pi, v, w)
-            z = solve(w)
+            z = inner(w)
             _apply_pi(Pi, z, w)
             return w
 
@@ -438,13 +433,9 @@ class NewtonLevel:
         _apply_pi(Pi, x0, p0)
         if not (_dot(p0, p0) > 0.0):
             return None
-        theta, r, x = _smallest_eigenpair(mv, pc, p0, NEG_CURV_ITERS)
+        theta, r, x = _smallest_eigenpair(mv, pc, p0, iters)
         self._eig_x = x
-        if not (theta < -r):
-            return None
-        v = np.empty(n3)
-        _apply_pi(Pi, x, v)  # (in the free space up to rounding: exactly there)
-        return v
+        return theta, r, x
 
     def _band_again(self, rhs):
         """A^-1 rhs (3n,) with the banded Cholesky factor the last solve left in the work array."""
