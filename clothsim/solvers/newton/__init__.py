@@ -38,6 +38,11 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    the coarsest grid. Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly (on a
    triangle-mesh mold a narrow band by a banded Cholesky in reverse Cuthill-McKee order,
    ``linalg._band_cholesky_solve``; otherwise, or when a pivot is not positive, the sparse LU).
+   On the smooth surface of a mesh K also holds the contact's curvature term -lam S, all of it
+   while the system stays positive definite and its positive part otherwise
+   (``iteration.CURVATURE``); where it is indefinite on a direct level the step also moves along
+   its direction of negative curvature (LOBPCG's smallest eigenvector, ``iteration.NEG_CURV_MOVE``),
+   so that Newton leaves a saddle at once instead of creeping away from it.
 3. Line search on the energy along x + a dx with the paper's contact rules applied to every
    trial: a free node's move is clipped where it would enter the mold (``contact.stop_at_surface``) and
    it becomes a contact node; contact nodes are projected back onto the surface
@@ -46,7 +51,9 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    away from it) becomes free instead of being pulled back onto the ridge (a node pulled over a
    box's edge). On a mesh mold, when the straight trial fails, the same step with contact nodes
    stopped at their face's border (so a node whose equilibrium is on an edge lands on it) is
-   tried too. Backtracking (Armijo, halving). When the energy
+   tried too. On the smooth surface a free node's segment is traced once per line search (the
+   shorter steps' segments are its prefixes) and the accepted step's mold answers come from its
+   trial pass (``iteration.LINE_SEARCH_RECORDS``). Backtracking (Armijo, halving). When the energy
    difference is below float64 resolution (close to the solution) the step is accepted if it
    lowers the residual instead, or if the trapezoid rule's energy change -1/2 (F0 + F1).(x1 - x0)
    meets the Armijo rule (``iteration.TRAPEZOID_ENERGY``); when none holds even with a large Levenberg shift,
