@@ -60,7 +60,11 @@ def test_outline_slivers_read_their_patch(stocking):
     node peak, 85 mmHg, was such a node (and 49,000 mmHg at 5 mm). A sliver reads its patch (its
     reaction and its warp, weft and seam neighbours' over their areas): under a uniform pressure
     p0 every contact node, sliver or not, reads p0; on the solved stocking no sliver reads more
-    than the largest full node, and the slivers' patch values differ from their own ratio."""
+    than the largest full node, and the slivers' patch values differ from their own ratio, which
+    overstates some of them severalfold (up to 5.9x on an Intel Xeon, 23 Newton iterations; on
+    the AMD EPYC this test was written on, whose rounding took another path, 35 iterations, one
+    sliver's ratio was the node peak, above every full node: a comparison with the full nodes'
+    peak depends on the machine)."""
     import numpy as np
 
     from clothsim import results as R
@@ -81,4 +85,5 @@ def test_outline_slivers_read_their_patch(stocking):
     full = c & ~sliver & np.isfinite(p)
     raw = f[sliver] / area[sliver]
     assert p[sliver].max() <= p[full].max()
-    assert raw.max() > p[full].max() and not np.allclose(p[sliver], raw)
+    assert not np.allclose(p[sliver], raw)
+    assert np.max(raw / np.maximum(p[sliver], 1e-300)) > 2.0
