@@ -922,7 +922,8 @@ SMOOTH_SCAN_NOTES = [
     "(its fine level is CG's).",
     "- **A step along the negative curvature near saddles** (`iteration.NEG_CURV_MOVE = 0.8` lattice "
     "spacings, issue 12 item 2, 2026-12-02). Main at 420f8fd took 62 iterations at smpl_man y = 1.06 m (60 "
-    "in the 08:05 run: the path follows the rounding, and later commits changed it). Traced: by its 9th iteration "
+    "in the 08:05 run on an AMD EPYC: the path follows the rounding, which the processor and later commits "
+    "change). Traced: by its 9th iteration "
     "the band is at 3.9e-3 N and 1.458 J, next to a saddle; the system with all of the curvature term is "
     "indefinite there, its positive part leaves the escape direction nearly flat, and Newton crept away "
     "for 30 iterations with steps growing about 15 % each. Now, on a direct level where the banded "
