@@ -125,14 +125,14 @@ LINE_SEARCH_RECORDS = True
 # sign making it a descent direction, scaled so that its largest coordinate move is NEG_CURV_MOVE
 # lattice spacings (0: off); the line search then cuts the combined step as any other (v does
 # not pass the blocking rules: a free node it takes into the mold is stopped at the surface by
-# the trial positions). The
-# positive part alone leaves a saddle's escape direction nearly flat, so Newton crept away from
-# it: smpl_man's band at 1.06 m on the smooth surface sat at 3.9e-3 N by its 9th iteration and
-# needed 62 in all. With the step the 24-band smooth campaign's iterations went 19-62 (744 in
-# all) -> 18-48 (707), every band at the same minimum (energies within 4e-15 J, positions within
-# 4e-10 m). Measured moves: 0.4 -> at most 47 iterations, 0.8 -> 46, 1.6 -> 56; 5 LOBPCG
-# iterations (0.8): 48, 10: 46, at about 3 ms a test. Not on CG's levels (their test is
-# _curvature_cg_test's) and not on facets or analytic molds (no curvature term there)
+# the trial positions). The positive part alone leaves a saddle's escape direction nearly flat,
+# so Newton crept away from it: smpl_man's band at 1.06 m on the smooth surface sat at 3.9e-3 N
+# by its 9th iteration and needed 62 in all. With the step the 24-band smooth campaign's
+# iterations went 19-62 (744 in all) -> 18-48 (718), every band at the same minimum (energies
+# within 4e-15 J, positions within 7e-10 m). Measured moves: 0.4 -> at most 47 iterations,
+# 0.8 -> 46, 1.6 -> 56; 5 LOBPCG iterations (0.8): 48, 10: 46, at about 3 ms a test. Not on CG's
+# levels (their test is _curvature_cg_test's) and not on facets or analytic molds (no curvature
+# term there)
 NEG_CURV_MOVE = 0.8
 NEG_CURV_ITERS = 5
 
