@@ -89,12 +89,49 @@ def check_table(strain, value, value_name: str = "stress") -> None:
             raise MaterialError(f"{value_name}: must be non-decreasing ({b} after {a})")
 
 
+#: the units a CSV table's header may name in brackets or parentheses (``tension [kN/m]``), as
+#: factors to the table's own units: tension per width to N/m (strip tests report N per 5 cm or
+#: per 50 mm strip: EN ISO 13934-1; cN/cm and gf/cm in knit data sheets), stress to Pa, strain to a
+#: fraction. Matched without regard to case or spaces (mN/mm and MN/mm are not both listed, so no
+#: spelling is ambiguous)
+CSV_UNITS = {
+    "tension": {"N/m": 1.0, "kN/m": 1e3, "N/mm": 1e3, "N/cm": 100.0, "cN/cm": 1.0, "mN/mm": 1.0,
+                "N/5cm": 20.0, "N/50mm": 20.0, "N/25mm": 40.0, "N/in": 1.0 / 0.0254,
+                "lbf/in": 4.4482216152605 / 0.0254, "gf/cm": 9.80665e-3 / 1e-2, "kgf/cm": 9.80665 / 1e-2,
+                "kgf/m": 9.80665},
+    "stress": {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "GPa": 1e9, "N/m2": 1.0, "N/m^2": 1.0, "N/mm2": 1e6,
+               "N/mm^2": 1e6, "psi": 6894.757293168},
+    "strain": {"%": 0.01, "-": 1.0, "1": 1.0, "m/m": 1.0, "mm/mm": 1.0},
+}
+
+
+def _csv_unit(cell: str, name: str, source: str, line: int) -> float:
+    """The factor of a header cell ``name [unit]`` (``CSV_UNITS[name]``; 1 with no unit); an unknown
+    unit or text that is not a bracketed unit raises MaterialError naming the file and line."""
+    from .fileio import excerpt
+
+    rest = cell.strip()[len(name):].strip()
+    if not rest:
+        return 1.0
+    units = CSV_UNITS[name]
+    known = ", ".join(units)
+    if len(rest) >= 2 and (rest[0], rest[-1]) in (("[", "]"), ("(", ")")):
+        unit = "".join(rest[1:-1].split()).replace("\u00b2", "2")
+        for k, f in units.items():
+            if unit.lower() == k.lower():
+                return f
+        raise MaterialError(f"{source}:{line}: {name}: unknown unit {excerpt(rest[1:-1].strip())} (known: {known})")
+    raise MaterialError(f"{source}:{line}: {name}: write the unit in brackets after the name, e.g. "
+                        f"'{name} [{next(iter(units))}]' (got {excerpt(cell.strip())}; known units: {known})")
+
+
 def read_table_csv(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
     """Read a two-column CSV table ``strain,<stress|tension>``.
 
     The header names the second column: ``stress`` (Pa) or ``tension`` (N/m); a unit in brackets or
-    parentheses after the name is allowed (``tension [N/m]``). Strain may be given in percent with
-    a header ``strain [%]``. Returns (strain, value, kind) with kind "stress" or "tension".
+    parentheses after a name converts the column (``CSV_UNITS``: ``tension [kN/m]``, ``tension
+    [N/5cm]``, ``stress [MPa]``, ``strain [%]``); an unknown unit is an error. Returns (strain,
+    value, kind) with kind "stress" or "tension", in the table's units (fraction, Pa or N/m).
     Errors name the file and the line; the file must be a regular UTF-8 file of at most 10 MB.
     A largest strain above 500 % warns (MaterialWarning: percent typed as a fraction?).
     """
@@ -105,18 +142,29 @@ def read_table_csv(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
     return parse_table_csv(text, str(path))
 
 
+def _cells(row: list[str]) -> list[str]:
+    """A CSV row without its trailing empty cells (a spreadsheet's ``0,0,``)."""
+    row = list(row)
+    while row and not row[-1].strip():
+        row.pop()
+    return row
+
+
 def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.ndarray, str]:
     """Parse CSV text as in :func:`read_table_csv` (used for browser uploads too)."""
     from .fileio import excerpt
 
     rows = [r for r in csv.reader(io.StringIO(text))]
-    numbered = [(n + 1, r) for n, r in enumerate(rows) if r and any(c.strip() for c in r)]
+    numbered = [(n + 1, _cells(r)) for n, r in enumerate(rows) if r and any(c.strip() for c in r)]
     numbered = [(n, r) for n, r in numbered if not r[0].lstrip().startswith("#")]
     if not numbered:
         raise MaterialError(f"{source}: empty table")
     line, header = numbered[0]
     if len(header) < 2:
         raise MaterialError(f"{source}:{line}: header needs two columns: strain,stress or strain,tension")
+    if len(header) > 2:
+        raise MaterialError(f"{source}:{line}: header has {len(header)} columns; a table has two: "
+                            f"strain,stress or strain,tension")
     h0 = header[0].strip().lower()
     h1 = header[1].strip().lower()
     if not h0.startswith("strain"):
@@ -129,15 +177,12 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
         raise MaterialError(
             f"{source}:{line}: second column must be 'stress' [Pa] or 'tension' [N/m] (got {excerpt(header[1].strip())})"
         )
-    percent = "%" in h0
-    scale1 = 1.0
-    if kind == "tension" and ("n/cm" in h1):
-        scale1 = 100.0
-    if kind == "stress" and "mpa" in h1:
-        scale1 = 1e6
+    scale0 = _csv_unit(header[0], "strain", source, line)
+    scale1 = _csv_unit(header[1], kind, source, line)
+    hi, unit = VALUE_MAX[kind]
     strain, value = [], []
     for line, row in numbered[1:]:
-        if len(row) < 2:
+        if len(row) != 2:
             raise MaterialError(f"{source}:{line}: expected two columns, got {len(row)}")
         try:
             s = float(row[0])
@@ -146,8 +191,24 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
             raise MaterialError(f"{source}:{line}: not a number: {excerpt(','.join(row), 40, quote=False)}") from None
         if not (math.isfinite(s) and math.isfinite(v)):
             raise MaterialError(f"{source}:{line}: must be finite: {excerpt(','.join(row), 40, quote=False)}")
-        strain.append(s / 100.0 if percent else s)
-        value.append(v * scale1)
+        s = s / 100.0 if scale0 == 0.01 else s * scale0  # percent divided, as it always was
+        v *= scale1
+        # the table's rules (check_table) row by row, so that the error names the line
+        if not strain and s != 0.0:
+            raise MaterialError(f"{source}:{line}: strain: must start at 0 (got {row[0].strip()})")
+        if strain and not s > strain[-1]:
+            raise MaterialError(f"{source}:{line}: strain: must be strictly increasing "
+                                f"({row[0].strip()} after {prev[0]})")
+        if v < 0.0:
+            raise MaterialError(f"{source}:{line}: {kind}: must be non-negative (got {row[1].strip()})")
+        if v > hi:
+            raise MaterialError(f"{source}:{line}: {kind}: at most {hi:.0e} {unit} (got {v:g} {unit})")
+        if value and v < value[-1]:
+            raise MaterialError(f"{source}:{line}: {kind}: must be non-decreasing "
+                                f"({row[1].strip()} after {prev[1]})")
+        prev = (row[0].strip(), row[1].strip())
+        strain.append(s)
+        value.append(v)
     try:
         check_table(strain, value, kind)
     except MaterialError as exc:

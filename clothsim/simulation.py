@@ -70,7 +70,10 @@ def warm_up(model: Model, state: State, settings) -> float:
 
 def _tiny_scene(model: Model):
     """A 4 x 4 sheet with the model's tables and terms (for warm_up), far from any mold."""
+    import warnings
+
     from .config import scene_from_dict
+    from .material import MaterialWarning
 
     t = model.table_list
     d = {
@@ -86,7 +89,9 @@ def _tiny_scene(model: Model):
         d["bending"] = {"stiffness": 1.0}
     if model.external_force.any():
         d["gravity"] = {"areal_density": 0.1}
-    return scene_from_dict(d)
+    with warnings.catch_warnings():  # the model's tables warned when its scene was read
+        warnings.simplefilter("ignore", MaterialWarning)
+        return scene_from_dict(d)
 
 
 @dataclass

@@ -101,10 +101,60 @@ def test_csv_import_stress_in_mpa():
         ("strain,tension\n0,0\n0.1,abc\n", "x.csv:3: not a number: 0.1,abc"),
         ("strain,tension\n0,0\n0.1\n", "x.csv:3: expected two columns, got 1"),
         ("strain,tension\n0,0\n0.1,nan\n", "x.csv:3: must be finite: 0.1,nan"),
-        ("strain,tension\n0,0\n0.1,5\n0.1,6\n", "x.csv: strain: must be strictly increasing (0.1 after 0.1)"),
+        ("strain,tension\n0,0\n0.1,5\n0.1,6\n", "x.csv:4: strain: must be strictly increasing (0.1 after 0.1)"),
     ],
 )
 def test_csv_errors_name_file_and_line(text, message):
     with pytest.raises(MaterialError) as exc:
         parse_table_csv(text, "x.csv")
     assert str(exc.value) == message
+
+
+@pytest.mark.parametrize(
+    "header, factor",
+    [("tension", 1.0), ("tension [N/m]", 1.0), ("tension [kN/m]", 1e3), ("tension (N/mm)", 1e3),
+     ("tension [N/cm]", 100.0), ("tension [cN/cm]", 1.0), ("tension [N/5 cm]", 20.0),
+     ("tension [N/50mm]", 20.0), ("Tension [KN/M]", 1e3), ("tension [gf/cm]", 0.980665)],
+)
+def test_csv_tension_units_convert(header, factor):
+    """A tension unit in the header converts the column to N/m (a kN/m table read as N/m would be
+    1000 times too soft, with no error: found by a hostile-input pass)."""
+    strain, value, kind = parse_table_csv(f"strain,{header}\n0,0\n0.1,10\n0.3,50\n", "x.csv")
+    assert kind == "tension"
+    np.testing.assert_allclose(value, np.array([0.0, 10.0, 50.0]) * factor, rtol=1e-12)
+
+
+@pytest.mark.parametrize("header, factor", [("stress", 1.0), ("stress [Pa]", 1.0), ("stress [kPa]", 1e3),
+                                            ("stress [MPa]", 1e6), ("stress [N/mm2]", 1e6)])
+def test_csv_stress_units_convert(header, factor):
+    strain, value, kind = parse_table_csv(f"strain,{header}\n0,0\n0.5,2\n", "x.csv")
+    assert kind == "stress"
+    np.testing.assert_allclose(value, [0.0, 2.0 * factor], rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("strain,tension [furlongs]\n0,0\n", "x.csv:1: tension: unknown unit 'furlongs' (known: N/m, kN/m, "),
+        ("strain,tension N/m\n0,0\n", "x.csv:1: tension: write the unit in brackets after the name, e.g. "
+                                     "'tension [N/m]' (got 'tension N/m'"),
+        ("strain [ratio],tension\n0,0\n", "x.csv:1: strain: unknown unit 'ratio' (known: %, -"),
+        ("strain,tension,extra\n0,0,1\n", "x.csv:1: header has 3 columns; a table has two"),
+        ("strain,tension\n0,0\n0.1,5,7\n", "x.csv:3: expected two columns, got 3"),
+        ("strain,tension\n0,0\n0.2,10\n0.1,20\n", "x.csv:4: strain: must be strictly increasing (0.1 after 0.2)"),
+        ("strain,tension\n0,0\n0.1,-1\n", "x.csv:3: tension: must be non-negative (got -1)"),
+        ("strain,tension\n0,0\n0.1,5\n0.2,4\n", "x.csv:4: tension: must be non-decreasing (4 after 5)"),
+        ("strain,tension\n0.1,0\n0.2,4\n", "x.csv:2: strain: must start at 0 (got 0.1)"),
+        ("strain,tension [kN/m]\n0,0\n0.1,2e6\n", "x.csv:3: tension: at most 1e+09 N/m (got 2e+09 N/m)"),
+    ],
+)
+def test_csv_units_and_rows_refused_with_line(text, message):
+    with pytest.raises(MaterialError) as exc:
+        parse_table_csv(text, "x.csv")
+    assert str(exc.value).startswith(message)
+
+
+def test_csv_trailing_empty_cells_are_allowed():
+    """A spreadsheet's export with an empty third column (``0,0,``) is a two-column table."""
+    strain, value, _ = parse_table_csv("strain,tension,\n0,0,\n0.1,10,\n", "x.csv")
+    np.testing.assert_allclose(value, [0.0, 10.0])
