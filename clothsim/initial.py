@@ -61,7 +61,7 @@ def initial_state(model: Model, initial, file: Path | None = None) -> State:
     pos[fixed] = model.prescribed_positions[fixed]
     state = State(np.ascontiguousarray(pos), np.zeros(model.node_count, bool), 0)
     if model.mold is not None:
-        _check_clearance(ini, model, state)
+        _check_clearance(ini, model, state, from_file=file is not None)
     return state
 
 
@@ -244,7 +244,16 @@ def _closed_seam_rows(model: Model):
     return sp.vstack(mats).tocsr()
 
 
-def _check_clearance(ini, model: Model, state: State) -> None:
+#: a start read from a file (an earlier result) may have nodes on the mold's surface: those
+#: within this many metres per metre of the sheet's size of it, on either side, start in contact
+FILE_CONTACT_TOL = 1e-9
+
+
+def _check_clearance(ini, model: Model, state: State, from_file: bool = False) -> None:
+    """Refuse (SceneError) or, with ``initial.auto_clearance``, lift a start that touches or
+    penetrates the mold. from_file: the start is an earlier result's positions, whose contact
+    nodes lie on the surface: nodes within FILE_CONTACT_TOL x the sheet's size of it start in
+    contact (state.in_contact) instead of being refused."""
     from .mold import mold_query_many
 
     margs = model.mold.kernel_args()
@@ -254,18 +263,22 @@ def _check_clearance(ini, model: Model, state: State) -> None:
     nrm = np.empty((n, 3))
     feat = np.empty((n, 2), np.int64)
     mold_query_many(margs, state.positions, sd, cp, nrm, feat)
+    size = max(model.placement.size)
     bad = sd <= 0.0
+    if from_file:
+        on = np.abs(sd) <= FILE_CONTACT_TOL * size
+        state.in_contact[:] = on
+        bad &= ~on
     if not bad.any():
         return
     fixed_bad = bad & model.fixed_axes.any(axis=1)
-    size = max(model.placement.size)
     if not ini.auto_clearance or fixed_bad.any():
         what = "touch or penetrate"
         extra = ("; some of them are constrained nodes, which auto_clearance cannot move"
                  if ini.auto_clearance else
                  "; raise initial.lift, move the mold or set initial.auto_clearance: true")
         raise SceneError(
-            f"initial: {int(bad.sum())} nodes {what} the mold at the start (deepest {-sd.min() * 1e3:.3g} mm)"
+            f"initial: {int(bad.sum())} nodes {what} the mold at the start (deepest {max(-sd[bad].min(), 0.0) * 1e3:.3g} mm)"
             + extra)
     # lift the offending nodes just clear: to the surface plus a small margin along its normal
     margin = 1e-3 * size
