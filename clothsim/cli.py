@@ -7,8 +7,12 @@ did not converge), 2 bad input.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import math
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -55,14 +59,29 @@ def cmd_run(args) -> int:
     from .mold import MoldError
     from .material import MaterialError
 
+    if args.out is not None and not args.out.strip():
+        print("error: --out: empty folder name (omit --out to write nothing)", file=sys.stderr)
+        return 2
     out = Path(args.out) if args.out else None
+    # with --json, standard output carries the JSON alone: the human lines go to standard error
+    say = functools.partial(print, file=sys.stderr) if args.json else print
+    stop: list[str] = []  # the signal that asked the run to stop (SIGINT, SIGTERM)
     try:
         scene = load_scene(args.scene, args.set)
         if out is not None:  # before the solve: a bad --out must not cost a whole run
             check_out_dir(out)
         show = sys.stderr.isatty() or args.progress
         cb = _progress_printer(sys.stderr) if (show and not args.quiet) else None
-        result = simulation.solve(scene, callback=cb, on_stage=_stage_printer(sys.stderr) if cb else None)
+
+        def callback(progress):
+            # a first Ctrl+C (or SIGTERM) stops the run at its next iteration and keeps the state
+            # it reached (written with --out, status "stopped"); a second one ends it at once
+            r = cb(progress) if cb is not None else None
+            return True if stop else r
+
+        with _stop_on_signals(stop):
+            result = simulation.solve(scene, callback=callback,
+                                      on_stage=_stage_printer(sys.stderr) if cb else None)
     except (SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -81,34 +100,63 @@ def cmd_run(args) -> int:
             f"(relative {s['relative_residual']:.1e}), energy {s['energy']:.6e} J, "
             f"{s['wall_time_s']:.3f} s relaxing + {s['startup_s']:.2f} s start-up, solver {s['solver']}, "
             f"{s['contact_count']} contact nodes")
-    print(line)
-    if s["status"] != "converged":
-        print(f"  {s['message']}")
+    say(line)
+    if result.model.mold is not None and not s["contact_count"] and s["status"] == "converged":
+        say("  warning: no node touches the mold: the sheet does not reach it, or a garment narrower than the "
+            "form closed beside it (its probes read no pressure)")
+    if stop:
+        say(f"  interrupted ({stop[0]}): stopped after {s['iterations']} iterations; the state reached is kept"
+            + (" (written below)" if out is not None else ""))
+    elif s["status"] != "converged":
+        say(f"  {s['message']}")
     if s["undetermined_nodes"]:
-        print(f"  note: {s['undetermined_nodes']} nodes are held only by slack springs (their position is not unique)")
+        say(f"  note: {s['undetermined_nodes']} nodes are held only by slack springs (their position is not unique)")
     if s.get("min_weft_extent_ratio", 1.0) < 0.5:
-        print(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
+        say(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
               f"(it gathers: nothing holds its width)")
     if "max_seam_gap_m" in s:
-        print(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
+        say(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
         for n, r in enumerate(s.get("seams") or []):
             if r["ease_pct"] > 0.01:  # an eased seam: say how much its longer side gathers
-                print(f"  seam {n}: sides {r['a_length_m']:.4g} m and {r['b_length_m']:.4g} m, ease "
+                say(f"  seam {n}: sides {r['a_length_m']:.4g} m and {r['b_length_m']:.4g} m, ease "
                       f"{r['ease_pct']:.1f} % (the longer side gathers), open by at most {r['max_gap_m']:.2e} m")
     if s.get("gathered_contact_nodes"):
-        print(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
+        say(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
               f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
               + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
                  if s.get("contact_line_load_n_per_m") is not None else ""))
-    _print_compression(s)
+    _print_compression(s, say)
     if out is not None:
         written = _written_files(out, before)
-        print(f"  wrote {out}/" + ", ".join(written))
+        say(f"  wrote {out}/" + ", ".join(written))
     if args.json:
         from .results import strict_json
 
         print(strict_json(s))
+    if stop:
+        return 130
     return 0 if result.converged else 1
+
+
+@contextlib.contextmanager
+def _stop_on_signals(stop: list):
+    """While in the block, SIGINT and SIGTERM append their name to ``stop`` (the run's callback
+    then stops it at its next iteration); a second signal raises KeyboardInterrupt. Only in the
+    main thread (elsewhere signals cannot be handled): there nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    def handler(signum, frame):
+        if stop:
+            raise KeyboardInterrupt
+        stop.append(signal.Signals(signum).name)
+        print(f"\n{stop[0]}: stopping at the next iteration (again to quit at once)", file=sys.stderr)
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 
 def _file_stamps(out: Path) -> dict[str, tuple[int, int]]:
@@ -134,19 +182,19 @@ def _written_files(out: Path, before: dict[str, tuple[int, int]]) -> list[str]:
     return sorted(new, key=lambda n: (after[n][1], n))
 
 
-def _print_compression(s: dict) -> None:
+def _print_compression(s: dict, say=print) -> None:
     """The probes (name, pressure, contact fraction, class, note) and each profile's gradient
-    check of a run summary, when the scene asks for them."""
+    check of a run summary, when the scene asks for them, through ``say`` (print)."""
     probes = s.get("probes") or []
     if probes:
         w = max(len(p["name"]) for p in probes)
-        print("  probes (normal force on the sensor disc / its area):")
+        say("  probes (normal force on the sensor disc / its area):")
         for p in probes:
             cls = "; ".join(f"{k}: {v}" for k, v in (p.get("classes") or {}).items())
-            print(f"    {p['name']:<{w}}  {p['pressure_mmhg']:8.2f} mmHg  contact fraction {p['contact_fraction']:.2f}"
+            say(f"    {p['name']:<{w}}  {p['pressure_mmhg']:8.2f} mmHg  contact fraction {p['contact_fraction']:.2f}"
                   + (f"  {cls}" if cls else "") + (f"  ({p['note']})" if p.get("note") else ""))
     for pf in s.get("profiles") or []:
-        print(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
+        say(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
 
 
 def cmd_view(args) -> int:

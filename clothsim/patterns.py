@@ -58,6 +58,7 @@ import logging
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -90,6 +91,15 @@ _MAX_DEPTH = 30            # Bezier subdivision depth cap (2^-30 of a parameter 
 
 class PatternError(ValueError):
     """A pattern file cannot be used. ``str(err)`` names the file, the piece and the reason."""
+
+
+class PatternWarning(UserWarning):
+    """A pattern file is usable but suspect: its largest piece spans under 5 mm or over 5 m (the
+    wrong units?)."""
+
+
+#: the span [m] of a pattern's largest piece outside which reading it warns (PatternWarning)
+PIECE_SPAN_RANGE = (0.005, 5.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,6 +185,16 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
                            f"{excerpt(exc, 80, quote=False)})") from exc
     if not raw:
         raise PatternError(f"{label}: no pattern pieces found" + (f" ({notes[-1]})" if notes else ""))
+    ext = max((float(np.ptp(p.outline, axis=0).max()) for p in raw if len(p.outline)), default=0.0)
+    lo, hi = PIECE_SPAN_RANGE
+    if not lo <= ext <= hi:
+        # a metre file read as millimetres makes a garment of specks that "converges" (found by a
+        # garment engineer's pass): say so where the run prints its warnings
+        how = next((n for n in notes if "unit" in n.lower()), "")
+        note = (f"largest piece spans {ext:.4g} m ({'under 5 mm' if ext < lo else 'over 5 m'}): check the "
+                f"units" + (f" ({how})" if how else "") + "; panels.N.pattern.units sets them")
+        notes.append(note)
+        warnings.warn(PatternWarning(f"{label}: {note}"), stacklevel=2)
     for note in notes:
         log.info("%s: %s", label, note)
     pieces, seen = [], {}
@@ -511,9 +531,6 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
             n_ins = len(msp.query("INSERT"))
             notes.append(f"no closed polyline/circle/spline in modelspace and no INSERT of a block with a "
                          f"layer-1 boundary ({n_ins} INSERT(s) seen)")
-    ext = max((float(np.ptp(p.outline, axis=0).max()) for p in pieces if len(p.outline)), default=0.0)
-    if pieces and not 0.005 <= ext <= 5.0:
-        notes.append(f"largest piece spans {ext:.4g} m: check the units")
     return pieces, notes
 
 

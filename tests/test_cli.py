@@ -129,3 +129,53 @@ def test_bench_quick_writes_table_and_plot(tmp_path):
     assert "Work units" in md
     png = (tmp_path / "speed_vs_error.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_run_json_prints_json_alone_on_stdout(tmp_path):
+    """`run --json`: standard output is the summary's JSON alone (the human lines, `wrote ...`
+    too, go to standard error), so `run --json | jq` works; `--out ''` is refused, not ignored."""
+    scene = _write(tmp_path, scene_dict(**{"solver.e": 1e-7}))
+    r = _run("run", str(scene), "--json", "--out", str(tmp_path / "o"), "--set", "fabric.divisions=[8,2]")
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert s["status"] == "converged" and s["node_count"] == 27
+    assert r.stderr.lstrip().startswith("converged:") and "wrote" in r.stderr
+    r = _run("run", str(scene), "--out", "")
+    assert r.returncode == 2 and "error: --out: empty folder name" in r.stderr
+
+
+def test_interrupted_run_keeps_the_state_it_reached(tmp_path):
+    """Ctrl+C (SIGINT) during a run stops it at its next iteration and writes the state reached
+    (status "stopped") with --out, exit 130: an interrupted run used to print "interrupted" and
+    keep nothing, however long it had run."""
+    import signal
+    import time
+
+    out = tmp_path / "o"
+    p = subprocess.Popen([sys.executable, str(ROOT / "app.py"), "run", str(ROOT / "configs" / "sphere_cap.yaml"),
+                          "--set", "solver.method=paper", "--set", "solver.e=1e-30", "--set", "solver.stall_iterations=1000000",
+                          "--progress", "--out", str(out)],
+                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen = ""
+    t0 = time.monotonic()
+    while "start-up: model built" not in seen and time.monotonic() - t0 < 300:  # the handler is in place
+        seen += p.stderr.readline()
+    time.sleep(1.0)
+    p.send_signal(signal.SIGINT)
+    so, se = p.communicate(timeout=300)
+    assert p.returncode == 130, seen + se
+    assert "SIGINT: stopping at the next iteration" in se and "interrupted (SIGINT): stopped after" in so
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "stopped" and s["iterations"] > 0
+    assert np.isfinite(np.load(out / "result.npz")["positions"]).all()
+
+
+def test_a_sleeve_off_the_limb_warns_and_its_probe_has_no_class(tmp_path):
+    """A sleeve cut so narrow that its seam closes beside the limb converges with no contact: the
+    run warns that no node touches the mold, and the class probe reads "no reading", not "below
+    class I" (found by a garment engineer's pass)."""
+    r = _run("run", str(ROOT / "configs" / "class2_sleeve.yaml"), "--set", "fabric.size.0=0.1", "--json")
+    s = json.loads(r.stdout)
+    assert s["contact_count"] == 0
+    assert "warning: no node touches the mold" in r.stderr
+    assert {c["class"] for c in s["classes"]["results"]} == {"no reading (no contact under the probe)"}

@@ -95,10 +95,10 @@ def test_probes_csv_and_classes_in_the_summary(sleeve):
     rows = list(csv.DictReader((out / "probes.csv").open()))
     assert [r["name"] for r in rows] == ["side", "above", "cuff"]
     assert float(rows[0]["pressure_mmHg"]) == pytest.approx(s["probes"][0]["pressure_mmhg"], abs=1e-4)
-    # 13.6 mmHg: below both standards' first class
+    # 13.6 mmHg: below RAL's first class; stated to the whole mmHg (14), UK class 1
     assert s["classes"]["probe"] == "side"
     assert {c["standard"]: c["class"] for c in s["classes"]["results"]} == {
-        "RAL-GZ 387": "below class I", "UK Drug Tariff": "below class 1"}
+        "RAL-GZ 387": "below class I", "UK Drug Tariff": "class 1"}
     assert "RAL-GZ 387: below class I" in rows[0]["classes"]
 
 
@@ -178,13 +178,19 @@ def test_classes_follow_the_cited_tables():
     assert [(c.name, c.min, c.max) for c in ral.classes] == [("I", 18, 21), ("II", 23, 32), ("III", 34, 46),
                                                             ("IV", 49, None)]
     assert [(c.name, c.min, c.max) for c in uk.classes] == [("1", 14, 17), ("2", 18, 24), ("3", 25, 35)]
-    cases = {17.9: "below class I", 18: "class I", 21: "class I", 22: "between classes I and II",
+    cases = {17.4: "below class I", 17.5: "class I", 18: "class I", 21: "class I", 21.49: "class I",
+             22: "between classes I and II",
              25: "class II", 47: "between classes III and IV", 80: "class IV"}
     for v, want in cases.items():
         assert classify(v, ral) == want, v
     assert classify(13, uk) == "below class 1"
     assert classify(20, uk) == "class 2"
-    assert classify(24.5, uk) == "between classes 2 and 3"
+    # the UK bands are whole mmHg (14-17, 18-24, 25-35): a pressure is stated to the whole mmHg
+    # first, so no reading falls in the gaps of the table's rounding (24.99 was "between")
+    assert classify(24.49, uk) == "class 2"
+    assert classify(24.5, uk) == "class 3"
+    assert classify(24.99, uk) == "class 3"
+    assert classify(17.5, uk) == "class 2"
     assert classify(36, uk) == "above class 3"
 
 
@@ -193,7 +199,7 @@ def test_classes_are_data_users_extend(tmp_path):
     extra = ("classes={probe: side, standards: [UK Drug Tariff], extra: [{name: house, source: our spec,"
              " classes: [{name: soft, min: 5, max: 10}, {name: firm, min: 10, max: 40}]}]}")
     scene = load_scene(SLEEVE, [PROBES, extra])
-    out = classify_all(13.6, scene.classes.standards, scene.classes.extra)
+    out = classify_all(13.4, scene.classes.standards, scene.classes.extra)
     assert [(c["standard"], c["class"]) for c in out] == [("UK Drug Tariff", "below class 1"), ("house", "class firm")]
 
 
@@ -424,7 +430,7 @@ def test_run_prints_probes_classes_gradient_and_every_file(tmp_path, capsys):
             assert f"{std}: {cls}" in line
         assert p["note"] in line
     side = next(x for x in lines if x.strip().startswith("side "))
-    assert "RAL-GZ 387: below class I" in side and "UK Drug Tariff: below class 1" in side
+    assert "RAL-GZ 387: below class I" in side and "UK Drug Tariff: class 1" in side
     assert f"profile leg: {s['profiles'][0]['gradient']['note']}" in text
     wrote = next(x for x in lines if x.strip().startswith("wrote "))
     listed = set(wrote.split("/")[-1].split(", "))

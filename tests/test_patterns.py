@@ -573,3 +573,28 @@ def test_error_arguments_and_header(tmp_path):
     svg = write_svg(tmp_path / "holes.svg", '<path id="ring" d="M 0 0 H 50 V 50 H 0 Z M 10 10 H 20 V 20 H 10 Z"/>')
     with pytest.raises(PatternError, match=r"holes\.svg: piece ring: <path> holds 2 closed subpaths"):
         read_pattern(svg)
+
+
+def test_a_piece_in_the_wrong_units_warns(tmp_path):
+    """A metre DXF read as millimetres (a 0.4 mm piece) or a millimetre one read as metres (400 m)
+    warns (PatternWarning) naming the file and the span: a garment of specks otherwise
+    "converged" to a class IV reading with no word (found by a garment engineer's pass). A
+    piece of ordinary size does not warn."""
+    import warnings
+
+    from clothsim.patterns import PatternWarning
+
+    doc = ezdxf.new("R2000")
+    doc.header["$INSUNITS"] = 0
+    doc.modelspace().add_lwpolyline([(0, 0), (0.4, 0), (0.4, 0.2)], close=True)
+    doc.saveas(tmp_path / "m.dxf")
+    with pytest.warns(PatternWarning, match=r"m\.dxf: largest piece spans 0\.0004 m \(under 5 mm\): check the units"):
+        read_pattern(tmp_path / "m.dxf", units="mm")
+    doc.modelspace().add_lwpolyline([(0, 0), (40, 0), (40, 20)], close=True)
+    doc.saveas(tmp_path / "big.dxf")
+    with pytest.warns(PatternWarning, match=r"largest piece spans 40 m \(over 5 m\)"):
+        read_pattern(tmp_path / "big.dxf", units="m")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PatternWarning)
+        (p,) = read_pattern(tmp_path / "m.dxf")
+    assert p.area == pytest.approx(0.5 * 0.4 * 0.2, rel=1e-12)

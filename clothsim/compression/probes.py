@@ -212,6 +212,10 @@ def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
     return out
 
 
+#: the class of a probe with no contact under its disc
+NO_READING = "no reading (no contact under the probe)"
+
+
 def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray) -> dict:
     """The scene's probes, profiles and classes: {"probes": [...], "profiles": [...],
     "classes": {...}} (only the keys the scene asks for)."""
@@ -227,8 +231,14 @@ def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressu
         from .standards import classify_all
 
         reading = next(r for r in out["probes"] if r["name"] == classes.probe)
+        results = classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)
+        if not reading["contact_fraction"] > 0.0:
+            # a probe off the contact (a garment that slid off, a point off the body) reads no
+            # pressure: it has no class, not "below class I"
+            for c in results:
+                c["class"] = NO_READING
         out["classes"] = {"probe": classes.probe, "pressure_mmhg": reading["pressure_mmhg"],
-                          "results": classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)}
+                          "results": results}
         for r in out["probes"]:
             if r["name"] == classes.probe:
                 r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}

@@ -52,10 +52,16 @@ def standard(name: str, extra: list[Standard] | None = None) -> Standard:
 
 def classify(mmhg: float, std: Standard) -> str:
     """The class of a pressure [mmHg] under ``std``: "class II", "below class I", "between
-    classes I and II", "above class 3"; ranges are closed ([min, max])."""
+    classes I and II", "above class 3"; ranges are closed ([min, max]). A standard whose limits
+    are all whole mmHg (both built-in ones) states its pressures to the whole mmHg, so the
+    pressure is rounded to the whole mmHg (half up) first: 24.99 mmHg is UK class 3, not "between
+    classes 2 and 3" (a gap of the table's rounding, not of the standard); RAL-GZ 387's 21-23 gap
+    is a real one (22 mmHg is between classes I and II)."""
     if not math.isfinite(mmhg):
         return "undefined (pressure not finite)"
     cl = std.classes
+    if all(float(x).is_integer() for c in cl for x in (c.min, c.max) if x is not None):
+        mmhg = math.floor(mmhg + 0.5)
     if mmhg < cl[0].min:
         return f"below class {cl[0].name}"
     for k, c in enumerate(cl):
