@@ -10,6 +10,8 @@ plain records and arrays, never the Scene.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .config import Scene
@@ -250,6 +252,21 @@ def check_memory(scene: Scene, available: float | None = None) -> None:
                          f"{available / 1e9:.1f} GB are {what} (use fewer divisions)")
 
 
+def _located(fn):
+    """Errors about a field that the start-up finds after validation (a seam side on a panel's
+    lattice, a node range beyond it, a pattern's piece) name the file and line or the ``--set``
+    that set the field, as validation's do (``Scene.locate``)."""
+    @functools.wraps(fn)
+    def located(scene, *args, **kwargs):
+        try:
+            return fn(scene, *args, **kwargs)
+        except SceneError as exc:
+            raise SceneError(scene.locate(str(exc))) from None
+
+    return located
+
+
+@_located
 def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     """The constant Model of a scene; ``mold`` (a loaded Mold or None) replaces the scene's own
     mold when given (tests and the viewer's mold preview use it)."""
@@ -327,6 +344,7 @@ def _warn_scale(mold, panels) -> None:
         warnings.warn(f"mold: {msg}", UserWarning, stacklevel=3)
 
 
+@_located
 def compile_state(scene: Scene, model: Model) -> State:
     """The initial State of a compiled scene (paper 3.1; see clothsim.initial). Warns
     (``mold: no node of the sheet can reach the mold ...``) when the mold is out of the sheet's

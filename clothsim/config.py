@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, Union
 
@@ -900,6 +901,28 @@ class Scene(_Strict):
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
+    # where the scene came from, for errors found after validation (``locate``): the file's label
+    # as given, its YAML node tree and the --set overrides' labels by field path
+    _label: str | None = None
+    _yaml_root: Any = None
+    _blame: dict | None = None
+
+    def locate(self, message: str) -> str:
+        """``message`` (``field.path: why``, as the model and the start-up raise them) prefixed
+        with where that field was set: ``file:line`` of the scene file, or the ``--set`` that
+        set it (as validation errors are). A message that names no field of the scene is
+        returned as it is."""
+        m = re.match(r"([A-Za-z_]\w*(?:\.\w+)*): ", message)
+        if not m or m.group(1).split(".")[0] not in type(self).model_fields:
+            return message
+        loc = tuple(int(p) if p.isdigit() else p for p in m.group(1).split("."))
+        culprit = _blamed(loc, self._blame, self._yaml_root)
+        if culprit:
+            return f"{culprit}: {message}"
+        if self._label is None:
+            return message
+        line = _yaml_line(self._yaml_root, loc) if self._yaml_root is not None else None
+        return f"{self._label}:{line}: {message}" if line else f"{self._label}: {message}"
 
     @model_validator(mode="after")
     def _panels_fit(self):
@@ -1018,6 +1041,7 @@ class Scene(_Strict):
             d["mold"]["path"] = str(self.resolve(d["mold"]["path"]))
         out = Scene.model_validate(d)
         out._source = self._source
+        out._label, out._yaml_root, out._blame = self._label, self._yaml_root, self._blame
         return out
 
     def to_yaml(self) -> str:
@@ -1089,7 +1113,7 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
             msg = "unknown field"
         elif err["type"] == "missing":
             msg = "missing"
-        culprit = _blamed(loc, blame)
+        culprit = _blamed(loc, blame, root)
         line = _yaml_line(root, loc) if root is not None and culprit is None else None
         where = culprit or (f"{source}:{line}" if line else source)
         text = f"{where}: {field}: {msg}" if field else f"{where}: {msg}"
@@ -1101,14 +1125,46 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
     return "\n".join(lines)
 
 
-def _blamed(loc: tuple, blame: dict[str, str] | None) -> str | None:
-    """The label of the longest override path that is a prefix of loc, if any."""
+def _in_file(root: yaml.Node | None, parts) -> bool:
+    """Whether the scene file itself has a node at the path ``parts`` (keys, list indices)."""
+    node = root
+    for key in parts:
+        nxt = None
+        if isinstance(node, yaml.MappingNode):
+            nxt = next((v for k, v in node.value if str(k.value) == str(key)), None)
+        elif isinstance(node, yaml.SequenceNode) and str(key).isdigit() and int(key) < len(node.value):
+            nxt = node.value[int(key)]
+        if nxt is None:
+            return False
+        node = nxt
+    return node is not None
+
+
+def _blamed(loc: tuple, blame: dict[str, str] | None, root: yaml.Node | None = None) -> str | None:
+    """The label of the override that caused a problem at loc, if any: the longest override path
+    that is a prefix of loc (``--set solver.C=0``: solver.C); else one under loc (``--set
+    fabric.size.0=-1``: the check of fabric.size); else one that shares the start of loc where the
+    file has no such node (``--set gravity.g=1`` made gravity: its missing areal_density;
+    ``--set solvr.C=3``: the unknown solvr). Problems of the file's own nodes keep the file's
+    line."""
     best = None
     for path, label in (blame or {}).items():
         parts = path.split(".")
-        if len(parts) <= len(loc) and all(str(a) == b for a, b in zip(loc, parts)):
-            if best is None or len(parts) > best[0]:
-                best = (len(parts), label)
+        c = 0
+        while c < min(len(parts), len(loc)) and str(loc[c]) == parts[c]:
+            c += 1
+        if c == 0:
+            continue
+        if c == len(parts):
+            rank = (2, c)
+        elif c == len(loc):
+            rank = (1, c)
+        elif not _in_file(root, parts[:c]):
+            rank = (0, c)
+        else:
+            continue
+        if best is None or rank > best[0]:
+            best = (rank, label)
     return best[1] if best else None
 
 
@@ -1179,6 +1235,9 @@ def scene_from_dict(data: dict, source: str | Path | None = None, root: yaml.Nod
         raise SceneError(format_validation_error(exc, label, root, blame)) from None
     if source is not None:
         scene._source = Path(source).resolve()
+        scene._label = label
+    scene._yaml_root = root
+    scene._blame = dict(blame) if blame else None
     return scene
 
 

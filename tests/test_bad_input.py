@@ -289,6 +289,26 @@ def test_set_errors_blamed_on_the_set_argument(tmp_path, capsys, no_solve):
     assert "s.yaml:" not in err
     rc, err = _main(capsys, "run", str(s), "--set", "solver.C=0.5")
     assert rc == 2 and "--set solver.C=0.5: solver.C: must be greater than 1" in err
+    # an override that makes a new section, mistypes one, or sets an item of a checked list is
+    # blamed too (they were blamed on an unrelated line of the file: found by a hostile pass)
+    for arg, msg in (("solvr.C=3", "--set solvr.C=3: solvr: unknown field"),
+                     ("gravity.g=1", "--set gravity.g=1: gravity.areal_density: missing"),
+                     ("fabric.size.0=-1", "--set fabric.size.0=-1: fabric.size: must be positive and finite")):
+        rc, err = _main(capsys, "run", str(s), "--set", arg)
+        assert rc == 2 and msg in err and "s.yaml:" not in err, err
+
+
+def test_errors_found_at_start_up_name_the_line(tmp_path, capsys):
+    """A problem found when the lattice is built (a node range beyond it) names the scene file's
+    line, or the --set that made it, as validation's errors do."""
+    d = scene_dict()
+    d["constraints"] = [{"nodes": {"i": [0, 600]}, "axes": "xyz"}]
+    s = _write(tmp_path, d)
+    line = 1 + s.read_text().splitlines().index("constraints:") + 1
+    rc, err = _main(capsys, "run", str(s), "--quiet")
+    assert rc == 2 and f"s.yaml:{line}: constraints.0.nodes: " in err and "i range [0, 600]" in err, err
+    rc, err = _main(capsys, "run", str(s), "--quiet", "--set", "constraints.0.nodes={i: [0, 700]}")
+    assert rc == 2 and "--set constraints.0.nodes={i: [0, 700]}: constraints.0.nodes: " in err, err
 
 
 def test_scene_path_alone_opens_the_viewer(tmp_path, monkeypatch):
