@@ -107,3 +107,20 @@ def force_scale(model, state) -> float:
     fmax = float(np.max(np.abs(f))) if f.size else 0.0
     gmax = float(np.max(np.linalg.norm(model.external_force, axis=1))) if model.node_count else 0.0
     return max(fmax, gmax)
+
+
+def blowup_limit(model) -> float:
+    """Positions beyond this [m] from the origin count as a blow-up: the farthest rest or
+    prescribed coordinate plus 1000 times the larger of the sheet's extent and the prescribed
+    coordinates' spread (a strip stretched 300 m by its constraints is not a blow-up)."""
+    rest = model.rest_positions
+    fixed = model.fixed_axes
+    far = float(np.abs(rest).max())
+    ext = float(np.ptp(rest, axis=0).max())
+    for a in range(3):
+        held = model.prescribed_positions[fixed[:, a], a]
+        if held.size:
+            far = max(far, float(np.abs(held).max()))
+            ext = max(ext, float(np.ptp(np.concatenate([rest[:, a], held]))))
+    return far + 1e3 * max(ext, 1e-9)
+

@@ -43,7 +43,7 @@ from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_from_forces, 
 from ..kernels import forces_and_energy, node_force, seam_forces_and_energy, seam_node_force
 from ..mold import mold_query
 from .base import Solver, StepReport, StepStatus
-from .common import model_mold_args
+from .common import blowup_limit, model_mold_args
 from .options import PaperOptions, live_options, paper_options
 
 # After a projection onto the mold a node must not be inside by more than this [m].
@@ -205,12 +205,6 @@ def paper_order(model) -> np.ndarray:
     k = np.lexsort((topo.node_ij[:, 0], topo.node_ij[:, 1], topo.node_panel))
     free = ~model.fixed_axes.all(axis=1)
     return np.ascontiguousarray(k[free[k]].astype(np.int64))
-
-
-def blowup_limit(model) -> float:
-    """Positions beyond this [m] from the origin count as a blow-up."""
-    ext = np.ptp(model.rest_positions, axis=0).max()
-    return float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
 
 
 class PaperSolver(Solver):

@@ -17,7 +17,7 @@ from numba import njit
 from ...contact import residual_from_forces as _residual_from_forces
 from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
-from ..common import model_mold_args
+from ..common import blowup_limit, model_mold_args
 from ..options import NewtonOptions
 from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
                          _block_infeasible_q, _curvature_blocks, _curvature_terms, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
@@ -203,8 +203,7 @@ class NewtonLevel:
         rules = kind == MOLD_SMOOTH or (kind == MOLD_MESH and SCAN_RULES_ON_FACETS)
         self._kink_decay = KINK_DECAY if rules else 1.0
         self._hold_share = HOLD_SHARE if (rules or HOLD_SHARE_EVERYWHERE) else 1.0
-        ext = np.ptp(model.rest_positions, axis=0).max()
-        self.blowup = float(np.abs(model.rest_positions).max() + 1e3 * max(ext, 1e-9))
+        self.blowup = blowup_limit(model)
         # step probed for leaving an edge's or vertex's tangent cone [m] (_block_infeasible)
         self.probe = 1e-6 * float(min(model.spacing))
         # difference step of the smooth surface's shape operator [m] (_curvature_blocks)
