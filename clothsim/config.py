@@ -949,6 +949,24 @@ class Scene(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _ranges_fit(self):
+        """On the ``fabric`` sheet, each constraint's i/j ranges lie on its lattice (checked here,
+        so a sweep refuses such a run before any runs; panel lattices are checked when built)."""
+        if self.panels or self.fabric.divisions is None:
+            return self
+        from .selection import SelectionError, index_range
+
+        nx, ny = self.fabric.divisions
+        for n, c in enumerate(self.constraints):
+            if isinstance(c.nodes, NodeRange) and c.nodes.side is None and c.nodes.edge is None:
+                try:
+                    index_range(c.nodes.i, nx, "i", "constraints")
+                    index_range(c.nodes.j, ny, "j", "constraints")
+                except SelectionError as exc:
+                    raise ValueError(f"constraints.{n}.nodes: {exc}") from None
+        return self
+
+    @model_validator(mode="after")
     def _compression_names(self):
         check_compression(self.probes, self.profiles, self.classes)
         return self

@@ -22,6 +22,20 @@ class SelectionError(ValueError):
     """A selector that selects nothing valid; the message starts with the field it names."""
 
 
+def index_range(r, n: int, name: str, what: str = "constraints") -> tuple[int, int]:
+    """(first, last) node index of a selector's inclusive range r (None: all; an int: one;
+    negative counts from the end) on an axis with nodes 0..n; SelectionError ``what: name range
+    [a, b] outside 0..n`` when it does not fit."""
+    if r is None:
+        return 0, n
+    a, b = (r, r) if isinstance(r, int) else r
+    a = a + n + 1 if a < 0 else a
+    b = b + n + 1 if b < 0 else b
+    if not (0 <= a <= b <= n):
+        raise SelectionError(f"{what}: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
+    return a, b
+
+
 def select_grid(sel, shape: tuple[int, int], what: str = "constraints") -> np.ndarray:
     """Boolean mask (nx+1, ny+1) of a selector on a grid of ``shape`` = (nx+1, ny+1); ``what``
     names the field in error messages."""
@@ -48,18 +62,8 @@ def select_grid(sel, shape: tuple[int, int], what: str = "constraints") -> np.nd
             m[:] = True
         return m
 
-    def rng(r, n, name):
-        if r is None:
-            return 0, n
-        a, b = (r, r) if isinstance(r, int) else r
-        a = a + n + 1 if a < 0 else a
-        b = b + n + 1 if b < 0 else b
-        if not (0 <= a <= b <= n):
-            raise SelectionError(f"{what}: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
-        return a, b
-
-    ia, ib = rng(sel.i, nx, "i")
-    ja, jb = rng(sel.j, ny, "j")
+    ia, ib = index_range(sel.i, nx, "i", what)
+    ja, jb = index_range(sel.j, ny, "j", what)
     m[ia:ib + 1, ja:jb + 1] = True
     return m
 

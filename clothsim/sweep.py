@@ -393,6 +393,8 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
             run.scene_hash = hashlib.sha1(_canonical(key).encode()).hexdigest()[:16]
             if fit is not None:
                 msg = _check_fit(sweep, run)
+            if msg is None:
+                msg = _check_probe_outputs(sweep.spec.outputs, scene)
             if scene.mold is not None and msg is None:
                 key = _canonical([scene.mold, str(scene.base_dir)])
                 if key not in molds:
@@ -409,6 +411,21 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
     if n_bad > len(errors):
         errors.append(f"... and {n_bad - len(errors)} more invalid runs")
     return errors
+
+
+def _check_probe_outputs(outputs: list[str], scene) -> str | None:
+    """The first ``probe:NAME_<key>`` output whose NAME is not a probe of the scene (the message),
+    or None: such a column stayed empty in every run, with no word."""
+    names = [p.name for p in scene.probes]
+    for o in outputs:
+        if not _probe_output(o):
+            continue
+        key = next(k for k in sorted(PROBE_OUTPUTS, key=len, reverse=True) if o.endswith("_" + k))
+        name = o[len("probe:"):-len(key) - 1]
+        if name not in names:
+            return (f"outputs: {o}: the scene has no probe '{name}' "
+                    f"(probes: {', '.join(names) if names else 'none'})")
+    return None
 
 
 def _check_fit(sweep: Sweep, run: Run) -> str | None:

@@ -299,16 +299,27 @@ def test_set_errors_blamed_on_the_set_argument(tmp_path, capsys, no_solve):
 
 
 def test_errors_found_at_start_up_name_the_line(tmp_path, capsys):
-    """A problem found when the lattice is built (a node range beyond it) names the scene file's
-    line, or the --set that made it, as validation's errors do."""
+    """Problems found after the schema's checks name the scene file's line, or the --set that
+    made them, as the schema's errors do: a node range beyond the sheet's lattice (now refused
+    when the scene is read, so a sweep refuses it before any run) and a pattern piece the file
+    does not hold (found when the panels are built: it named no line)."""
     d = scene_dict()
     d["constraints"] = [{"nodes": {"i": [0, 600]}, "axes": "xyz"}]
     s = _write(tmp_path, d)
     line = 1 + s.read_text().splitlines().index("constraints:") + 1
-    rc, err = _main(capsys, "run", str(s), "--quiet")
-    assert rc == 2 and f"s.yaml:{line}: constraints.0.nodes: " in err and "i range [0, 600]" in err, err
+    with pytest.raises(SceneError, match=rf"s\.yaml:{line}: constraints\.0\.nodes: constraints: i range \[0, 600\] outside 0\.\."):
+        load_scene(s)
     rc, err = _main(capsys, "run", str(s), "--quiet", "--set", "constraints.0.nodes={i: [0, 700]}")
     assert rc == 2 and "--set constraints.0.nodes={i: [0, 700]}: constraints.0.nodes: " in err, err
+    text = (ROOT / "configs" / "garments" / "sleeve_dxf.yaml").read_text()
+    text = text.replace("../../", str(ROOT) + "/").replace("piece: FRONT}", "piece: FRONTT}")
+    g = tmp_path / "g.yaml"
+    g.write_text(text)
+    line = 1 + next(n for n, t in enumerate(text.splitlines()) if "FRONTT" in t)
+    rc, err = _main(capsys, "run", str(g), "--quiet")
+    assert rc == 2 and f"g.yaml:{line}: panels.0.pattern.piece: no piece 'FRONTT'" in err, err
+    rc, err = _main(capsys, "run", str(g), "--quiet", "--set", "panels.0.pattern.piece=BACKK")
+    assert rc == 2 and "--set panels.0.pattern.piece=BACKK: panels.0.pattern.piece: no piece 'BACKK'" in err, err
 
 
 def test_scene_path_alone_opens_the_viewer(tmp_path, monkeypatch):

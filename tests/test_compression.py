@@ -306,6 +306,21 @@ def test_sweeps_take_probe_outputs(tmp_path):
     assert row["probe:side_mmhg"] == 20.5 and row["probe:side_contact_fraction"] == 1.0
 
 
+def test_a_sweep_output_naming_no_probe_of_its_scene_is_refused_before_any_run(tmp_path):
+    """probe:NAME_mmhg whose NAME is not one of the scene's probes stopped no sweep: its column
+    stayed empty in every run (found by a hostile pass). Each run's scene is checked before any
+    runs, naming the probes it has."""
+    from clothsim import sweep as sw
+
+    f = tmp_path / "s.yaml"
+    f.write_text(f"base: {ROOT / 'configs' / 'class2_sleeve.yaml'}\nsweep: {{parameters: {{solver.C: [2, 3]}}}}\n"
+                 "outputs: [iterations, probe:ankle_mmhg, probe:knee_contact_fraction]\n")
+    errors = sw.validate_runs(sw.load_sweep(f))
+    assert len(errors) == 2 and all(
+        "outputs: probe:knee_contact_fraction: the scene has no probe 'knee' (probes: ankle, cuff)" in e
+        for e in errors), errors
+
+
 TWO_PROBES = "probes=[{name: side, point: [0.06, 0.0, 0.0]}, {name: cuff, point: [-0.05, 0.0, 0.044], radius: 0.008}]"
 
 
