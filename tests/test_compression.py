@@ -345,7 +345,12 @@ def test_fit_two_fields_to_two_targets(tmp_path):
     assert {"side_mmHg", "cuff_mmHg", "side_residual_mmHg", "cuff_residual_mmHg"} <= set(rows[0])
     assert len(rows) == info["solves"] < 24
     worst = [max(abs(float(r["side_residual_mmHg"])), abs(float(r["cuff_residual_mmHg"]))) for r in rows]
-    assert worst[-1] <= 0.1 and all(w > 0.1 for w in worst[:-1]), worst
+    m = next(k for k, w in enumerate(worst) if w <= 0.1)
+    assert all(w > 0.1 for w in worst[:m]), worst
+    # a fit met from a warm start is solved again from the scene's own start (what a rerun of
+    # fitted.yaml does), and the search goes on from fresh starts until that meets it too
+    assert worst[-1] <= 0.1 and rows[-1]["start"] == "fresh", rows
+    assert m == len(rows) - 1 or (rows[m]["start"] == "warm" and all(r["start"] == "fresh" for r in rows[m + 1:]))
     assert [float(rows[-1][k]) for k in ("fabric.size.0", "fabric.size.1")] == pytest.approx(
         [info["fields"]["fabric.size.0"], info["fields"]["fabric.size.1"]], rel=1e-9)
     scene = load_scene(out / "fitted.yaml")
@@ -451,3 +456,33 @@ def test_run_prints_probes_classes_gradient_and_every_file(tmp_path, capsys):
     listed = set(wrote.split("/")[-1].split(", "))
     on_disk = {f.name for f in out.iterdir() if f.name != "notes.txt"}
     assert listed == on_disk and {"probes.csv", "profiles.csv", "profiles.png", "summary.json"} <= listed, wrote
+
+
+def test_a_fit_met_from_a_warm_start_is_checked_from_the_scenes_own_start(monkeypatch):
+    """Where the equilibrium is not unique (a stocking's slack courses), a solve warm-started
+    from the previous try can read differently from the scene's own start, which is what `run
+    fitted.yaml` does: the stocking fitted to 25 mmHg read 24.937 warm and 25.083 fresh, outside
+    the 0.1 mmHg tolerance (found by a garment engineer's pass). Modelled here by readings that
+    are 0.15 mmHg higher from warm starts: the fit must end on a fresh solve within the tolerance."""
+    from clothsim.compression import fit as fitmod
+
+    def reading(self, x):
+        warm = self.prev is not None and not self.fresh
+        p = [100.0 * float(x[0]) + (0.15 if warm else 0.0)]
+        r = [p[0] - self.targets[0].mmhg]
+        self.prev = object()
+        self.tries.append(fitmod.Try([float(x[0])], p, r, 0.0, "converged", "warm" if warm else "fresh"))
+        self.results.append(None)
+        return np.asarray(r)
+
+    monkeypatch.setattr(fitmod._Solver, "__call__", reading)
+    res = fit(SLEEVE, [Vary("fabric.size.0", 0.15, 0.3)], [Target("side", 23.0)], overrides=[TWO_PROBES],
+              tol_mmhg=0.1)
+    starts = [t.start for t in res.tries]
+    assert starts[0] == "fresh" and "warm" in starts
+    met_warm = next(k for k, t in enumerate(res.tries) if abs(t.residuals_mmhg[0]) <= 0.1)
+    assert res.tries[met_warm].start == "warm"
+    assert res.converged and res.tries[-1].start == "fresh" and abs(res.tries[-1].residuals_mmhg[0]) <= 0.1
+    assert all(t.start == "fresh" for t in res.tries[met_warm + 1:])
+    assert res.values == [res.tries[-1].values[0]] and res.readings_mmhg == res.tries[-1].readings_mmhg
+    assert "checked from the scene's own start" in res.message
