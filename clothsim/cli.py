@@ -52,6 +52,11 @@ def _stage_printer(stream):
     return on_stage
 
 
+#: a seam open by more than this share of its shorter side's length after a run is reported as
+#: not closed (a sewn seam closes to about 1e-7 m)
+SEAM_OPEN_WARN = 0.01
+
+
 def cmd_run(args) -> int:
     from . import simulation
     from .config import SceneError, load_scene
@@ -113,18 +118,22 @@ def cmd_run(args) -> int:
         say(f"  note: {s['undetermined_nodes']} nodes are held only by slack springs (their position is not unique)")
     if s.get("min_weft_extent_ratio", 1.0) < 0.5:
         say(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
-              f"(it gathers: nothing holds its width)")
+            f"(it gathers: nothing holds its width)")
     if "max_seam_gap_m" in s:
         say(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
         for n, r in enumerate(s.get("seams") or []):
             if r["ease_pct"] > 0.01:  # an eased seam: say how much its longer side gathers
                 say(f"  seam {n}: sides {r['a_length_m']:.4g} m and {r['b_length_m']:.4g} m, ease "
-                      f"{r['ease_pct']:.1f} % (the longer side gathers), open by at most {r['max_gap_m']:.2e} m")
+                    f"{r['ease_pct']:.1f} % (the longer side gathers), open by at most {r['max_gap_m']:.2e} m")
+            if r["max_gap_m"] > SEAM_OPEN_WARN * min(r["a_length_m"], r["b_length_m"]):
+                say(f"  warning: seam {n} is open by up to {r['max_gap_m']:.3g} m, "
+                    f"{r['max_gap_m'] / min(r['a_length_m'], r['b_length_m']):.0%} of its shorter side: it did not "
+                    f"close (are its sides held apart, or its ease too large to gather?)")
     if s.get("gathered_contact_nodes"):
         say(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
-              f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
-              + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
-                 if s.get("contact_line_load_n_per_m") is not None else ""))
+            f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
+            + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
+               if s.get("contact_line_load_n_per_m") is not None else ""))
     _print_compression(s, say)
     if out is not None:
         written = _written_files(out, before)

@@ -179,3 +179,14 @@ def test_a_sleeve_off_the_limb_warns_and_its_probe_has_no_class(tmp_path):
     assert s["contact_count"] == 0
     assert "warning: no node touches the mold" in r.stderr
     assert {c["class"] for c in s["classes"]["results"]} == {"no reading (no contact under the probe)"}
+
+
+def test_a_seam_held_open_warns():
+    """Two panels of different heights whose top rows are both held in z: the seam's ends cannot
+    meet, and the converged run says the seam did not close (it printed only the gap: a garment
+    engineer's pass); the config's own seams close and do not warn."""
+    r = _run("run", str(ROOT / "configs" / "garments" / "sleeve_two_panel.yaml"),
+             "--set", "panels.1.outline=[[0,0],[0.125,0],[0.125,0.10],[0,0.10]]")
+    assert "warning: seam 0 is open by up to 0.01 m, 13% of its shorter side: it did not close" in r.stdout, r.stdout
+    r = _run("run", str(ROOT / "configs" / "garments" / "sleeve_two_panel.yaml"))
+    assert r.returncode == 0 and "warning: seam" not in r.stdout
