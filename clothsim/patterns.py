@@ -237,11 +237,13 @@ def _finish(label: str, name: str, rp: _RawPiece, tol: float, notes: tuple[str, 
     if len(pts) < 3:
         raise PatternError(f"{where}: outline has {len(pts)} distinct point{'s' if len(pts) != 1 else ''}, fewer than 3")
     area, perim = _signed_area(pts), _perimeter(pts)
-    if abs(area) <= _ZERO_AREA * perim * perim:
-        raise PatternError(f"{where}: outline has zero area (perimeter {perim:.6g} m, area {area:.3g} m^2)")
     import shapely
 
     poly = shapely.Polygon(pts)
+    # a figure-eight's lobes cancel in the signed area: it crosses itself, it is not flat
+    lobes = float(shapely.make_valid(poly).area) if not poly.is_valid else abs(area)
+    if max(abs(area), lobes) <= _ZERO_AREA * perim * perim:
+        raise PatternError(f"{where}: outline has zero area (perimeter {perim:.6g} m, area {area:.3g} m^2)")
     if not poly.is_valid:
         reason = shapely.is_valid_reason(poly)
         m = re.search(r"\[\s*([-+0-9.eE]+)\s+([-+0-9.eE]+)", reason)

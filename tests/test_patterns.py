@@ -467,6 +467,13 @@ def test_error_self_intersecting(tmp_path):
     svg = write_svg(tmp_path / "bow.svg", '<polygon id="bow" points="0,0 20,30 20,0 0,20"/>')
     with pytest.raises(PatternError, match=r"bow\.svg: piece bow: outline crosses itself near \(0\.008, -0\.012\) m"):
         read_pattern(svg)
+    # a symmetric bow tie: its lobes cancel in the signed area, and it was called "zero area"
+    svg = write_svg(tmp_path / "sym.svg", '<polygon id="sym" points="0,0 100,100 100,0 0,100"/>')
+    with pytest.raises(PatternError, match=r"sym\.svg: piece sym: outline crosses itself near \(0\.05, -0\.05\) m"):
+        read_pattern(svg)
+    flat = write_svg(tmp_path / "flat.svg", '<polygon id="flat" points="0,0 50,0 100,0"/>')
+    with pytest.raises(PatternError, match=r"flat\.svg: piece flat: outline has zero area"):
+        read_pattern(flat)
 
 
 def test_error_fewer_than_three_points(tmp_path):
