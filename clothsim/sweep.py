@@ -1052,7 +1052,11 @@ def _run_dask(todo, sweep, out, workers, address, on_done, on_warm):
                                dashboard_address=None, silence_logs=50)
         client = Client(cluster)
     else:
-        client = Client(address, timeout="30s")
+        try:
+            client = Client(address, timeout="30s")
+        except (OSError, TimeoutError) as exc:  # not a write failure: name the scheduler
+            raise SweepError(f"--dask {address}: cannot reach the Dask scheduler ({exc}); start it "
+                             f"(dask scheduler) or use --dask local") from None
     try:
         for t in _warm_tasks(todo, sweep):
             on_warm(client.submit(warm_cache, t, pure=False).result())

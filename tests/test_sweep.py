@@ -301,3 +301,19 @@ def test_interrupted_sweep_resumes_and_matches_an_uninterrupted_one(tmp_path):
     assert mtimes == {n: (out / n / "summary.json").stat().st_mtime_ns for n in done}
     assert _csv(out / "summary.csv") == _csv(ref / "summary.csv")
     assert not list(out.glob("run-*/.*.tmp*"))
+
+
+def test_an_unreachable_dask_scheduler_is_named_as_such(tmp_path, capsys, monkeypatch):
+    """A scheduler that cannot be reached is reported against --dask, not as "--out: cannot
+    write" (its TimeoutError is an OSError, and was taken for a write failure: a hostile pass)."""
+    import dask.distributed
+
+    def refuse(address, timeout=None):
+        raise TimeoutError(f"Timed out trying to connect to {address} after {timeout}")
+
+    monkeypatch.setattr(dask.distributed, "Client", refuse)
+    p = _strip_sweep(tmp_path, {"solver.C": [2.0]})
+    assert sw.main(_args(p, tmp_path / "out", dask="tcp://127.0.0.1:1")) == 2
+    err = capsys.readouterr().err
+    assert "error: --dask tcp://127.0.0.1:1: cannot reach the Dask scheduler (Timed out" in err, err
+    assert "cannot write" not in err
