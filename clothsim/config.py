@@ -1090,20 +1090,35 @@ def _yaml_line(root: yaml.Node | None, loc: tuple) -> int | None:
     return line
 
 
+def _is_tag(part) -> bool:
+    """Whether a location part is pydantic's tag of a union's branch (``list[any]``,
+    ``literal[...]``, ``function-after[_one(), Space]``, ``NodeRange``, a mold kind), not a field."""
+    return isinstance(part, str) and ("[" in part or part.startswith("function-")
+                                      or part in ("NodeRange", "float", "int") or part in _MOLD_TAGS)
+
+
 def _clean_loc(loc: tuple) -> tuple:
     """Drop pydantic's union/literal branch tags from a location."""
-    out = []
-    for part in loc:
-        if isinstance(part, str) and (part.startswith("function-") or part in (
-                "literal['perimeter','left','right','bottom','top','bottom_left','bottom_right','top_left','top_right','corners','all']",
-                "NodeRange", "tuple[float, float]", "float", "int", "tuple[int, int]", "list[float]")):
+    return tuple(p for p in loc if not _is_tag(p))
+
+
+def _winning_branches(errors: list[dict]) -> list[dict]:
+    """A union's errors without the branches the input plainly is not: an error at a branch's own
+    level (a list expected, a literal string expected) is dropped when another branch of the same
+    union got further (an error inside it, or its own validator's message). ``{linspace: [1, 3,
+    -2]}`` then reports the bad n alone, not also "Input should be a valid list"."""
+    def branch(e):
+        loc = tuple(e["loc"])
+        i = next((k for k, p in enumerate(loc) if _is_tag(p)), None)
+        return (None, None, False) if i is None else (loc[:i], loc[i], len(loc) > i + 1 or e["type"] == "value_error")
+
+    info = [branch(e) for e in errors]
+    keep = []
+    for e, (base, tag, far) in zip(errors, info):
+        if base is not None and not far and any(b == base and t != tag and f for b, t, f in info):
             continue
-        if isinstance(part, str) and part.startswith("literal["):
-            continue
-        if part in _MOLD_TAGS:
-            continue
-        out.append(part)
-    return tuple(out)
+        keep.append(e)
+    return keep
 
 
 def format_validation_error(exc: ValidationError, source: str, root: yaml.Node | None,
@@ -1113,7 +1128,7 @@ def format_validation_error(exc: ValidationError, source: str, root: yaml.Node |
     that path is reported against the label instead of a line of the file."""
     lines = []
     seen = set()
-    for err in exc.errors():
+    for err in _winning_branches(exc.errors()):
         loc = _clean_loc(tuple(err["loc"]))
         msg = err["msg"]
         for prefix in ("Value error, ", "Assertion failed, "):

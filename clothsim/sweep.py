@@ -125,6 +125,10 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
 
+#: the most runs one sweep expands to (a grid's product of counts); more is refused up front
+MAX_RUNS = 100_000
+
+
 class Space(_Strict):
     """``{linspace: [a, b, n]}``: n evenly spaced values from a to b (inclusive);
     ``{logspace: [a, b, n]}``: n values from a to b (inclusive, a, b > 0) evenly spaced on a log
@@ -141,6 +145,9 @@ class Space(_Strict):
         a, b, n = getattr(self, given[0])
         if n < 1:
             raise ValueError(f"{given[0]}: n must be at least 1 (got {n})")
+        if n > MAX_RUNS:
+            raise ValueError(f"{given[0]}: n must be at most {MAX_RUNS:,} (got {n:,}): a sweep runs at most "
+                             f"{MAX_RUNS:,} scenes")
         if not (math.isfinite(a) and math.isfinite(b)):
             raise ValueError(f"{given[0]}: a and b must be finite")
         if given[0] == "logspace" and not (a > 0 and b > 0):
@@ -181,6 +188,17 @@ class SweepBlock(_Strict):
 
     def expanded(self) -> dict[str, list]:
         return {k: (v.values() if isinstance(v, Space) else list(v)) for k, v in self.parameters.items()}
+
+    @model_validator(mode="after")
+    def _run_count(self):
+        """At most MAX_RUNS runs (a grid's product of counts), refused before anything is expanded."""
+        counts = {k: (len(v) if isinstance(v, list) else (v.linspace or v.logspace)[2])
+                  for k, v in self.parameters.items()}
+        total = max(counts.values()) if self.mode == "zip" else math.prod(counts.values())
+        if total > MAX_RUNS:
+            detail = ", ".join(f"{k}: {n:,}" for k, n in counts.items())
+            raise ValueError(f"parameters: {total:,} runs ({self.mode} of {detail}); a sweep runs at most {MAX_RUNS:,}")
+        return self
 
     @model_validator(mode="after")
     def _zip_lengths(self):

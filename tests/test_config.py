@@ -178,3 +178,28 @@ def test_mold_spec_round_trip(tmp_path):
     p.write_text(GOOD + "mold: {cylinder: {center: [0, 0, 0], axis: [0, 0, 1], radius: 0.05, length: 0.3}}\n")
     d = load_scene(p).to_dict()["mold"]
     assert d == {"cylinder": {"center": [0, 0, 0], "axis": [0, 0, 1], "radius": 0.05, "length": 0.3}}
+
+
+def test_a_union_reports_the_branch_the_input_is_not_every_branch(tmp_path):
+    """A bad value inside one branch of a union is reported once, from that branch: a seam side
+    {side: lft} was also reported as "Input should be 'perimeter', ..." for the side itself,
+    and a sweep's {linspace: [1, 3, -2]} also as "Input should be a valid list" (a hostile pass)."""
+    from clothsim import sweep as sw
+
+    with pytest.raises(SceneError) as exc:
+        scene_from_dict(scene_dict(seams=[{"a": "left", "b": {"side": "lft"}}]))
+    lines = str(exc.value).splitlines()
+    assert len(lines) == 1 and lines[0].startswith("<scene>: seams.0.b.side: Input should be 'perimeter'"), lines
+    f = tmp_path / "s.yaml"
+    f.write_text("base: x.yaml\nsweep: {parameters: {solver.C: {linspace: [1.5, 3, -2]}}}\noutputs: [iterations]\n")
+    with pytest.raises(sw.SweepError) as exc:
+        sw.load_sweep(f)
+    assert str(exc.value) == f"{f}:2: sweep.parameters.solver.C.linspace: n must be at least 1 (got -2)"
+    f.write_text("base: x.yaml\nsweep: {parameters: {solver.C: {linspace: [1.5, 3, 100000000]}}}\noutputs: [iterations]\n")
+    with pytest.raises(sw.SweepError, match=r"linspace: n must be at most 100,000 \(got 100,000,000\)"):
+        sw.load_sweep(f)
+    f.write_text("base: x.yaml\nsweep: {parameters: {solver.C: {linspace: [1.5, 3, 1000]}, "
+                 "solver.e: {logspace: [1.0e-8, 1.0e-4, 1000]}}}\noutputs: [iterations]\n")
+    with pytest.raises(sw.SweepError, match=r"sweep\.parameters: 1,000,000 runs \(grid of solver\.C: 1,000, "
+                                            r"solver\.e: 1,000\); a sweep runs at most 100,000"):
+        sw.load_sweep(f)
