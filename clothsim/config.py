@@ -725,8 +725,10 @@ class MeshMoldSpec(_Strict):
 
     @field_validator("translate", "rotate")
     @classmethod
-    def _vec(cls, v):
-        return v if v is None else _finite3(v)
+    def _vec(cls, v, info):
+        if v is None:
+            return v
+        return _coords(_finite3(v)) if info.field_name == "translate" else _finite3(v)
 
 
 class SphereParams(_Strict):
@@ -738,12 +740,12 @@ class SphereParams(_Strict):
     @field_validator("center")
     @classmethod
     def _center(cls, v):
-        return _finite3(v)
+        return _coords(_finite3(v))
 
     @field_validator("radius")
     @classmethod
     def _radius(cls, v):
-        return _positive(v)
+        return _positive(v, COORD_MAX, "m")
 
 
 class CylinderParams(_Strict):
@@ -758,7 +760,7 @@ class CylinderParams(_Strict):
     @field_validator("center")
     @classmethod
     def _center(cls, v):
-        return _finite3(v)
+        return _coords(_finite3(v))
 
     @field_validator("axis")
     @classmethod
@@ -768,7 +770,7 @@ class CylinderParams(_Strict):
     @field_validator("radius", "length")
     @classmethod
     def _pos(cls, v):
-        return _positive(v)
+        return _positive(v, COORD_MAX, "m")
 
 
 class PlaneParams(_Strict):
@@ -780,7 +782,7 @@ class PlaneParams(_Strict):
     @field_validator("point")
     @classmethod
     def _point(cls, v):
-        return _finite3(v)
+        return _finite3(v)  # not bounded: a scene without a mold queries a plane 1e9 m away
 
     @field_validator("normal")
     @classmethod
@@ -797,7 +799,7 @@ class BoxParams(_Strict):
     @field_validator("min", "max")
     @classmethod
     def _corners(cls, v):
-        return _finite3(v)
+        return _coords(_finite3(v))
 
     @model_validator(mode="after")
     def _order(self):
@@ -833,19 +835,18 @@ _MOLD_TAGS = tuple(f"mold:{k}" for k in ("mesh", *MOLD_PRIMITIVES))
 
 
 def _mold_tag(v: Any) -> str | None:
-    """Which branch of MoldSpec a raw spec is: 'path' makes it a mesh file, else the one
-    primitive key it holds (a second one is then reported as an unknown field)."""
+    """Which branch of MoldSpec a raw spec is: 'path' makes it a mesh file, else the primitive
+    key it holds; None (refused: "exactly one of") when it holds none or several (a path and a
+    sphere was reported as "mold.sphere: unknown field", though sphere is a documented key)."""
     if isinstance(v, BaseModel):
         kind = getattr(v, "kind", None)
         return f"mold:{kind}" if kind else None
     if not isinstance(v, dict):
         return None
-    if "path" in v:
-        return "mold:mesh"
-    for k in MOLD_PRIMITIVES:
-        if k in v:
-            return f"mold:{k}"
-    return None
+    kinds = [k for k in ("path", *MOLD_PRIMITIVES) if k in v]
+    if len(kinds) != 1:
+        return None
+    return "mold:mesh" if kinds[0] == "path" else f"mold:{kinds[0]}"
 
 
 MoldSpec = Annotated[
@@ -857,7 +858,7 @@ MoldSpec = Annotated[
         Annotated[BoxMoldSpec, Tag("mold:box")],
     ],
     Discriminator(_mold_tag, custom_error_type="mold_kind",
-                  custom_error_message="must be a mapping with 'path' (a mesh file) or one of "
+                  custom_error_message="must be a mapping with exactly one of 'path' (a mesh file), "
                                        "sphere, cylinder, plane, box"),
 ]
 """A mold spec: :class:`MeshMoldSpec` or one primitive (``{sphere: {...}}``, ``{cylinder: ...}``,
