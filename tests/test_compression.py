@@ -486,3 +486,15 @@ def test_a_fit_met_from_a_warm_start_is_checked_from_the_scenes_own_start(monkey
     assert all(t.start == "fresh" for t in res.tries[met_warm + 1:])
     assert res.values == [res.tries[-1].values[0]] and res.readings_mmhg == res.tries[-1].readings_mmhg
     assert "checked from the scene's own start" in res.message
+
+
+def test_a_probe_as_wide_as_the_garment_says_it_is_no_local_reading():
+    """A probe radius typed as if in metres of a bigger unit (0.5 m on a 7 cm sleeve) read
+    0.46 mmHg with no word: its note now says the disc spans the sheet; the config's own 5 mm
+    sensor does not get the note (a garment engineer's pass)."""
+    cfg = ROOT / "configs" / "class2_sleeve.yaml"
+    res = clothsim.solve(load_scene(cfg, ["probes.0.radius=0.5"]))
+    ankle = res.compression()["probes"][0]
+    assert "the disc (1 m across) spans more than half the sheet" in ankle["note"], ankle["note"]
+    res = clothsim.solve(load_scene(cfg))
+    assert all("spans more than half" not in p["note"] for p in res.compression()["probes"])

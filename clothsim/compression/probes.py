@@ -66,6 +66,10 @@ def _subdivision(k: int) -> tuple[np.ndarray, float]:
     return np.column_stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]]), 1.0 / k ** 2
 
 
+#: a probe whose disc is wider than this share of the sheet's largest extent says it is no local reading
+PROBE_SPAN_WARN = 0.5
+
+
 def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray, probe) -> dict:
     """One probe's reading (see the module docstring). positions (N, 3) [m], in_contact (N,)
     bool, pressure (N,) [Pa]. Returns name, point, centre [m] (on the mold), offset_m (point to
@@ -116,6 +120,12 @@ def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: n
         note = (note + "; " if note else "") + f"{gathered} gathered node(s) of the sheet (line loads) left out"
     if out["offset_m"] > r:
         note = (note + "; " if note else "") + f"the point is {out['offset_m'] * 1e3:.3g} mm off the mold"
+    across = float(np.ptp(np.asarray(positions, float).reshape(-1, 3), axis=0).max())
+    if 2.0 * r > PROBE_SPAN_WARN * across:
+        # a sensor as big as the garment (a radius typed in mm as m, 10 for 0.01) averages the
+        # whole garment's force over a disc it does not cover: not a local pressure
+        note = (note + "; " if note else "") + (f"the disc ({2 * r:.3g} m across) spans more than half the sheet "
+                                                f"({across:.3g} m across): not a local reading (radius in metres?)")
     out.update(force_n=force, pressure_pa=pa, pressure_mmhg=pa / MMHG, contact_fraction=frac, on_contact=on,
                note=note)
     return out
