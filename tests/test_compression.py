@@ -498,3 +498,24 @@ def test_a_probe_as_wide_as_the_garment_says_it_is_no_local_reading():
     assert "the disc (1 m across) spans more than half the sheet" in ankle["note"], ankle["note"]
     res = clothsim.solve(load_scene(cfg))
     assert all("spans more than half" not in p["note"] for p in res.compression()["probes"])
+
+
+def test_an_out_of_reach_fit_says_when_the_reading_is_not_monotonic(monkeypatch):
+    """A sleeve cut too narrow slides off the limb and reads 0, so both bounds can read 0 while
+    the start reads 25 mmHg: "gives 0.00 to 0.00 mmHg" alone misled (a garment engineer's pass).
+    The refusal now names the try that read outside the bounds' range."""
+    from clothsim.compression import fit as fitmod
+
+    def reading(self, x):
+        xv = float(x[0])
+        p = [0.0 if (xv < 0.16 or xv > 0.28) else 25.0]
+        r = [p[0] - self.targets[0].mmhg]
+        self.prev = object()
+        self.tries.append(fitmod.Try([xv], p, r, 0.0, "converged"))
+        self.results.append(None)
+        return np.asarray(r)
+
+    monkeypatch.setattr(fitmod._Solver, "__call__", reading)
+    with pytest.raises(FitError, match=r"gives 0\.00 to 0\.00 mmHg .*; but fabric\.size\.0 = 0\.2\d* read 25\.00 mmHg, "
+                                       r"outside that range: the reading is not monotonic"):
+        fit(SLEEVE, [Vary("fabric.size.0", 0.02, 0.3)], [Target("side", 1000.0)], overrides=[TWO_PROBES])

@@ -398,9 +398,16 @@ def _secant(f: _Solver, x0: float, lo: float, hi: float, tol: float, max_solves:
         p_lo = rb[min(rb, key=lambda x: abs(x - lo))] + target.mmhg
         p_hi = rb[min(rb, key=lambda x: abs(x - hi))] + target.mmhg
         a, b = sorted((p_lo, p_hi))
+        # a try between the bounds that read outside their range: the reading is not monotonic
+        # (a sleeve cut too narrow slides off the form and reads 0 at the lower bound)
+        xo, ro = max(pts, key=lambda p: max(p[1] + target.mmhg - b, a - p[1] - target.mmhg))
+        po = ro + target.mmhg
+        odd = (f"; but {vary.path} = {xo:.6g} read {po:.2f} mmHg, outside that range: the reading is not "
+               f"monotonic between the bounds (a garment too narrow for the form slides off it and reads 0): "
+               f"narrow them" if max(po - b, a - po) > tol else "")
         raise FitError(f"target {target.probe} = {target.mmhg:.2f} mmHg is out of reach: {vary.path} from {lo:.6g} "
                        f"to {hi:.6g} gives {a:.2f} to {b:.2f} mmHg (reachable range; widen it with "
-                       f"--vary {vary.path}=LO:HI)", f.tries)
+                       f"--vary {vary.path}=LO:HI){odd}", f.tries)
 
     r0 = ev(x0)
     if done(r0):
