@@ -1,7 +1,8 @@
 """Headless commands: run, sweep, bench, fit, report, view (the default).
 
 Exit status: 0 converged (or all runs converged), 1 stopped without converging (or some runs
-did not converge), 2 bad input.
+did not converge), 2 bad input, 130 interrupted (Ctrl+C or SIGTERM; a run keeps the state it
+reached).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import argparse
 import contextlib
 import functools
 import math
+import os
 import signal
 import sys
 import threading
@@ -109,7 +111,8 @@ def cmd_run(args) -> int:
     if result.model.mold is not None and not s["contact_count"] and s["status"] == "converged":
         say("  warning: no node touches the mold: the sheet does not reach it, or a garment narrower than the "
             "form closed beside it (its probes read no pressure)")
-    if stop:
+    interrupted = bool(stop) and s["status"] == "stopped"  # a signal during the last batch: converged
+    if interrupted:
         say(f"  interrupted ({stop[0]}): stopped after {s['iterations']} iterations; the state reached is kept"
             + (" (written below)" if out is not None else ""))
     elif s["status"] != "converged":
@@ -125,9 +128,10 @@ def cmd_run(args) -> int:
             if r["ease_pct"] > 0.01:  # an eased seam: say how much its longer side gathers
                 say(f"  seam {n}: sides {r['a_length_m']:.4g} m and {r['b_length_m']:.4g} m, ease "
                     f"{r['ease_pct']:.1f} % (the longer side gathers), open by at most {r['max_gap_m']:.2e} m")
-            if r["max_gap_m"] > SEAM_OPEN_WARN * min(r["a_length_m"], r["b_length_m"]):
+            shorter = min(r["a_length_m"], r["b_length_m"])  # 0 for a tack (two single nodes)
+            if shorter > 0.0 and r["max_gap_m"] > SEAM_OPEN_WARN * shorter:
                 say(f"  warning: seam {n} is open by up to {r['max_gap_m']:.3g} m, "
-                    f"{r['max_gap_m'] / min(r['a_length_m'], r['b_length_m']):.0%} of its shorter side: it did not "
+                    f"{r['max_gap_m'] / shorter:.0%} of its shorter side: it did not "
                     f"close (are its sides held apart, or its ease too large to gather?)")
     if s.get("gathered_contact_nodes"):
         say(f"  note: {s['gathered_contact_nodes']} contact nodes sit where the sheet has gathered to under 1% of its "
@@ -142,7 +146,7 @@ def cmd_run(args) -> int:
         from .results import strict_json
 
         print(strict_json(s))
-    if stop:
+    if interrupted:
         return 130
     return 0 if result.converged else 1
 
@@ -159,7 +163,8 @@ def _stop_on_signals(stop: list):
         if stop:
             raise KeyboardInterrupt
         stop.append(signal.Signals(signum).name)
-        print(f"\n{stop[0]}: stopping at the next iteration (again to quit at once)", file=sys.stderr)
+        # os.write, not print: the handler may run inside a buffered write to stderr
+        os.write(2, f"\n{stop[0]}: stopping at the next iteration (again to quit at once)\n".encode())
     old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
@@ -342,7 +347,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="clothsim", description=__doc__.splitlines()[0],
         epilog="Without a command, or with a scene file first (python app.py configs/x.yaml), the viewer "
-               "opens. Exit status: 0 converged, 1 not converged, 2 bad input.")
+               "opens. Exit status: 0 converged, 1 not converged, 2 bad input, 130 interrupted (the state "
+                    "reached is kept).")
     sub = p.add_subparsers(dest="command")
 
     r = sub.add_parser("run", help="relax a scene headless and write its results")

@@ -1091,11 +1091,16 @@ def _yaml_line(root: yaml.Node | None, loc: tuple) -> int | None:
     return line
 
 
+#: pydantic's branch tags of generic types (a key typed as ``size[0]`` is a field, not a tag)
+_TAG = re.compile(r"(list|tuple|literal|dict|set|frozenset)\[")
+
+
 def _is_tag(part) -> bool:
     """Whether a location part is pydantic's tag of a union's branch (``list[any]``,
     ``literal[...]``, ``function-after[_one(), Space]``, ``NodeRange``, a mold kind), not a field."""
-    return isinstance(part, str) and ("[" in part or part.startswith("function-")
+    return isinstance(part, str) and (_TAG.match(part) is not None or part.startswith("function-")
                                       or part in ("NodeRange", "float", "int") or part in _MOLD_TAGS)
+
 
 
 def _clean_loc(loc: tuple) -> tuple:

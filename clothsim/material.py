@@ -92,8 +92,8 @@ def check_table(strain, value, value_name: str = "stress") -> None:
 #: the units a CSV table's header may name in brackets or parentheses (``tension [kN/m]``), as
 #: factors to the table's own units: tension per width to N/m (strip tests report N per 5 cm or
 #: per 50 mm strip: EN ISO 13934-1; cN/cm and gf/cm in knit data sheets), stress to Pa, strain to a
-#: fraction. Matched without regard to case or spaces (mN/mm and MN/mm are not both listed, so no
-#: spelling is ambiguous)
+#: fraction. Matched without regard to spaces, and to case except in m and M (milli and mega: mPa
+#: is not MPa, and is refused)
 CSV_UNITS = {
     "tension": {"N/m": 1.0, "kN/m": 1e3, "N/mm": 1e3, "N/cm": 100.0, "cN/cm": 1.0, "mN/mm": 1.0,
                 "N/5cm": 20.0, "N/50mm": 20.0, "N/25mm": 40.0, "N/in": 1.0 / 0.0254,
@@ -118,8 +118,16 @@ def _csv_unit(cell: str, name: str, source: str, line: int) -> float:
     if len(rest) >= 2 and (rest[0], rest[-1]) in (("[", "]"), ("(", ")")):
         unit = "".join(rest[1:-1].split()).replace("\u00b2", "2")
         for k, f in units.items():
-            if unit.lower() == k.lower():
+            if unit == k:
                 return f
+        for k, f in units.items():
+            # any case (KN/M, n/mm), but never milli for mega: mPa is not MPa
+            if unit.lower() == k.lower() and all(a == b for a, b in zip(unit, k) if b in "mM"):
+                return f
+        near = next((k for k in units if unit.lower() == k.lower()), None)
+        if near is not None:
+            raise MaterialError(f"{source}:{line}: {name}: unit {excerpt(rest[1:-1].strip())}: write it {near} "
+                                f"(m and M are milli and mega, or metre)")
         raise MaterialError(f"{source}:{line}: {name}: unknown unit {excerpt(rest[1:-1].strip())} (known: {known})")
     raise MaterialError(f"{source}:{line}: {name}: write the unit in brackets after the name, e.g. "
                         f"'{name} [{next(iter(units))}]' (got {excerpt(cell.strip())}; known units: {known})")

@@ -190,3 +190,13 @@ def test_a_seam_held_open_warns():
     assert "warning: seam 0 is open by up to 0.01 m, 13% of its shorter side: it did not close" in r.stdout, r.stdout
     r = _run("run", str(ROOT / "configs" / "garments" / "sleeve_two_panel.yaml"))
     assert r.returncode == 0 and "warning: seam" not in r.stdout
+
+
+def test_a_tack_seam_of_single_nodes_does_not_crash_the_seam_warning(tmp_path):
+    """A seam joining two single nodes (a tack: both sides 0 m long) converges and prints its
+    ease as inf; the open-seam warning divides by the shorter side and must skip it (a reviewer
+    found the division by zero)."""
+    scene = _write(tmp_path, scene_dict(**{"solver.e": 1e-7, "fabric.divisions": [10, 2],
+                                           "seams": [{"a": {"i": 0, "j": 2}, "b": {"i": 10, "j": 0}}]}))
+    r = _run("run", str(scene), "--quiet")
+    assert "Traceback" not in r.stderr and r.stdout.startswith("converged:"), r.stdout + r.stderr

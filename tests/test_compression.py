@@ -486,18 +486,27 @@ def test_a_fit_met_from_a_warm_start_is_checked_from_the_scenes_own_start(monkey
     assert all(t.start == "fresh" for t in res.tries[met_warm + 1:])
     assert res.values == [res.tries[-1].values[0]] and res.readings_mmhg == res.tries[-1].readings_mmhg
     assert "checked from the scene's own start" in res.message
+    # --max-solves bounds the whole fit: with no solve left for the check, the warm fit stands and
+    # says it was not checked (the check used to take 3 more solves past the limit)
+    spent = fit(SLEEVE, [Vary("fabric.size.0", 0.15, 0.3)], [Target("side", 23.0)], overrides=[TWO_PROBES],
+                tol_mmhg=0.1, max_solves=met_warm + 1)
+    assert len(spent.tries) == met_warm + 1 and spent.converged
+    assert "not checked from the scene's own start (--max-solves spent" in spent.message
+    for budget in (met_warm + 2, met_warm + 3):
+        assert len(fit(SLEEVE, [Vary("fabric.size.0", 0.15, 0.3)], [Target("side", 23.0)], overrides=[TWO_PROBES],
+                       tol_mmhg=0.1, max_solves=budget).tries) <= budget
 
 
 def test_a_probe_as_wide_as_the_garment_says_it_is_no_local_reading():
     """A probe radius typed as if in metres of a bigger unit (0.5 m on a 7 cm sleeve) read
-    0.46 mmHg with no word: its note now says the disc spans the sheet; the config's own 5 mm
+    0.46 mmHg with no word: its note now says the disc is wider than the sheet; the config's own 5 mm
     sensor does not get the note (a garment engineer's pass)."""
     cfg = ROOT / "configs" / "class2_sleeve.yaml"
     res = clothsim.solve(load_scene(cfg, ["probes.0.radius=0.5"]))
     ankle = res.compression()["probes"][0]
-    assert "the disc (1 m across) spans more than half the sheet" in ankle["note"], ankle["note"]
+    assert "the disc (1 m across) is wider than the sheet" in ankle["note"], ankle["note"]
     res = clothsim.solve(load_scene(cfg))
-    assert all("spans more than half" not in p["note"] for p in res.compression()["probes"])
+    assert all("wider than the sheet" not in p["note"] for p in res.compression()["probes"])
 
 
 def test_an_out_of_reach_fit_says_when_the_reading_is_not_monotonic(monkeypatch):

@@ -211,3 +211,12 @@ def test_a_union_reports_the_branch_the_input_is_not_every_branch(tmp_path):
     with pytest.raises(sw.SweepError, match=r"sweep\.parameters: 1,000,000 runs \(grid of solver\.C: 1,000, "
                                             r"solver\.e: 1,000\); a sweep runs at most 100,000"):
         sw.load_sweep(f)
+
+
+def test_a_mistyped_key_with_brackets_keeps_its_name_and_line(tmp_path):
+    """A key typed as ``size[0]`` is a field of the file, not one of pydantic's branch tags
+    (``list[any]``): its error names it at its own line (a reviewer found it dropped)."""
+    d = scene_dict()
+    d["fabric"]["size[0]"] = 3
+    with pytest.raises(SceneError, match=r"fabric\.size\[0\]: unknown field"):
+        scene_from_dict(d)

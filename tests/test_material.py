@@ -114,7 +114,7 @@ def test_csv_errors_name_file_and_line(text, message):
     "header, factor",
     [("tension", 1.0), ("tension [N/m]", 1.0), ("tension [kN/m]", 1e3), ("tension (N/mm)", 1e3),
      ("tension [N/cm]", 100.0), ("tension [cN/cm]", 1.0), ("tension [N/5 cm]", 20.0),
-     ("tension [N/50mm]", 20.0), ("Tension [KN/M]", 1e3), ("tension [gf/cm]", 0.980665)],
+     ("tension [N/50mm]", 20.0), ("Tension [KN/m]", 1e3), ("tension [gf/cm]", 0.980665)],
 )
 def test_csv_tension_units_convert(header, factor):
     """A tension unit in the header converts the column to N/m (a kN/m table read as N/m would be
@@ -136,6 +136,8 @@ def test_csv_stress_units_convert(header, factor):
     "text, message",
     [
         ("strain,tension [furlongs]\n0,0\n", "x.csv:1: tension: unknown unit 'furlongs' (known: N/m, kN/m, "),
+        ("strain,stress [mPa]\n0,0\n", "x.csv:1: stress: unit 'mPa': write it MPa (m and M are milli and mega"),
+        ("strain,stress [mpa]\n0,0\n", "x.csv:1: stress: unit 'mpa': write it MPa"),
         ("strain,tension N/m\n0,0\n", "x.csv:1: tension: write the unit in brackets after the name, e.g. "
                                      "'tension [N/m]' (got 'tension N/m'"),
         ("strain [ratio],tension\n0,0\n", "x.csv:1: strain: unknown unit 'ratio' (known: %, -"),

@@ -359,13 +359,22 @@ def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[
         # differently (0.15 mmHg on the stocking). Solve the fitted values from the scene's own
         # start, and go on from fresh starts when that misses the tolerance: the fitted run and
         # its files are then the ones a rerun reproduces
-        warm_msg = out.message
-        first = len(f.tries)
-        f.fresh = True
-        out = search(out.values, max(max_solves - first, 3))
-        out.message = (f"{warm_msg} from warm starts; checked from the scene's own start: {out.message}"
-                       if len(f.tries) - first > 1 or not out.converged else
-                       f"{warm_msg} from warm starts, and within it from the scene's own start too")
+        warm, warm_msg = out, out.message
+        left = max_solves - len(f.tries)  # --max-solves bounds the whole fit, the check included
+        if left < 1:
+            warm.message = (f"{warm_msg} from warm starts; not checked from the scene's own start "
+                            f"(--max-solves spent: raise it to check)")
+        else:
+            first = len(f.tries)
+            f.fresh = True
+            try:
+                out = search(out.values, left)
+                out.message = (f"{warm_msg} from warm starts; checked from the scene's own start: {out.message}"
+                               if len(f.tries) - first > 1 or not out.converged else
+                               f"{warm_msg} from warm starts, and within it from the scene's own start too")
+            except FitError as exc:  # the fresh readings' bracket failed: keep the warm fit, say so
+                out, first = warm, 0
+                out.message = f"{warm_msg} from warm starts; the check from the scene's own start failed: {exc}"
     out.tries = f.tries
     if out.converged or out.values:
         # the result at the best try (the last one for a converged secant) of the last search

@@ -67,7 +67,7 @@ def _subdivision(k: int) -> tuple[np.ndarray, float]:
 
 
 #: a probe whose disc is wider than this share of the sheet's largest extent says it is no local reading
-PROBE_SPAN_WARN = 0.5
+PROBE_SPAN_WARN = 1.0
 
 
 def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray, probe) -> dict:
@@ -124,7 +124,7 @@ def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: n
     if 2.0 * r > PROBE_SPAN_WARN * across:
         # a sensor as big as the garment (a radius typed in mm as m, 10 for 0.01) averages the
         # whole garment's force over a disc it does not cover: not a local pressure
-        note = (note + "; " if note else "") + (f"the disc ({2 * r:.3g} m across) spans more than half the sheet "
+        note = (note + "; " if note else "") + (f"the disc ({2 * r:.3g} m across) is wider than the sheet "
                                                 f"({across:.3g} m across): not a local reading (radius in metres?)")
     out.update(force_n=force, pressure_pa=pa, pressure_mmhg=pa / MMHG, contact_fraction=frac, on_contact=on,
                note=note)
