@@ -499,7 +499,9 @@ def run_one(task: dict) -> dict:
         else:
             from .simulation import solve
 
-            scene = scene_from_dict(task["scene"], task["source"])
+            # a problem the start-up finds in a swept field names the parameter, not the base file
+            blame = {k: f"sweep parameter {k}={_fmt(v)}" for k, v in (task.get("params") or {}).items()}
+            scene = scene_from_dict(task["scene"], task["source"], None, blame)
             result = solve(scene)
             files = _result_files(result)
         record["extra"] = {}
@@ -586,13 +588,18 @@ def warm_cache(task: dict) -> dict:
 
 def _warm_tasks(todo: list[Run], sweep: Sweep) -> list[dict]:
     """One warm-up task per distinct (solver method, mold kind): the smallest such run."""
+    def size(r: Run) -> int:
+        """The run's lattice size: the sheet's divisions, or its panels' (a garment's)."""
+        divs = [r.scene.get("fabric", {}).get("divisions")] + [p.get("divisions") for p in r.scene.get("panels") or []
+                                                               if isinstance(p, dict)]
+        return sum(math.prod(d) for d in divs if isinstance(d, (list, tuple)) and d
+                   and all(isinstance(x, int) for x in d))
+
     picked: dict[str, Run] = {}
     for r in todo:
         mold = r.scene.get("mold") or {}
         key = _canonical([r.scene.get("solver", {}).get("method", "auto"), sorted(mold) if isinstance(mold, dict) else str(mold)])
-        div = r.scene.get("fabric", {}).get("divisions", [1, 1])
-        size = math.prod(div) if isinstance(div, (list, tuple)) and div else 0
-        if key not in picked or size < math.prod(picked[key].scene["fabric"]["divisions"]):
+        if key not in picked or size(r) < size(picked[key]):
             picked[key] = r
     return [_task(r, sweep) for r in picked.values()]
 

@@ -317,3 +317,20 @@ def test_an_unreachable_dask_scheduler_is_named_as_such(tmp_path, capsys, monkey
     err = capsys.readouterr().err
     assert "error: --dask tcp://127.0.0.1:1: cannot reach the Dask scheduler (Timed out" in err, err
     assert "cannot write" not in err
+
+
+def test_a_garment_sweep_runs_and_a_bad_swept_piece_names_its_parameter(tmp_path):
+    """A sweep over a panel scene (no fabric.divisions) crashed choosing its warm-up run
+    (KeyError 'divisions'); now it runs, and a swept value that only the start-up can refuse (a
+    pattern piece the file does not hold) ends that run alone, its error naming the sweep
+    parameter rather than the base file."""
+    p = _write(tmp_path / "g.yaml", {
+        "base": str(ROOT / "configs" / "garments" / "sleeve_dxf.yaml"),
+        "sweep": {"parameters": {"panels.0.pattern.piece": ["FRONT", "FRONTT"]}},
+        "outputs": ["iterations"],
+    })
+    rep = sw.run_sweep(p, tmp_path / "out", workers=1, stream=io.StringIO(), plots=False)
+    assert rep["statuses"] == {"converged": 1, "error": 1}, rep["statuses"]
+    bad = next((tmp_path / "out").glob("run-0001-*"))
+    msg = json.loads((bad / "summary.json").read_text())["message"]
+    assert "sweep parameter panels.0.pattern.piece=FRONTT: panels.0.pattern.piece: no piece 'FRONTT'" in msg, msg
