@@ -102,12 +102,27 @@ def test_csv_import_stress_in_mpa():
         ("strain,tension\n0,0\n0.1\n", "x.csv:3: expected two columns, got 1"),
         ("strain,tension\n0,0\n0.1,nan\n", "x.csv:3: must be finite: 0.1,nan"),
         ("strain,tension\n0,0\n0.1,5\n0.1,6\n", "x.csv:4: strain: must be strictly increasing (0.1 after 0.1)"),
+        # units and rows (a kN/m table read as N/m was 1000 times too soft, with no error)
+        ("strain,tension [furlongs]\n0,0\n", "x.csv:1: tension: unknown unit 'furlongs' (known: N/m, kN/m, "),
+        ("strain,stress [mPa]\n0,0\n", "x.csv:1: stress: unit 'mPa': write it MPa (m and M are milli and mega"),
+        ("strain,stress [mpa]\n0,0\n", "x.csv:1: stress: unit 'mpa': write it MPa"),
+        ("strain,tension N/m\n0,0\n", "x.csv:1: tension: write the unit in brackets after the name, e.g. "
+                                     "'tension [N/m]' (got 'tension N/m'"),
+        ("strain [ratio],tension\n0,0\n", "x.csv:1: strain: unknown unit 'ratio' (known: %, -"),
+        ("strain,tension,extra\n0,0,1\n", "x.csv:1: header has 3 columns; a table has two"),
+        ("strain,tension\n0,0\n0.1,5,7\n", "x.csv:3: expected two columns, got 3"),
+        ("strain,tension\n0,0\n0.2,10\n0.1,20\n", "x.csv:4: strain: must be strictly increasing (0.1 after 0.2)"),
+        ("strain,tension\n0,0\n0.1,-1\n", "x.csv:3: tension: must be non-negative (got -1)"),
+        ("strain,tension\n0,0\n0.1,5\n0.2,4\n", "x.csv:4: tension: must be non-decreasing (4 after 5)"),
+        ("strain,tension\n0.1,0\n0.2,4\n", "x.csv:2: strain: must start at 0 (got 0.1)"),
+        ("strain,tension [kN/m]\n0,0\n0.1,2e6\n", "x.csv:3: tension: at most 1e+09 N/m (got 2e+09 N/m)"),
     ],
 )
 def test_csv_errors_name_file_and_line(text, message):
+    """Every refusal names the file and line (long messages checked by their start)."""
     with pytest.raises(MaterialError) as exc:
         parse_table_csv(text, "x.csv")
-    assert str(exc.value) == message
+    assert str(exc.value).startswith(message)
 
 
 @pytest.mark.parametrize(
@@ -130,30 +145,6 @@ def test_csv_stress_units_convert(header, factor):
     strain, value, kind = parse_table_csv(f"strain,{header}\n0,0\n0.5,2\n", "x.csv")
     assert kind == "stress"
     np.testing.assert_allclose(value, [0.0, 2.0 * factor], rtol=1e-12)
-
-
-@pytest.mark.parametrize(
-    "text, message",
-    [
-        ("strain,tension [furlongs]\n0,0\n", "x.csv:1: tension: unknown unit 'furlongs' (known: N/m, kN/m, "),
-        ("strain,stress [mPa]\n0,0\n", "x.csv:1: stress: unit 'mPa': write it MPa (m and M are milli and mega"),
-        ("strain,stress [mpa]\n0,0\n", "x.csv:1: stress: unit 'mpa': write it MPa"),
-        ("strain,tension N/m\n0,0\n", "x.csv:1: tension: write the unit in brackets after the name, e.g. "
-                                     "'tension [N/m]' (got 'tension N/m'"),
-        ("strain [ratio],tension\n0,0\n", "x.csv:1: strain: unknown unit 'ratio' (known: %, -"),
-        ("strain,tension,extra\n0,0,1\n", "x.csv:1: header has 3 columns; a table has two"),
-        ("strain,tension\n0,0\n0.1,5,7\n", "x.csv:3: expected two columns, got 3"),
-        ("strain,tension\n0,0\n0.2,10\n0.1,20\n", "x.csv:4: strain: must be strictly increasing (0.1 after 0.2)"),
-        ("strain,tension\n0,0\n0.1,-1\n", "x.csv:3: tension: must be non-negative (got -1)"),
-        ("strain,tension\n0,0\n0.1,5\n0.2,4\n", "x.csv:4: tension: must be non-decreasing (4 after 5)"),
-        ("strain,tension\n0.1,0\n0.2,4\n", "x.csv:2: strain: must start at 0 (got 0.1)"),
-        ("strain,tension [kN/m]\n0,0\n0.1,2e6\n", "x.csv:3: tension: at most 1e+09 N/m (got 2e+09 N/m)"),
-    ],
-)
-def test_csv_units_and_rows_refused_with_line(text, message):
-    with pytest.raises(MaterialError) as exc:
-        parse_table_csv(text, "x.csv")
-    assert str(exc.value).startswith(message)
 
 
 def test_csv_trailing_empty_cells_are_allowed():
