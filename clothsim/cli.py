@@ -159,6 +159,7 @@ def _stop_on_signals(stop: list):
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+
     def handler(signum, frame):
         if stop:
             raise KeyboardInterrupt
@@ -206,7 +207,7 @@ def _print_compression(s: dict, say=print) -> None:
         for p in probes:
             cls = "; ".join(f"{k}: {v}" for k, v in (p.get("classes") or {}).items())
             say(f"    {p['name']:<{w}}  {p['pressure_mmhg']:8.2f} mmHg  contact fraction {p['contact_fraction']:.2f}"
-                  + (f"  {cls}" if cls else "") + (f"  ({p['note']})" if p.get("note") else ""))
+                + (f"  {cls}" if cls else "") + (f"  ({p['note']})" if p.get("note") else ""))
     for pf in s.get("profiles") or []:
         say(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
 
@@ -348,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="clothsim", description=__doc__.splitlines()[0],
         epilog="Without a command, or with a scene file first (python app.py configs/x.yaml), the viewer "
                "opens. Exit status: 0 converged, 1 not converged, 2 bad input, 130 interrupted (the state "
-                    "reached is kept).")
+               "reached is kept).")
     sub = p.add_subparsers(dest="command")
 
     r = sub.add_parser("run", help="relax a scene headless and write its results")
