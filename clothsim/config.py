@@ -1102,7 +1102,6 @@ def _is_tag(part) -> bool:
                                       or part in ("NodeRange", "float", "int") or part in _MOLD_TAGS)
 
 
-
 def _clean_loc(loc: tuple) -> tuple:
     """Drop pydantic's union/literal branch tags from a location."""
     return tuple(p for p in loc if not _is_tag(p))
