@@ -121,7 +121,7 @@ def _csv_unit(cell: str, name: str, source: str, line: int) -> float:
             if unit == k:
                 return f
         for k, f in units.items():
-            # any case (KN/M, n/mm), but never milli for mega: mPa is not MPa
+            # any case (KN/m, n/mm), but m and M as written: mPa is not MPa
             if unit.lower() == k.lower() and all(a == b for a, b in zip(unit, k) if b in "mM"):
                 return f
         near = next((k for k in units if unit.lower() == k.lower()), None)
