@@ -1,8 +1,8 @@
 """Headless commands: run, sweep, bench, fit, report, view (the default).
 
 Exit status: 0 converged (or all runs converged), 1 stopped without converging (or some runs
-did not converge), 2 bad input, 130 interrupted (Ctrl+C or SIGTERM; a run keeps the state it
-reached).
+did not converge), 2 bad input, 130 interrupted (Ctrl+C; SIGTERM too for run and sweep; a run
+keeps the state it reached).
 """
 
 from __future__ import annotations
@@ -60,6 +60,14 @@ SEAM_OPEN_WARN = 0.01
 
 
 def cmd_run(args) -> int:
+    stop: list[str] = []  # the signal that asked the run to stop (SIGINT, SIGTERM)
+    # from the solve to the last file written: a signal while the summary is worked out or the
+    # files written (seconds on a big sheet) must not lose the finished result either
+    with _stop_on_signals(stop):
+        return _cmd_run(args, stop)
+
+
+def _cmd_run(args, stop: list[str]) -> int:
     from . import simulation
     from .config import SceneError, load_scene
     from .fileio import OutputError, check_out_dir, describe_write_error
@@ -72,7 +80,6 @@ def cmd_run(args) -> int:
     out = Path(args.out) if args.out else None
     # with --json, standard output carries the JSON alone: the human lines go to standard error
     say = functools.partial(print, file=sys.stderr) if args.json else print
-    stop: list[str] = []  # the signal that asked the run to stop (SIGINT, SIGTERM)
     try:
         scene = load_scene(args.scene, args.set)
         if out is not None:  # before the solve: a bad --out must not cost a whole run
@@ -86,9 +93,7 @@ def cmd_run(args) -> int:
             r = cb(progress) if cb is not None else None
             return True if stop else r
 
-        with _stop_on_signals(stop):
-            result = simulation.solve(scene, callback=callback,
-                                      on_stage=_stage_printer(sys.stderr) if cb else None)
+        result = simulation.solve(scene, callback=callback, on_stage=_stage_printer(sys.stderr) if cb else None)
     except (SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -154,18 +159,22 @@ def cmd_run(args) -> int:
 @contextlib.contextmanager
 def _stop_on_signals(stop: list):
     """While in the block, SIGINT and SIGTERM append their name to ``stop`` (the run's callback
-    then stops it at its next iteration); a second signal raises KeyboardInterrupt. Only in the
-    main thread (elsewhere signals cannot be handled): there nothing changes."""
+    then stops it at its next iteration, and a run already finished writes its files); a second
+    signal ends the process at once with the signal's default action (a KeyboardInterrupt raised
+    from the handler could land in a finalizer and be ignored). Only in the main thread
+    (elsewhere signals cannot be handled): there nothing changes."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
         if stop:
-            raise KeyboardInterrupt
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
         stop.append(signal.Signals(signum).name)
         # os.write, not print: the handler may run inside a buffered write to stderr
-        os.write(2, f"\n{stop[0]}: stopping at the next iteration (again to quit at once)\n".encode())
+        os.write(2, f"\n{stop[0]}: stopping; the state reached is kept (again to quit at once)\n".encode())
     old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield

@@ -21,6 +21,7 @@ so a folder is complete exactly when it holds summary.json):
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from dataclasses import dataclass, field
@@ -393,6 +394,7 @@ class Result:
     startup_s: float = 0.0
     _fields: tuple | None = field(default=None, repr=False)
     _compression: dict | None = field(default=None, repr=False)
+    _diagnostics: dict | None = field(default=None, repr=False)
 
     def _f(self):
         if self._fields is None:
@@ -473,7 +475,14 @@ class Result:
 
     def diagnostics(self) -> dict:
         """Numbers that make a degenerate result visible (see :func:`sheet_health`), the peak
-        strains and pressures, and the deepest penetration into the mold."""
+        strains and pressures, and the deepest penetration into the mold. Worked out once per
+        Result (the sensor peak takes seconds on a big sheet, and summary() and save() both need
+        it); a copy is returned."""
+        if self._diagnostics is None:
+            self._diagnostics = self._work_out_diagnostics()
+        return copy.deepcopy(self._diagnostics)
+
+    def _work_out_diagnostics(self) -> dict:
         out = sheet_health(self.model, self.state.positions, self.state.in_contact,
                            force=self._f()[1])
         cf, p = self._f()[2], self._f()[3]

@@ -485,7 +485,8 @@ def test_a_fit_met_from_a_warm_start_is_checked_from_the_scenes_own_start(monkey
     assert res.converged and res.tries[-1].start == "fresh" and abs(res.tries[-1].residuals_mmhg[0]) <= 0.1
     assert all(t.start == "fresh" for t in res.tries[met_warm + 1:])
     assert res.values == [res.tries[-1].values[0]] and res.readings_mmhg == res.tries[-1].readings_mmhg
-    assert "checked from the scene's own start" in res.message
+    assert "from the scene's own start (the fitted run; checked in" in res.message, res.message
+    assert f"|residual| {abs(res.tries[-1].residuals_mmhg[0]):.3g} <= 0.1 mmHg" in res.message
     # --max-solves bounds the whole fit: with no solve left for the check, the warm fit stands and
     # says it was not checked (the check used to take 3 more solves past the limit)
     spent = fit(SLEEVE, [Vary("fabric.size.0", 0.15, 0.3)], [Target("side", 23.0)], overrides=[TWO_PROBES],

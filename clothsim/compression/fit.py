@@ -369,9 +369,12 @@ def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[
             f.fresh = True
             try:
                 out = search(out.values, left)
-                out.message = (f"{warm_msg} from warm starts; checked from the scene's own start: {out.message}"
-                               if len(f.tries) - first > 1 or not out.converged else
-                               f"{warm_msg} from warm starts, and within it from the scene's own start too")
+                worst = float(np.abs(f.tries[best(first)].residuals_mmhg).max())
+                n = len(f.tries) - first
+                out.message = (f"|residual| {worst:.3g} <= {tol_mmhg} mmHg from the scene's own start (the fitted "
+                               f"run; checked in {n} fresh solve{'s' if n > 1 else ''} after warm starts: {warm_msg})"
+                               if out.converged else
+                               f"from the scene's own start, {out.message} (warm starts first: {warm_msg})")
             except FitError as exc:  # the fresh readings' bracket failed: keep the warm fit, say so
                 out, first = warm, 0
                 out.message = f"{warm_msg} from warm starts; the check from the scene's own start failed: {exc}"
@@ -516,7 +519,8 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
     n = len(f.tries) - n0
     text = (f"all targets within {tol} mmHg after {n} solves" if ok else
             f"best residual {np.abs(best.residuals_mmhg).max():.3g} mmHg after {n} solves ({msg}); "
-            f"the targets may not be reachable together")
+            + ("raise --max-solves" if msg.startswith("stopped after") else
+               "the targets may not be reachable together"))
     return FitResult(ok, text, best.values, best.readings_mmhg)
 
 
