@@ -55,38 +55,47 @@ def warn_implausible_strain(strain, where: str) -> None:
             f"strain? (strain is a fraction, 0.3 = 30 %; a CSV header 'strain [%]' reads percent)"), stacklevel=2)
 
 
-def check_table(strain, value, value_name: str = "stress") -> None:
-    """Raise MaterialError (message without field prefix) if (strain, value) is not a valid table.
+def _bad(message: str, index: int | None = None) -> MaterialError:
+    """A MaterialError whose ``index`` is the table point it is about (None: the whole table)."""
+    exc = MaterialError(message)
+    exc.index = index
+    return exc
+
+
+def check_table(strain, value, value_name: str = "stress", shown=None) -> None:
+    """Raise MaterialError (message without field prefix) if (strain, value) is not a valid table;
+    its ``index`` is the offending point (None for the whole table), so a CSV reader can name the
+    line. shown: (strain, value) as the user wrote them (a CSV's cells), quoted in the messages
+    instead of the numbers.
 
     The messages are part of the user interface (tests check them verbatim)."""
     strain = list(strain)
     value = list(value)
+    s_txt, v_txt = (list(shown[0]), list(shown[1])) if shown is not None else (strain, value)
     if len(strain) != len(value):
-        raise MaterialError(
-            f"strain and {value_name} have different lengths ({len(strain)} and {len(value)})"
-        )
+        raise _bad(f"strain and {value_name} have different lengths ({len(strain)} and {len(value)})")
     if len(strain) < 2:
-        raise MaterialError(f"needs at least 2 points (got {len(strain)})")
-    for name, seq in (("strain", strain), (value_name, value)):
-        for x in seq:
+        raise _bad(f"needs at least 2 points (got {len(strain)})")
+    for name, seq, txt in (("strain", strain, s_txt), (value_name, value, v_txt)):
+        for k, x in enumerate(seq):
             if not math.isfinite(float(x)):
-                raise MaterialError(f"{name}: must be finite (got {x})")
+                raise _bad(f"{name}: must be finite (got {txt[k]})", k)
     if float(strain[0]) != 0.0:
-        raise MaterialError(f"strain: must start at 0 (got {strain[0]})")
-    for a, b in zip(strain, strain[1:]):
-        if not float(b) > float(a):
-            raise MaterialError(f"strain: must be strictly increasing ({b} after {a})")
-    for x in value:
+        raise _bad(f"strain: must start at 0 (got {s_txt[0]})", 0)
+    for k in range(1, len(strain)):
+        if not float(strain[k]) > float(strain[k - 1]):
+            raise _bad(f"strain: must be strictly increasing ({s_txt[k]} after {s_txt[k - 1]})", k)
+    for k, x in enumerate(value):
         if float(x) < 0.0:
-            raise MaterialError(f"{value_name}: must be non-negative (got {x})")
+            raise _bad(f"{value_name}: must be non-negative (got {v_txt[k]})", k)
     if value_name in VALUE_MAX:
         hi, unit = VALUE_MAX[value_name]
-        for x in value:
+        for k, x in enumerate(value):
             if float(x) > hi:
-                raise MaterialError(f"{value_name}: at most {hi:.0e} {unit} (got {float(x):g})")
-    for a, b in zip(value, value[1:]):
-        if float(b) < float(a):
-            raise MaterialError(f"{value_name}: must be non-decreasing ({b} after {a})")
+                raise _bad(f"{value_name}: at most {hi:.0e} {unit} (got {float(x):g} {unit})", k)
+    for k in range(1, len(value)):
+        if float(value[k]) < float(value[k - 1]):
+            raise _bad(f"{value_name}: must be non-decreasing ({v_txt[k]} after {v_txt[k - 1]})", k)
 
 
 #: the units a CSV table's header may name in brackets or parentheses (``tension [kN/m]``), as
@@ -187,8 +196,7 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
         )
     scale0 = _csv_unit(header[0], "strain", source, line)
     scale1 = _csv_unit(header[1], kind, source, line)
-    hi, unit = VALUE_MAX[kind]
-    strain, value = [], []
+    strain, value, lines, s_txt, v_txt = [], [], [], [], []
     for line, row in numbered[1:]:
         if len(row) != 2:
             raise MaterialError(f"{source}:{line}: expected two columns, got {len(row)}")
@@ -199,28 +207,16 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
             raise MaterialError(f"{source}:{line}: not a number: {excerpt(','.join(row), 40, quote=False)}") from None
         if not (math.isfinite(s) and math.isfinite(v)):
             raise MaterialError(f"{source}:{line}: must be finite: {excerpt(','.join(row), 40, quote=False)}")
-        s = s / 100.0 if scale0 == 0.01 else s * scale0  # percent divided, as it always was
-        v *= scale1
-        # the table's rules (check_table) row by row, so that the error names the line
-        if not strain and s != 0.0:
-            raise MaterialError(f"{source}:{line}: strain: must start at 0 (got {row[0].strip()})")
-        if strain and not s > strain[-1]:
-            raise MaterialError(f"{source}:{line}: strain: must be strictly increasing "
-                                f"({row[0].strip()} after {prev[0]})")
-        if v < 0.0:
-            raise MaterialError(f"{source}:{line}: {kind}: must be non-negative (got {row[1].strip()})")
-        if v > hi:
-            raise MaterialError(f"{source}:{line}: {kind}: at most {hi:.0e} {unit} (got {v:g} {unit})")
-        if value and v < value[-1]:
-            raise MaterialError(f"{source}:{line}: {kind}: must be non-decreasing "
-                                f"({row[1].strip()} after {prev[1]})")
-        prev = (row[0].strip(), row[1].strip())
-        strain.append(s)
-        value.append(v)
+        strain.append(s / 100.0 if scale0 == 0.01 else s * scale0)  # percent divided, as it always was
+        value.append(v * scale1)
+        lines.append(line)
+        s_txt.append(row[0].strip())
+        v_txt.append(row[1].strip())
     try:
-        check_table(strain, value, kind)
+        check_table(strain, value, kind, shown=(s_txt, v_txt))
     except MaterialError as exc:
-        raise MaterialError(f"{source}: {exc}") from None
+        at = f":{lines[exc.index]}" if getattr(exc, "index", None) is not None else ""
+        raise MaterialError(f"{source}{at}: {exc}") from None
     warn_implausible_strain(strain, f"{source}: strain")
     return np.asarray(strain, float), np.asarray(value, float), kind
 
