@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from . import MMHG
-from ..fileio import TEXT_LIMIT, check_input_file, excerpt, open_input, read_text
+from ..fileio import TEXT_LIMIT, check_input_file, excerpt, open_input, read_input_bytes, read_text
 
 VIEWS = (("front", 0.0, -90.0), ("side", 0.0, 0.0), ("top", 90.0, -90.0))  # (name, elev, azim) [deg]
 
@@ -218,33 +218,32 @@ def read_history(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     without the two columns or a cell that is not a number raises ReportError ``file:line: ...``."""
     if not os.path.lexists(path):
         return None
-    text = read_text(path, ReportError, limit=HISTORY_LIMIT)
-    lines = text.splitlines()
-    header = [c.strip() for c in lines[0].split(",")] if lines else []
+    from array import array
+
+    # bytes, line by line (no list of lines, no text copy: a 2,000,000-iteration history is 100 MB)
+    lines = io.BytesIO(read_input_bytes(path, ReportError, limit=HISTORY_LIMIT, what="history file"))
+    first = lines.readline().decode("utf-8", "replace").rstrip("\r\n")
+    header = [c.strip() for c in first.split(",")]
     for name in HISTORY_COLUMNS:
         if name not in header:
-            raise ReportError(f"{path}:1: no '{name}' column (the header is "
-                              f"{excerpt(lines[0] if lines else '', 60)}; 'clothsim run --out' writes "
-                              f"iteration,residual_N,energy_J,elapsed_s)")
-    cols = [header.index(name) for name in HISTORY_COLUMNS]
-    rows = []
-    for ln, line in enumerate(lines[1:], 2):
+            raise ReportError(f"{path}:1: no '{name}' column (the header is {excerpt(first, 60)}; "
+                              f"'clothsim run --out' writes iteration,residual_N,energy_J,elapsed_s)")
+    cols = [(name, header.index(name), array("d")) for name in HISTORY_COLUMNS]
+    for ln, line in enumerate(lines, 2):
         if not line.strip():
             continue
-        cells = line.split(",")
+        cells = line.split(b",")
         if len(cells) != len(header):
             raise ReportError(f"{path}:{ln}: {len(cells)} cells, the header has {len(header)}")
-        row = []
-        for name, c in zip(HISTORY_COLUMNS, cols):
+        for name, c, values in cols:
             try:
-                row.append(float(cells[c]))
+                values.append(float(cells[c]))
             except ValueError:
-                raise ReportError(f"{path}:{ln}: {name} is not a number ({excerpt(cells[c].strip())})") from None
-        rows.append(row)
-    if not rows:
+                cell = cells[c].decode("utf-8", "replace").strip()
+                raise ReportError(f"{path}:{ln}: {name} is not a number ({excerpt(cell)})") from None
+    if not cols[0][2]:
         return None
-    a = np.array(rows)
-    return a[:, 0], a[:, 1]
+    return np.frombuffer(cols[0][2]), np.frombuffer(cols[1][2])
 
 
 def convergence_png(history: tuple[np.ndarray, np.ndarray] | None) -> str | None:
@@ -258,6 +257,9 @@ def convergence_png(history: tuple[np.ndarray, np.ndarray] | None) -> str | None
     if history is None:
         return None
     it, res = history
+    if it.size > 20_000:   # a long run: every k-th point and the last one are drawn
+        keep = np.unique(np.r_[np.arange(0, it.size, it.size // 10_000), it.size - 1])
+        it, res = it[keep], res[keep]
     fig = Figure(figsize=(6.0, 3.6), dpi=90)
     ax = fig.add_subplot(1, 1, 1)
     ax.semilogy(it, np.maximum(res, 1e-300), "-o", ms=2)
