@@ -274,3 +274,7 @@ def test_a_result_npz_declaring_more_than_the_scene_needs_refused(tmp_path, caps
     assert (d / "result.npz").stat().st_size < 1_000_000
     rc, err = _main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'result.npz'}: positions holds 200,000,128 bytes, more than the scene's" in err, err
+    np.savez_compressed(d / "result.npz", positions=np.zeros((7, 3)), in_contact=np.zeros(7, bool))
+    rc, err = _main(capsys, "report", str(d))
+    assert rc == 2 and f"{d / 'result.npz'}: positions (7, 3) and in_contact (7,) do not hold the scene's" in err, err
+    assert not (d / "report.html").exists()

@@ -59,8 +59,8 @@ def _t(v) -> str:
 
 
 def _figure(what: str, draw, *args):
-    """draw(*args), or None with a warning when the figure cannot be drawn (any error: the report
-    is still written, with a note in the figure's place; see _missing)."""
+    """draw(*args), or a _Missing note with a warning when the figure cannot be drawn (any error:
+    the report is still written, with the note in the figure's place)."""
     from ..plottext import failure
 
     try:
@@ -120,12 +120,13 @@ def _fields(out: Path):
         raise ReportError(f"{path}: cannot be read ({type(exc).__name__}: {excerpt(exc, 80, quote=False)})") from None
     if pg.dtype.kind not in "fiu" or cg.dtype.kind not in "biu":
         raise ReportError(f"{path}: positions / in_contact are not numbers")
+    if pg.size != 3 * n or cg.size != n:
+        raise ReportError(f"{path}: positions {pg.shape} and in_contact {cg.shape} do not hold the scene's "
+                          f"{n:,} nodes; not the result of this scene.yaml")
     # result.npz keeps a full rectangle's arrays as (nx+1, ny+1, ...) and a panel scene's flat
     # (N, ...) in node order
     pos = np.ascontiguousarray(pg.reshape(-1, 3), dtype=float)
     con = np.ascontiguousarray(cg.reshape(-1), dtype=bool)
-    if pos.shape[0] != topo.node_count:
-        raise ReportError(f"{out}: result.npz has {pos.shape[0]} nodes, the scene {topo.node_count}")
     strain, _, _, pressure = node_fields(model, State(pos, con, 0))
     wc, fc = topo.warp_count, topo.weft_count
     return (scene, pos, topo.faces, pressure / MMHG, topo.spread(strain[:wc], "warp"),
