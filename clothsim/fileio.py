@@ -111,6 +111,23 @@ def read_input_bytes(path: str | Path, error: type[Exception], *, limit: int, wh
     return data
 
 
+def open_input(path: str | Path, error: type[Exception], *, limit: int, what: str = "file"):
+    """A binary file object of an input file after :func:`check_input_file`, the open descriptor
+    checked again (a regular file); for readers that take a file (``numpy.load``) where reading
+    the whole file into memory first would double it. The caller closes it."""
+    path = Path(path)
+    check_input_file(path, error, limit=limit, what=what)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(os.path.realpath(path), flags)
+    except OSError as exc:
+        raise error(f"{path}: cannot open ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise error(f"{path}: not a regular file (a device, pipe or folder cannot be a {what})")
+    return os.fdopen(fd, "rb")
+
+
 def read_text(path: str | Path, error: type[Exception], *, limit: int = TEXT_LIMIT,
               encoding: str = "utf-8") -> str:
     """The text of an input file (see :func:`check_input_file`) of at most ``limit`` bytes,

@@ -17,6 +17,7 @@ so a folder is complete exactly when it holds summary.json):
 - ``scene.yaml``: the fully resolved scene.
 - ``probes.csv``, ``profiles.csv``, ``profiles.png``: when the scene has ``probes`` / ``profiles``
   (clothsim.compression.probes); summary.json then holds ``probes``, ``profiles`` and ``classes``.
+  A plot that cannot be drawn is a warning and is left out; the numeric files are written.
 """
 
 from __future__ import annotations
@@ -641,7 +642,8 @@ class Result:
         }
 
     def _compression_files(self) -> dict[str, bytes]:
-        """probes.csv, profiles.csv and profiles.png when the scene asks for probes or profiles."""
+        """probes.csv, profiles.csv and profiles.png when the scene asks for probes or profiles.
+        A plot that cannot be drawn is a warning and is left out: it never costs the numeric files."""
         comp = self.compression()
         out: dict[str, bytes] = {}
         if comp:
@@ -651,7 +653,15 @@ class Result:
                 out["probes.csv"] = probes_csv(comp["probes"]).encode()
             if comp.get("profiles"):
                 out["profiles.csv"] = profiles_csv(comp["profiles"]).encode()
-                out["profiles.png"] = profile_png(comp["profiles"], self.scene.name)
+                try:
+                    out["profiles.png"] = profile_png(comp["profiles"], self.scene.name)
+                except Exception as exc:  # noqa: BLE001 (any plotting failure: the numbers are written)
+                    import warnings
+
+                    from .plottext import failure
+
+                    warnings.warn(f"profiles.png not written ({failure(exc)}); the numbers are in profiles.csv",
+                                  stacklevel=2)
         return out
 
     def save(self, out_dir: str | Path, ply_field: str = "strain") -> Path:

@@ -784,11 +784,14 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
 
     grid mode with several parameters: one line per combination of the other parameters (up to
     10, with a legend), otherwise points. zip mode: one line. Runs that did not converge are
-    drawn hollow; failed runs (no value) are left out and counted in the title."""
+    drawn hollow; failed runs (no value) are left out and counted in the title. Names and swept
+    values are drawn as written, never as mathtext (clothsim.plottext)."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
+
+    from .plottext import PLAIN, plain_legend
 
     outputs = [o for o in sweep.spec.outputs
                if any(isinstance(r.get(o), (int, float)) and not isinstance(r.get(o), bool) for r in rows)]
@@ -837,7 +840,7 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
                             alpha=1.0 if as_lines else 0.6)
             if xs_num is None:
                 ax.set_xticks(range(len(all_vals)))
-                ax.set_xticklabels([_label(v) for v in all_vals], rotation=30 if len(all_vals) > 6 else 0)
+                ax.set_xticklabels([_label(v) for v in all_vals], rotation=30 if len(all_vals) > 6 else 0, **PLAIN)
             elif logx:
                 from matplotlib.ticker import NullFormatter
 
@@ -851,8 +854,8 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
             pos = [y for y in ys if math.isfinite(y) and y > 0]
             if pos and len(pos) == len(ys) and max(pos) / min(pos) > 1e3:
                 ax.set_yscale("log")
-            ax.set_xlabel(param + note)
-            ax.set_ylabel(o)
+            ax.set_xlabel(param + note, **PLAIN)
+            ax.set_ylabel(o, **PLAIN)
             title = f"{sweep.spec.name or sweep.path.stem}: {o} against {param}"
             sub = []
             if any(r["status"] != "converged" for r in rows if isinstance(r.get(o), (int, float))):
@@ -861,10 +864,10 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
                 sub.append(f"{n_missing} runs without a value (failed or pending)")
             if not as_lines:
                 sub.append(f"{len(groups)} combinations of {', '.join(others)} as points")
-            ax.set_title(title + ("\n" + "; ".join(sub) if sub else ""), fontsize=10)
+            ax.set_title(title + ("\n" + "; ".join(sub) if sub else ""), fontsize=10, **PLAIN)
             ax.grid(True, alpha=0.3, which="both")
             if as_lines and others:
-                ax.legend(fontsize=8, title=None, loc="best", framealpha=0.8)
+                plain_legend(ax, fontsize=8, title=None, loc="best", framealpha=0.8)
             fig.tight_layout()
             safe = f"{o}__vs__{param}".replace("/", "_").replace(":", "_")
             p = pdir / f"{safe}.png"
@@ -1205,7 +1208,15 @@ def _run_locked(sweep: Sweep, out: Path, workers, dask, force, skip_errors, stre
     if failed is not None:
         raise failed
     if plots:
-        make_plots(sweep, rows, out)
+        try:
+            make_plots(sweep, rows, out)
+        except Exception as exc:  # noqa: BLE001 (summary.csv and the runs are written: a plot never costs them)
+            import warnings
+
+            from .plottext import failure
+
+            warnings.warn(f"{out}/plots not (all) written ({failure(exc)}); the results are in "
+                          f"{out}/summary.csv", stacklevel=2)
     statuses: dict[str, int] = {}
     for r in rows:
         statuses[r["status"]] = statuses.get(r["status"], 0) + 1

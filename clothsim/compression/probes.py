@@ -284,11 +284,14 @@ def profiles_csv(profiles: list[dict]) -> str:
 def profile_png(profiles: list[dict], title: str = "") -> bytes:
     """A PNG (matplotlib, Agg): mean pressure [mmHg] (x) against height [m] (y) per profile, the
     band from the least to the greatest pressure shaded; the pressure axis runs from 0 to 1.1 x
-    the greatest reading."""
+    the greatest reading. The title and the profiles' names are drawn as written (never as
+    mathtext: clothsim.plottext)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
+
+    from ..plottext import PLAIN, plain_legend
 
     fig = Figure(figsize=(5.0, 4.5), dpi=100)
     ax = fig.add_subplot(1, 1, 1)
@@ -309,10 +312,10 @@ def profile_png(profiles: list[dict], title: str = "") -> bytes:
     ax.ticklabel_format(axis="x", useOffset=False)
     ax.set_xlabel("contact pressure [mmHg]")
     ax.set_ylabel("height along the axis [m]")
-    ax.set_title(title or "pressure profile")
+    ax.set_title(title or "pressure profile", **PLAIN)   # names are user text, never mathtext
     ax.grid(True, alpha=0.3)
     if ax.get_legend_handles_labels()[0]:  # no slice in contact: nothing to label
-        ax.legend(fontsize=8)
+        plain_legend(ax, fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
