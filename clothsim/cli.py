@@ -127,6 +127,10 @@ def _cmd_run(args, stop: list[str]) -> int:
     if s.get("min_weft_extent_ratio", 1.0) < 0.5:
         say(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
             f"(it gathers: nothing holds its width)")
+    from .results import gathered_rows_warning
+
+    if gathered_rows_warning(s):
+        say(gathered_rows_warning(s))
     if "max_seam_gap_m" in s:
         say(f"  seams: open by at most {s['max_seam_gap_m']:.2e} m")
         for n, r in enumerate(s.get("seams") or []):

@@ -193,7 +193,7 @@ class NewtonLevel:
                 if 3 * n * w * w <= BAND_WORK:
                     self._band = (inv, bw, np.empty((3 * n, w)))
         elif model.topology.is_grid:
-            self.mg = Multigrid.for_topology(model.topology)
+            self.mg = Multigrid.for_topology(model.topology, _seam_pairs(model))
         elif preconditioner == "amg":
             self.mg = AlgebraicMultigrid()
         else:
