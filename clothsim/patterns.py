@@ -48,7 +48,12 @@ when they lie within ``tolerance`` of each other.
 that crosses itself is refused, as is a file without pieces, a missing, empty, non-regular or
 oversized (> :data:`MAX_PATTERN_BYTES`) file and an unreadable one: :class:`PatternError`, whose
 message names the file, the piece and the reason, e.g.
-``pattern.dxf: piece FRONT: outline crosses itself near (0.12, 0.30) m``.
+``pattern.dxf: piece FRONT: outline crosses itself near (0.12, 0.30) m``. With ``piece=`` only that
+piece must be valid (another is left out with a :class:`PatternWarning`).
+
+**Limits** (:mod:`clothsim.patternlimits`): coordinates, tolerance, flattened points, pieces, DXF
+tags and INSERT expansion, SVG elements, ``<use>`` copies and path numbers are bounded; a file over
+a bound is refused (:class:`PatternLimitError`) before the work it describes is done.
 """
 
 from __future__ import annotations
