@@ -47,7 +47,7 @@ MAX_SVG_USES = 1000
 #: most numbers in an SVG's shape data (``d``, ``points``), ``<use>`` references expanded
 MAX_SVG_NUMBERS = 200_000
 #: most points of all flattened outlines of one file (a garment's pieces have a few thousand)
-MAX_POINTS = 500_000
+MAX_POINTS = 200_000
 
 
 class PatternError(ValueError):

