@@ -130,7 +130,7 @@ def prescan_dxf(label: str, data: bytes) -> None:
     if data.startswith(b"AutoCAD Binary DXF"):
         tags = len(data) // 8          # a binary tag takes at least about 8 bytes
     else:
-        tags = data.count(b"\n") // 2
+        tags = max(data.count(b"\n"), data.count(b"\r")) // 2   # (a file may end its lines with CR alone)
     if tags > MAX_DXF_TAGS:
         raise PatternLimitError(f"{label}: about {tags:,} DXF tags, more than {MAX_DXF_TAGS:,} (a garment "
                                 f"pattern has a few 10,000): not read")
