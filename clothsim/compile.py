@@ -98,7 +98,8 @@ def _pattern_piece(scene: Scene, n: int):
     ref = scene.panels[n].pattern
     where = f"panels.{n}.pattern"
     try:
-        pieces = read_pattern(scene.resolve(ref.file), units=ref.units,
+        # only the piece the scene uses must be valid (another one, broken, is left out with a warning)
+        pieces = read_pattern(scene.resolve(ref.file), units=ref.units, piece=ref.piece,
                               tolerance=ref.tolerance if ref.tolerance is not None else DEFAULT_TOLERANCE)
     except PatternError as exc:
         raise SceneError(f"{where}: {exc}") from None

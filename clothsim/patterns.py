@@ -48,7 +48,12 @@ when they lie within ``tolerance`` of each other.
 that crosses itself is refused, as is a file without pieces, a missing, empty, non-regular or
 oversized (> :data:`MAX_PATTERN_BYTES`) file and an unreadable one: :class:`PatternError`, whose
 message names the file, the piece and the reason, e.g.
-``pattern.dxf: piece FRONT: outline crosses itself near (0.12, 0.30) m``.
+``pattern.dxf: piece FRONT: outline crosses itself near (0.12, 0.30) m``. With ``piece=`` only that
+piece must be valid (another is left out with a :class:`PatternWarning`).
+
+**Limits** (:mod:`clothsim.patternlimits`): coordinates, tolerance, flattened points, pieces, DXF
+tags and INSERT expansion, SVG elements, ``<use>`` copies and path numbers are bounded; a file over
+a bound is refused (:class:`PatternLimitError`) before the work it describes is done.
 """
 
 from __future__ import annotations
@@ -66,9 +71,12 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from . import patternlimits as limits
 from .fileio import excerpt
+from .patternlimits import MAX_COORDINATE, MAX_PIECES, MIN_TOLERANCE, PatternError, PatternLimitError
 
-__all__ = ["Piece", "PatternError", "read_pattern", "DEFAULT_TOLERANCE", "MAX_PATTERN_BYTES", "UNITS"]
+__all__ = ["Piece", "PatternError", "PatternLimitError", "read_pattern", "DEFAULT_TOLERANCE",
+           "MAX_PATTERN_BYTES", "UNITS"]
 
 log = logging.getLogger(__name__)
 
@@ -87,10 +95,6 @@ UNITS: Mapping[str, float] = MappingProxyType({
 _INSUNITS = {1: "in", 2: "ft", 4: "mm", 5: "cm", 6: "m", 14: "dm"}
 _ZERO_AREA = 1e-9          # |area| <= _ZERO_AREA * perimeter^2 is a zero-area piece
 _MAX_DEPTH = 30            # Bezier subdivision depth cap (2^-30 of a parameter span)
-
-
-class PatternError(ValueError):
-    """A pattern file cannot be used. ``str(err)`` names the file, the piece and the reason."""
 
 
 class PatternWarning(UserWarning):
@@ -143,7 +147,7 @@ class Piece:
 # --------------------------------------------------------------------------------------------
 
 def read_pattern(path: str | os.PathLike, *, units: str | None = None,
-                 tolerance: float = DEFAULT_TOLERANCE) -> list[Piece]:
+                 tolerance: float = DEFAULT_TOLERANCE, piece: str | None = None) -> list[Piece]:
     """Read the pattern pieces of a ``.dxf`` or ``.svg`` file.
 
     Args:
@@ -151,18 +155,25 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
         units: the length of one drawing unit, a key of :data:`UNITS` (``"mm"``, ``"cm"``, ``"in"``,
             ``"m"``, ``"px"``, ...); overrides what the file says. None: read or detect it (see
             the module docstring).
-        tolerance: chord error of flattened curves and endpoint-join distance [m], > 0.
+        tolerance: chord error of flattened curves and endpoint-join distance [m], at least
+            :data:`~clothsim.patternlimits.MIN_TOLERANCE` (1 um).
+        piece: the name of the piece wanted. None: every piece must be valid. Given: only that one
+            must; another invalid piece is left out of the list with a :class:`PatternWarning`
+            saying why.
 
     Returns:
-        The pieces in file order (names made unique with `` (2)``, `` (3)`` suffixes).
+        The (valid) pieces in file order (names made unique with `` (2)``, `` (3)`` suffixes).
 
     Raises:
         PatternError: the file cannot be read, holds no piece, or a piece is invalid; the message
-            names the file, the piece and the reason.
+            names the file, the piece and the reason. PatternLimitError (a PatternError): the
+            file is over one of the bounds on the work of reading it (clothsim.patternlimits).
     """
     label = str(path)
     if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
         raise PatternError(f"{label}: tolerance must be a positive length in metres (got {tolerance!r})")
+    if not MIN_TOLERANCE <= tolerance <= 1.0:
+        raise PatternError(f"{label}: tolerance must be between {MIN_TOLERANCE:g} m and 1 m (got {tolerance!r} m)")
     unit_m = None
     if units is not None:
         key = str(units).strip().lower()
@@ -173,21 +184,27 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
     suffix = Path(label).suffix.lower()
     if suffix not in (".dxf", ".svg"):
         raise PatternError(f"{label}: unknown pattern format '{suffix or '(none)'}' (expected .dxf or .svg)")
+    token = limits.begin(label, tolerance)
     try:
         if suffix == ".dxf":
+            limits.prescan_dxf(label, data)
             raw, notes = _dxf_pieces(label, data, unit_m, tolerance)
         else:
+            limits.prescan_svg(label, data)
             raw, notes = _svg_pieces(label, data, unit_m, tolerance)
     except PatternError:
         raise
     except Exception as exc:   # a file that parses but holds broken entities: one clear message
         raise PatternError(f"{label}: cannot read the pattern ({type(exc).__name__}: "
                            f"{excerpt(exc, 80, quote=False)})") from exc
+    finally:
+        limits.end(token)
     if not raw:
         raise PatternError(f"{label}: no pattern pieces found" + (f" ({notes[-1]})" if notes else ""))
-    ext = max((float(np.ptp(p.outline, axis=0).max()) for p in raw if len(p.outline)), default=0.0)
+    ext = max((float(np.ptp(p.outline, axis=0).max()) for p in raw if p.error is None and len(p.outline)),
+              default=0.0)
     lo, hi = PIECE_SPAN_RANGE
-    if not lo <= ext <= hi:
+    if not lo <= ext <= hi and any(p.error is None for p in raw):
         # a metre file read as millimetres makes a garment of specks that "converges" (found by a
         # garment engineer's pass): say so where the run prints its warnings
         how = next((n for n in notes if "unit" in n.lower()), "")
@@ -203,7 +220,15 @@ def read_pattern(path: str | os.PathLike, *, units: str | None = None,
         seen[name] = seen.get(name, 0) + 1
         if seen[name] > 1:
             name = f"{name} ({seen[name]})"
-        pieces.append(_finish(label, name, rp, tolerance, tuple(notes)))
+        try:
+            if rp.error is not None:
+                raise PatternError(rp.error)
+            with np.errstate(all="ignore"):
+                pieces.append(_finish(label, name, rp, tolerance, tuple(notes)))
+        except PatternError as exc:
+            if piece is None or name == piece:
+                raise
+            warnings.warn(PatternWarning(f"{exc} (left out: the piece used is {piece!r})"), stacklevel=2)
     return pieces
 
 
@@ -225,6 +250,15 @@ class _RawPiece:
     outline: np.ndarray                      # (K, 2) [m], first point not repeated
     grain: tuple[np.ndarray, np.ndarray] | None = None   # (start, end) [m]
     notches: list[np.ndarray] = field(default_factory=list)   # points [m]
+    error: str | None = None   # why the piece cannot be used (the message), else None
+
+
+def _bad(label: str, name: str, source: str, exc: PatternError) -> _RawPiece:
+    """A piece that failed while being read: kept (by name) so that a scene asking for another
+    piece of the file is not refused for it; a PatternLimitError refuses the whole file."""
+    if isinstance(exc, PatternLimitError):
+        raise exc
+    return _RawPiece(name, source, np.zeros((0, 2)), error=str(exc))
 
 
 def _finish(label: str, name: str, rp: _RawPiece, tol: float, notes: tuple[str, ...]) -> Piece:
@@ -349,7 +383,12 @@ def _flatten_ellipse(c, a, b, t0: float, sweep: float, tol: float) -> np.ndarray
     c, a, b: (2,) [m]. Circle (|a| = |b|, a . b = 0): steps of at most 2 acos(1 - tol/r), the sagitta
     bound, vertices on the circle. Otherwise steps h with h^2/8 * s_max <= tol, s_max = the largest
     singular value of [a b] = max |p''|. Returns (n+1, 2) including both ends."""
+    work = limits.current()
     c, a, b = (np.asarray(v, float)[:2] for v in (c, a, b))
+    work.check(c, "a curve's centre")
+    work.check(np.abs(c) + np.hypot(*a) + np.hypot(*b), "a curve")
+    if not (math.isfinite(t0) and math.isfinite(sweep)):
+        raise PatternError(f"{work.label}: {work.where}: a curve has non-finite angles")
     smax = float(np.linalg.svd(np.column_stack([a, b]), compute_uv=False)[0])
     ra, rb = float(np.hypot(*a)), float(np.hypot(*b))
     if smax == 0.0:
@@ -359,7 +398,8 @@ def _flatten_ellipse(c, a, b, t0: float, sweep: float, tol: float) -> np.ndarray
     else:
         step = math.sqrt(8.0 * tol / smax)
     step = min(step, math.pi / 2)
-    n = max(1, math.ceil(abs(sweep) / step))
+    n = max(1, math.ceil(abs(sweep) / step)) if step > 0 else math.inf
+    work.spend(n + 1)
     t = t0 + sweep * np.arange(n + 1) / n
     return c + np.cos(t)[:, None] * a + np.sin(t)[:, None] * b
 
@@ -369,16 +409,30 @@ def _flatten_bezier(ctrl: np.ndarray, tol: float) -> np.ndarray:
 
     ctrl: (m, 2) control points [m], or (m, 3) homogeneous (x w, y w, w), w > 0, for a rational curve.
     Returns (n+1, 2) including both ends."""
+    work = limits.current()
     ctrl = np.asarray(ctrl, float)
     if ctrl.shape[1] == 2:
         ctrl = np.column_stack([ctrl, np.ones(len(ctrl))])
-    out = [ctrl[0, :2] / ctrl[0, 2]]
-    stack = [(ctrl, 0)]
+    work.check(ctrl[:, :2] / ctrl[:, 2:3], "a curve's control point")
+    # subdivision makes about as many points as uniform steps would need by the interpolation
+    # bound, sqrt(d (d-1) max|second difference| / (8 tol)): a curve far over the budget is
+    # refused before it is subdivided (the points made are counted as they come, too)
+    if len(ctrl) > 2:
+        p0 = ctrl[:, :2] / ctrl[:, 2:3]
+        d = len(p0) - 1
+        dd = float(np.max(np.hypot(*np.diff(p0, n=2, axis=0).T)))
+        work.need(0.5 * math.sqrt(d * (d - 1) * dd / (8.0 * tol)))
+    # plain floats: a cubic's arrays are too small for numpy to pay (3x faster, the same arithmetic)
+    tol2 = tol * tol
+    first = [tuple(r) for r in ctrl.tolist()]
+    out = [(first[0][0] / first[0][2], first[0][1] / first[0][2])]
+    stack = [(first, 0)]
     while stack:
         cp, depth = stack.pop()
-        p = cp[:, :2] / cp[:, 2:3]
-        if depth >= _MAX_DEPTH or _hull_within(p, tol):
+        p = [(x / w, y / w) for x, y, w in cp]
+        if depth >= _MAX_DEPTH or _hull_within(p, tol2):
             out.append(p[-1])
+            work.spend(1)
             continue
         left, right = _split_half(cp)
         stack.append((right, depth + 1))
@@ -386,70 +440,49 @@ def _flatten_bezier(ctrl: np.ndarray, tol: float) -> np.ndarray:
     return np.array(out)
 
 
-def _hull_within(p: np.ndarray, tol: float) -> bool:
-    """True if every inner control point of p (m, 2) lies within tol of the segment p[0] p[-1]."""
-    a, b = p[0], p[-1]
-    ab = b - a
-    L2 = float(ab @ ab)
-    q = p[1:-1] - a
-    if len(q) == 0:
-        return True
-    t = np.clip(q @ ab / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(q))
-    d = q - t[:, None] * ab
-    return bool(np.all(np.einsum("ij,ij->i", d, d) <= tol * tol))
+def _hull_within(p: list[tuple[float, float]], tol2: float) -> bool:
+    """True if every inner control point of p lies within sqrt(tol2) of the segment p[0] p[-1]."""
+    ax, ay = p[0]
+    abx, aby = p[-1][0] - ax, p[-1][1] - ay
+    L2 = abx * abx + aby * aby
+    for x, y in p[1:-1]:
+        qx, qy = x - ax, y - ay
+        t = min(max((qx * abx + qy * aby) / L2, 0.0), 1.0) if L2 > 0 else 0.0
+        dx, dy = qx - t * abx, qy - t * aby
+        if dx * dx + dy * dy > tol2:
+            return False
+    return True
 
 
-def _split_half(cp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """De Casteljau split of a Bezier control polygon (m, k) at t = 1/2."""
+def _split_half(cp: list[tuple]) -> tuple[list[tuple], list[tuple]]:
+    """De Casteljau split of a Bezier control polygon (tuples of equal length) at t = 1/2."""
     left, right = [cp[0]], [cp[-1]]
     row = cp
     while len(row) > 1:
-        row = 0.5 * (row[:-1] + row[1:])
+        row = [tuple(0.5 * (u + v) for u, v in zip(a, b)) for a, b in zip(row[:-1], row[1:])]
         left.append(row[0])
         right.append(row[-1])
-    return np.array(left), np.array(right[::-1])
+    return left, right[::-1]
 
 
 def _join(curves: list[np.ndarray], tol: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Join open polylines (each (n, 2) [m]) end to end into closed loops.
-
-    Endpoints within tol are joined (the earlier point kept). Returns (loops, leftovers): loops are
-    (K, 2) with the first point not repeated; leftovers are the chains that did not close."""
-    loops, left = [], []
-    todo = [c for c in curves if len(c) >= 2]
-    while todo:
-        chain = list(todo.pop(0))
-        grown = True
-        while grown and np.hypot(*(chain[-1] - chain[0])) > tol:
-            grown = False
-            for k, c in enumerate(todo):
-                if np.hypot(*(c[0] - chain[-1])) <= tol:
-                    chain.extend(c[1:])
-                elif np.hypot(*(c[-1] - chain[-1])) <= tol:
-                    chain.extend(c[::-1][1:])
-                elif np.hypot(*(c[-1] - chain[0])) <= tol:
-                    chain[:0] = list(c[:-1])
-                elif np.hypot(*(c[0] - chain[0])) <= tol:
-                    chain[:0] = list(c[::-1][:-1])
-                else:
-                    continue
-                todo.pop(k)
-                grown = True
-                break
-        arr = np.array(chain)
-        if len(arr) >= 3 and np.hypot(*(arr[-1] - arr[0])) <= tol:
-            loops.append(arr[:-1])
-        else:
-            left.append(arr)
-    return loops, left
+    """Join open polylines end to end into closed loops (:func:`clothsim.patternlimits.join`)."""
+    return limits.join(curves, tol)
 
 
 def _chain(parts: list[np.ndarray]) -> np.ndarray:
     """Concatenate polylines drawn in sequence (each oriented to start where the previous ended)."""
     out: list[np.ndarray] = []
+    parts = [p for p in parts if len(p) >= 2]
+    if len(parts) > 1:
+        # the first part's direction from the second: its end is the one that touches it (an
+        # LWPOLYLINE's clockwise arc comes as a counter-clockwise ARC, drawn end to start)
+        p0, p1 = parts[0], parts[1]
+        d_end = min(np.hypot(*(p0[-1] - p1[0])), np.hypot(*(p0[-1] - p1[-1])))
+        d_start = min(np.hypot(*(p0[0] - p1[0])), np.hypot(*(p0[0] - p1[-1])))
+        if d_start < d_end:
+            parts[0] = p0[::-1]
     for p in parts:
-        if len(p) < 2:
-            continue
         if out:
             end = out[-1]
             if np.hypot(*(p[-1] - end)) < np.hypot(*(p[0] - end)):
@@ -479,6 +512,8 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
         raise PatternError(f"{label}: not a readable DXF file ({type(exc).__name__}: "
                            f"{excerpt(exc, 80, quote=False)})") from None
     msp = doc.modelspace()
+    work = limits.current()
+    limits.insert_weight(label, doc, msp.query("INSERT"))
     groups: list[tuple[str, str, list]] = []   # (name, source, [(layer, entity)])
     for ins in msp.query("INSERT"):
         ents = list(_expand(ins, ins.dxf.layer))
@@ -492,6 +527,9 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
             continue
         name = _piece_name(ents) or ins.dxf.name
         groups.append((name, f"{label}: block {ins.dxf.name}", ents))
+        if len(groups) > MAX_PIECES:
+            raise PatternLimitError(f"{label}: more than {MAX_PIECES:,} pieces (INSERTs of blocks with a "
+                                    f"layer-1 boundary): not read")
     notes: list[str] = []
     if groups:
         layout = "AAMA blocks"
@@ -500,6 +538,9 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
         layout = "plain modelspace"
         closed = [e for e in msp if _is_closed_entity(e)]
         geo_all = closed
+        if len(closed) > MAX_PIECES:
+            raise PatternLimitError(f"{label}: {len(closed):,} closed entities in modelspace, more than "
+                                    f"{MAX_PIECES:,} pieces: not read")
     # ---- units
     if unit_m is not None:
         scale, how = unit_m[1], f"units: {unit_m[0]} (declared)"
@@ -516,7 +557,11 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
     pieces: list[_RawPiece] = []
     if groups:
         for name, source, ents in groups:
-            pieces.append(_aama_piece(label, name, source, ents, scale, tol))
+            work.where = f"piece {name}"
+            try:
+                pieces.append(_aama_piece(label, name, source, ents, scale, tol))
+            except PatternError as exc:
+                pieces.append(_bad(label, name, source, exc))
     else:
         per_layer: dict[str, int] = {}
         for e in closed:
@@ -524,11 +569,18 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
         for e in closed:
             lay = e.dxf.layer
             name = lay if per_layer[lay] == 1 else f"{lay}:{e.dxf.handle}"
-            pts = _chain([p for p in _entity_polylines(label, name, e, scale, tol)])
+            source = f"{label}: {e.dxftype()} {e.dxf.handle} on layer {lay}"
+            work.where = f"piece {name}, {e.dxftype()} {e.dxf.handle}"
+            try:
+                pts = _chain([p for p in _entity_polylines(label, name, e, scale, tol)])
+            except PatternError as exc:
+                pieces.append(_bad(label, name, source, exc))
+                continue
             if len(pts) > 1 and np.hypot(*(pts[-1] - pts[0])) <= tol:
                 pts = pts[:-1]
-            pieces.append(_RawPiece(name, f"{label}: {e.dxftype()} {e.dxf.handle} on layer {lay}", pts))
-        _assign_plain_grain(msp, pieces, scale)
+            pieces.append(_RawPiece(name, source, pts))
+        work.where = ""
+        _assign_plain_grain(msp, [p for p in pieces if p.error is None], scale)
         if not pieces:
             n_ins = len(msp.query("INSERT"))
             notes.append(f"no closed polyline/circle/spline in modelspace and no INSERT of a block with a "
@@ -539,8 +591,8 @@ def _dxf_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
 def _expand(entity, layer: str, depth: int = 0) -> Iterable[tuple[str, object]]:
     """(effective layer, entity) of an INSERT's content in WCS, nested INSERTs expanded.
     Entities on layer 0 take the inserting entity's layer, as in DXF."""
-    if depth > 16:
-        return
+    if depth > limits.MAX_DEPTH:
+        raise PatternLimitError(f"INSERTs nest deeper than {limits.MAX_DEPTH} levels (block {entity.dxf.name!r})")
     for e in entity.virtual_entities():
         lay = e.dxf.layer if e.dxf.layer != "0" else layer
         if e.dxftype() == "INSERT":
@@ -591,10 +643,15 @@ def _entity_polylines(label: str, name: str, e, scale: float, tol: float) -> lis
     """Flattened (n, 2) polylines [m] of one DXF curve entity (several for a polyline's segments)."""
     from ezdxf.entities import Ellipse
 
+    work = limits.current()
     t = e.dxftype()
     if t == "LINE":
-        return [np.array([_xy(e.dxf.start), _xy(e.dxf.end)], float) * scale]
+        work.spend(2)
+        return [work.check(np.array([_xy(e.dxf.start), _xy(e.dxf.end)], float) * scale, "a point")]
     if t in ("ARC", "CIRCLE", "ELLIPSE"):
+        # the centre and radius in range before ezdxf's construction tool works with them
+        r = abs(float(e.dxf.radius)) if t != "ELLIPSE" else float(np.hypot(*_xy(e.dxf.major_axis)))
+        work.check((np.abs(_xy(e.dxf.center)) + r) * scale, "the curve")
         ct = (Ellipse.from_arc(e) if t != "ELLIPSE" else e).construction_tool()
         span = ct.param_span if t == "ELLIPSE" else (ct.end_param - ct.start_param) % (2 * math.pi)
         if t == "CIRCLE" or span == 0.0:
@@ -603,11 +660,21 @@ def _entity_polylines(label: str, name: str, e, scale: float, tol: float) -> lis
                                np.array(_xy(ct.minor_axis)) * scale, ct.start_param, span, tol)
         return [pts]
     if t in ("LWPOLYLINE", "POLYLINE"):
+        work.need(len(e) if t == "LWPOLYLINE" else len(e.vertices))   # before ezdxf makes its segments
         parts = [p for v in e.virtual_entities() for p in _entity_polylines(label, name, v, scale, tol)]
         return [_chain(parts)] if parts else []
     if t == "SPLINE":
         return [_flatten_spline(label, name, e, scale, tol)]
     return []
+
+
+def _handle(e) -> str:
+    """An entity's handle for messages (a copy made by an INSERT: its source's), else its type's place."""
+    h = e.dxf.handle
+    if h is None:
+        src = getattr(e, "source_of_copy", None)
+        h = src.dxf.handle if src is not None else None
+    return str(h) if h is not None else "(no handle)"
 
 
 def _flatten_spline(label: str, name: str, e, scale: float, tol: float) -> np.ndarray:
@@ -620,6 +687,8 @@ def _flatten_spline(label: str, name: str, e, scale: float, tol: float) -> np.nd
     except Exception as exc:
         raise PatternError(f"{label}: piece {name}: unusable SPLINE {e.dxf.handle} "
                            f"({excerpt(exc, 80, quote=False)})") from None
+    limits.current().check(np.array([_xy(v) for v in bs.control_points], float).reshape(-1, 2) * scale,
+                           "a control point")
     if not bs.is_clamped:
         return _flatten_unclamped(label, name, e, bs, scale, tol)
     if bs.is_rational:
@@ -646,9 +715,12 @@ def _flatten_unclamped(label: str, name: str, e, bs, scale: float, tol: float) -
     lo, hi = knots[p], knots[len(knots) - p - 1]
     ends = np.unique(knots[(knots >= lo) & (knots <= hi)])
     out = [np.array(_xy(bs.point(lo)))]
+    work = limits.current()
     for u0, u1 in zip(ends[:-1], ends[1:]):
         d2 = max(math.hypot(*_xy(bs.derivative(u, n=2)[2])) for u in (u0, u1)) * scale
-        n = 1 if d2 == 0 else max(1, math.ceil((u1 - u0) / math.sqrt(8.0 * tol / d2)))
+        n = 1 if d2 == 0 else max(1, (u1 - u0) / math.sqrt(8.0 * tol / d2))
+        work.spend(n)
+        n = math.ceil(n)
         out.extend(np.array(_xy(bs.point(u))) for u in u0 + (u1 - u0) * np.arange(1, n + 1) / n)
     return np.array(out) * scale
 
@@ -681,16 +753,28 @@ def _aama_piece(label: str, name: str, source: str, ents, scale: float, tol: flo
     origin: the piece's own plane, with the insert's rotation, scale and mirror kept and its place
     on the marker dropped. The result is in metres."""
     curves = []
+    work = limits.current()
     for lay, e in ents:
         if lay == "1" and e.dxftype() in _CURVE_TYPES:
+            work.where = f"piece {name}, {e.dxftype()} {_handle(e)}"
             curves.extend(_entity_polylines(label, name, e, scale, tol))
+    work.where = f"piece {name}"
     loops, left = _join(curves, tol)
     if not loops:
         gap = ""
         if left:
             ch = max(left, key=len)
-            gap = (f": the boundary does not close, gap of {np.hypot(*(ch[-1] - ch[0])):.4g} m near "
-                   f"({ch[-1][0]:.4g}, {ch[-1][1]:.4g}) m")
+            g = float(np.hypot(*(ch[-1] - ch[0])))
+            if g <= tol:
+                # the chain's ends are within the tolerance but it has fewer than 3 points: its
+                # pieces are shorter than the tolerance, so their ends cannot be told apart
+                span = max(float(np.hypot(*(c[-1] - c[0]))) for c in curves if len(c) >= 2)
+                gap = (f": its {len(curves)} segment(s) are at most {span:.3g} m long, not longer than "
+                       f"the join tolerance of {tol:g} m, so their ends cannot be told apart; give a "
+                       f"smaller tolerance (panels.N.pattern.tolerance) or check the units")
+            else:
+                gap = (f": the boundary does not close, gap of {g:.4g} m near "
+                       f"({ch[-1][0]:.4g}, {ch[-1][1]:.4g}) m")
         raise PatternError(f"{label}: piece {name}: no closed boundary on layer 1{gap}")
     outline = max(loops, key=lambda p: abs(_signed_area(p)))
     rp = _RawPiece(name, source, outline)
@@ -842,7 +926,17 @@ def _svg_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
                 continue
             a = own(e)
             tag = str(a.get("tag", type(e).__name__.lower()))
-            subpaths = _svg_subpaths(e, to_m, tol)
+            guess = a.get(_INK_LABEL) or a.get("id") or gname or f"{tag}{counter.get(tag, 0) + 1}"
+            work.where = f"piece {guess}, <{tag}>"
+            try:
+                subpaths = _svg_subpaths(e, to_m, tol)
+            except PatternError as exc:
+                if grain_group or "grain" in ident_of(a):
+                    raise
+                counter[tag] = counter.get(tag, 0) + 1
+                pieces.append(_bad(label, str(guess), f"{label}: <{tag}> {a.get('id') or guess}", exc))
+                group_of.append(gkey)
+                continue
             if grain_group or "grain" in ident_of(a):
                 pts = [p for p, _ in subpaths if len(p) >= 2]
                 if pts:
@@ -854,14 +948,22 @@ def _svg_pieces(label: str, data: bytes, unit_m, tol: float) -> tuple[list[_RawP
                 continue
             counter[tag] = counter.get(tag, 0) + 1
             name = a.get(_INK_LABEL) or a.get("id") or gname or f"{tag}{counter[tag]}"
+            source = f"{label}: <{tag}> {a.get('id') or name}"
             if len(closed) > 1:
-                raise PatternError(f"{label}: piece {name}: <{tag}> holds {len(closed)} closed subpaths; "
-                                   f"a piece is one outline (holes and compound paths are not supported)")
-            pieces.append(_RawPiece(str(name), f"{label}: <{tag}> {a.get('id') or name}", closed[0]))
+                pieces.append(_bad(label, str(name), source, PatternError(
+                    f"{label}: piece {name}: <{tag}> holds {len(closed)} closed subpaths; a piece is one "
+                    f"outline (holes and compound paths are not supported)")))
+            else:
+                pieces.append(_RawPiece(str(name), source, closed[0]))
             group_of.append(gkey)
+            if len(pieces) > MAX_PIECES:
+                raise PatternLimitError(f"{label}: more than {MAX_PIECES:,} pieces: not read")
 
+    work = limits.current()
     walk(svg, None, 0, False)
-    _assign_svg_grain(pieces, group_of, grains)
+    work.where = ""
+    good = [i for i, p in enumerate(pieces) if p.error is None]
+    _assign_svg_grain([pieces[i] for i in good], [group_of[i] for i in good], grains)
     notes = [how]
     if not pieces:
         notes.append(f"no closed <path>, <polygon>, <rect>, <circle> or <ellipse>; {open_count} open shape(s)")
@@ -892,21 +994,24 @@ def _svg_subpaths(e, to_m, tol: float) -> list[tuple[np.ndarray, bool]]:
         segs = list(Path(e).segments())
     except Exception:
         return out
+    work = limits.current()
     for s in segs:
         if isinstance(s, Move):
             flush()
         elif isinstance(s, Close):
             if s.start is not None and s.end is not None:
-                p0, p1 = to_m(s.start), to_m(s.end)
+                p0, p1 = work.check([to_m(s.start), to_m(s.end)], "a segment")
                 if math.hypot(*(p1 - p0)) > 1e-6 * tol:
+                    work.spend(2)
                     cur.append(np.array([p0, p1]))
             closed = True
         elif isinstance(s, Line):
-            cur.append(np.array([to_m(s.start), to_m(s.end)]))
+            work.spend(2)
+            cur.append(work.check([to_m(s.start), to_m(s.end)], "a segment"))
         elif isinstance(s, (QuadraticBezier, CubicBezier)):
             ctrl = [s.start, s.control, s.end] if isinstance(s, QuadraticBezier) else \
                 [s.start, s.control1, s.control2, s.end]
-            cur.append(_flatten_bezier(np.array([to_m(p) for p in ctrl]), tol))
+            cur.append(_flatten_bezier(work.check([to_m(p) for p in ctrl], "a curve's control point"), tol))
         elif isinstance(s, Arc):
             cur.append(_svg_arc(s, to_m, tol))
     flush()
@@ -917,8 +1022,9 @@ def _svg_arc(s, to_m, tol: float) -> np.ndarray:
     """Flatten an svgelements Arc: p(t) = c + cos t A + sin t B with A, B the (transformed)
     conjugate semi-diameters ``prx - center`` and ``pry - center``; the direction is the one that
     passes through svgelements' own midpoint of the arc."""
-    c, p0, p1 = to_m(s.center), to_m(s.start), to_m(s.end)
-    A, B = to_m(s.prx) - c, to_m(s.pry) - c
+    c, p0, p1, prx, pry = limits.current().check([to_m(q) for q in (s.center, s.start, s.end, s.prx, s.pry)],
+                                                 "an arc")
+    A, B = prx - c, pry - c
     M = np.column_stack([A, B])
     if abs(np.linalg.det(M)) <= 1e-300:
         return np.array([p0, p1])

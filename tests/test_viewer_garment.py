@@ -152,6 +152,20 @@ def test_pattern_upload_refusals_name_the_uploaded_file(tmp_path):
         SceneDraft(load_scene(GARMENTS / "circle_blank.yaml")).add_pattern("p.dxf", pattern_dxf())
 
 
+#: issue 28, item 1: 89 bytes that froze every tab for minutes (memory to 3.7 GB)
+BOMB_SVG = b'<svg xmlns="http://www.w3.org/2000/svg"><path d="M0 0 C1e20 0 1e20 1e20 0 1e20 Z"/></svg>'
+
+
+def test_hostile_pattern_upload_refused_by_the_bounds(tmp_path):
+    """The reader's bounds refuse the file before flattening it; the message names the upload,
+    never the stored copy, and nothing is kept."""
+    draft = SceneDraft(load_scene(GARMENTS / "circle_blank.yaml"), upload_dir=tmp_path)
+    with pytest.raises(PatternError, match=r"^bomb\.svg: piece path1, <path>: a curve's control point has a "
+                                           r"coordinate of 2\.65e\+16 m, beyond the bound of 1e\+06 m"):
+        draft.add_pattern("bomb.svg", BOMB_SVG)
+    assert list(tmp_path.iterdir()) == [] and not draft.patterns
+
+
 # ---------------------------------------------------------------------- draft: placements, mold surface
 def test_placement_edits_validated_through_the_draft():
     draft = SceneDraft(load_scene(GARMENTS / "sleeve_dxf.yaml"))
@@ -266,6 +280,52 @@ def test_viewer_panel_list_placement_widgets_and_pattern_upload():
         time.sleep(0.3)
         assert app.renderer.h_outlines.visible is False
     finally:
+        app.close()
+
+
+def test_viewer_reads_pattern_uploads_off_the_update_loop(monkeypatch):
+    """A pattern upload is read in a worker thread: while the reader is busy (held here on an
+    event), the update loop runs other edits; once read, its pieces are listed. The hostile SVG
+    of issue 28 comes back as a refusal on the pattern group's red line."""
+    pytest.importorskip("viser")
+    import threading
+
+    from clothsim import patterns
+    from clothsim.viewer import ViewerApp
+
+    release, entered = threading.Event(), threading.Event()
+    real = patterns.read_pattern
+
+    def held(*a, **kw):
+        entered.set()
+        assert release.wait(60)
+        return real(*a, **kw)
+
+    app = ViewerApp(load_scene(GARMENTS / "sleeve_dxf.yaml"), port=_free_port())
+    try:
+        app.wait_idle(60)
+        g = app.gui
+        garment = app.panels["garment"]
+        monkeypatch.setattr(patterns, "read_pattern", held)
+        app.post(lambda: garment.pattern_uploaded("pieces.dxf", pattern_dxf()), "pattern")
+        assert entered.wait(30)
+        ran = threading.Event()
+        app.post(ran.set)                  # another edit, posted while the pattern is being read
+        assert ran.wait(20), "the update loop waited for the pattern reader"
+        assert garment.busy() and not app.wait_idle(0.2)   # not idle while a read is pending
+        assert "Reading **pieces.dxf**" in g["pattern_info"].content
+        release.set()
+        assert app.wait_idle(30)
+        assert app.errors["pattern"] == "" and g["pattern_piece"].options == ("FRONT", "BACK")
+        assert not garment.busy()
+        monkeypatch.setattr(patterns, "read_pattern", real)
+        app.post(lambda: garment.pattern_uploaded("bomb.svg", BOMB_SVG), "pattern")
+        assert app.wait_idle(30)
+        assert app.errors["pattern"].startswith("bomb.svg: piece path1, <path>: "), app.errors["pattern"]
+        assert "beyond the bound of 1e+06 m" in app.errors["pattern"]
+        assert g["pattern_piece"].options == ("FRONT", "BACK")   # the earlier upload is still listed
+    finally:
+        release.set()
         app.close()
 
 

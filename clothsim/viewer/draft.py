@@ -45,9 +45,9 @@ MOLD_SCALE_MAX = 1e6
 #: about half a minute and 1.2 GB; a larger mesh can still be named in a scene file
 MOLD_UPLOAD_MAX_TRIANGLES = 500_000
 PATTERN_EXTS = (".dxf", ".svg")
-#: most bytes of an uploaded pattern file (it is read on the update loop; a garment's DXF-AAMA
-#: export is a few hundred kB; the viewer's own upload limit applies too) and most pieces listed
-#: from one
+#: most bytes of an uploaded pattern file (it is read in a worker thread, the work bounded by
+#: clothsim.patternlimits; a garment's DXF-AAMA export is a few hundred kB; the viewer's own upload
+#: limit applies too) and most pieces listed from one
 PATTERN_UPLOAD_MAX_BYTES = 4 * 1024 * 1024
 PATTERN_UPLOAD_MAX_PIECES = 100
 #: lattice divisions of a piece added from an uploaded pattern along its longer side
@@ -465,8 +465,15 @@ class SceneDraft:
         in ``upload_dir`` under a name chosen here; returns its label (a key of ``patterns``).
         Raises PatternError (file, piece, reason; the browser's file name, never the stored
         path) and refuses a file over PATTERN_UPLOAD_MAX_BYTES or with more than
-        PATTERN_UPLOAD_MAX_PIECES pieces."""
-        from ..patterns import PatternError, read_pattern
+        PATTERN_UPLOAD_MAX_PIECES pieces. The three steps, for a reader off the update loop:
+        :meth:`pattern_slot`, :meth:`parse_pattern` (safe in a worker thread), :meth:`store_pattern`."""
+        slot = self.pattern_slot(name, data)
+        return self.store_pattern(slot, self.parse_pattern(slot, data))
+
+    def pattern_slot(self, name: str, data: bytes) -> tuple[str, Path]:
+        """(label name, stored path) for an upload, after the cheap checks (uploads accepted, a
+        .dxf or .svg name, the byte limit); nothing is written yet."""
+        from ..patterns import PatternError
 
         label_name = _safe_name(name)
         if self.upload_dir is None:
@@ -478,17 +485,34 @@ class SceneDraft:
             raise PatternError(f"{label_name}: {len(data) / 2**20:.1f} MB, over the pattern limit of "
                                f"{PATTERN_UPLOAD_MAX_BYTES / 2**20:.0f} MB")
         self.pattern_count += 1
-        stored = self.upload_dir / f"pattern_upload_{self.pattern_count}{ext}"
+        return label_name, self.upload_dir / f"pattern_upload_{self.pattern_count}{ext}"
+
+    @staticmethod
+    def parse_pattern(slot: tuple[str, Path], data: bytes) -> list:
+        """Write the upload to its slot and read its pieces (no draft state is read or changed:
+        safe in a worker thread; the reader's bounds keep the work to seconds,
+        clothsim.patternlimits). On a refusal the stored copy is removed."""
+        from ..patterns import PatternError, read_pattern
+
+        label_name, stored = slot
         stored.write_bytes(data)
         try:
             pieces = read_pattern(stored)
         except PatternError as exc:
             stored.unlink(missing_ok=True)
-            raise PatternError(str(exc).replace(str(stored), label_name)) from None
+            raise type(exc)(str(exc).replace(str(stored), label_name)) from None
+        except BaseException:
+            stored.unlink(missing_ok=True)
+            raise
         if len(pieces) > PATTERN_UPLOAD_MAX_PIECES:
             stored.unlink(missing_ok=True)
             raise PatternError(f"{label_name}: {len(pieces)} pieces, more than {PATTERN_UPLOAD_MAX_PIECES}")
-        label = f"{label_name} ({self.pattern_count})"
+        return pieces
+
+    def store_pattern(self, slot: tuple[str, Path], pieces: list) -> str:
+        """Offer the pieces :meth:`parse_pattern` read; returns the pattern's label."""
+        label_name, stored = slot
+        label = f"{label_name} ({stored.stem.rsplit('_', 1)[-1]})"
         self.patterns[label] = (stored, pieces)
         return label
 

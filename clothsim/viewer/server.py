@@ -498,7 +498,7 @@ class ViewerApp:
             cpu = time.thread_time() - c0
             self.loop_work_s += cpu
             with self._lock:
-                if not self._tasks and not self.panels["fabric"].busy():
+                if not self._tasks and not self.panels["fabric"].busy() and not self.panels["garment"].busy():
                     self._idle.set()
             # while the solver runs, keep the loop's own share of the time below `duty` (a smoothed
             # estimate, so that one slow frame, e.g. loading a kernel, does not stall the display)

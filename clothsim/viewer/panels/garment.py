@@ -4,12 +4,16 @@ wrap's radius [m] and axis) and a DXF/SVG pattern upload whose pieces can be add
 replace the scene's panels. Every edit is a typed operation of
 :class:`~clothsim.viewer.draft.SceneDraft`, validated with the whole scene and applied with
 *Apply*; a refused one shows on the section's red line and its widget shows the last valid value
-again. A pattern file is small (at most ``PATTERN_UPLOAD_MAX_BYTES``) and is read on the update
-loop."""
+again. A pattern file is small (at most ``PATTERN_UPLOAD_MAX_BYTES``) and is read in a worker
+thread (:class:`PatternJob`), never on the update loop: a hostile file (a curve a light-year long,
+nested ``<use>``) is refused by the reader's bounds (clothsim.patternlimits) within seconds while
+every tab keeps its updates."""
 
 from __future__ import annotations
 
 import html
+import threading
+import time
 
 import numpy as np
 import viser
@@ -19,6 +23,27 @@ from . import Panel
 
 NO_PANEL = "(no pattern panels)"
 NO_PATTERN = "(upload a pattern)"
+
+
+class PatternJob:
+    """One uploaded pattern read in a worker thread; when it is done it posts ``finish(job)`` to
+    the update loop (``pieces`` holds the result, or ``error`` the exception) and sets ``done``."""
+
+    def __init__(self, slot, data: bytes, parse, post):
+        self.slot, self.pieces, self.error = slot, None, None
+        self.t0 = time.perf_counter()
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._run, args=(data, parse, post), name="clothsim-pattern-upload",
+                                       daemon=True)
+
+    def _run(self, data: bytes, parse, post) -> None:
+        try:
+            self.pieces = parse(self.slot, data)
+        except Exception as exc:  # noqa: BLE001 - reported on the pattern group's error line
+            self.error = exc
+        finally:
+            post(self)
+            self.done.set()
 
 
 class GarmentPanel(Panel):
@@ -58,6 +83,11 @@ class GarmentPanel(Panel):
         g["pattern_replace"].on_click(lambda _e: app.post(self.replace_panels, "pattern"))
         app.err("pattern")
         self.pattern_label: str | None = None
+        self.job: PatternJob | None = None  # the upload being read
+
+    def busy(self) -> bool:
+        """A pattern upload is being read, or its result not yet shown."""
+        return self.job is not None
 
     # ------------------------------------------------------------------ display
     def sync(self) -> None:
@@ -107,9 +137,27 @@ class GarmentPanel(Panel):
         self.app.draft_changed()
 
     def pattern_uploaded(self, name: str, data: bytes) -> None:
-        """(update loop) Read the uploaded pattern and list its pieces."""
+        """(update loop) Start reading the uploaded pattern in a worker thread; :meth:`pattern_read`
+        lists its pieces once it is read. One upload is read at a time."""
+        if self.job is not None:
+            raise ValueError(f"{str(name)[:60]}: another pattern is still being read; upload "
+                             f"again when it is listed")
         draft = self.app.scene_draft
-        label = draft.add_pattern(name, data)
+        slot = draft.pattern_slot(name, data)
+        self.job = PatternJob(slot, data, draft.parse_pattern,
+                              lambda job: self.app.post(lambda: self.pattern_read(job), "pattern"))
+        self.gui["pattern_info"].content = f"Reading **{html.escape(slot[0])}**..."
+        self.job.thread.start()
+
+    def pattern_read(self, job: PatternJob) -> None:
+        """(update loop) A finished read: list the pieces, or raise why not (the red line)."""
+        if self.job is job:
+            self.job = None
+        if job.error is not None:
+            self.gui["pattern_info"].content = ""
+            raise job.error
+        draft = self.app.scene_draft
+        label = draft.store_pattern(job.slot, job.pieces)
         self.pattern_label = label
         pieces = draft.patterns[label][1]
         rows = ["| piece | area [cm²] | size [cm] |", "|---|---|---|"]
