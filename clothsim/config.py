@@ -612,6 +612,10 @@ class SolverSettings(_Strict):
     # search direction only, never the forces); and whether to solve coarser grids first
     newton_kink: float = Field(default=1e-3, ge=0.0, le=1e3)
     newton_sequencing: bool = True
+    # load steps: the constraints' displacements (and stretches) are applied in this many equal
+    # steps from the placed sheet, each solved to equilibrium from the one before (a path: with
+    # friction the answer depends on it; without, only the last step's equilibrium counts)
+    load_steps: Int = 1
 
     @field_validator("C")
     @classmethod
@@ -632,7 +636,7 @@ class SolverSettings(_Strict):
     def _time(cls, v):
         return _positive(v)
 
-    @field_validator("max_iterations", "max_retries", "stall_iterations")
+    @field_validator("max_iterations", "max_retries", "stall_iterations", "load_steps")
     @classmethod
     def _pos(cls, v):
         if v < 1:
@@ -662,7 +666,26 @@ def _nonzero3(v):
     return v
 
 
-class MeshMoldSpec(_Strict):
+# the largest Coulomb coefficient a scene may give (measured fabric-skin values lie about 0.2-0.7)
+FRICTION_MAX = 10.0
+
+
+class _MoldFriction(_Strict):
+    """friction: the Coulomb coefficient mu between the fabric and the mold (>= 0; one value for
+    static and kinetic friction; omitted or 0: frictionless contact). A scene with mu > 0 is
+    solved in load steps by Newton (``solver.load_steps``; see docs/friction.md)."""
+
+    friction: float | None = None
+
+    @field_validator("friction")
+    @classmethod
+    def _mu(cls, v):
+        if v is not None and not (math.isfinite(v) and 0.0 <= v <= FRICTION_MAX):
+            raise ValueError(f"must be a number from 0 to {FRICTION_MAX:g} (got {_short(v)})")
+        return v
+
+
+class MeshMoldSpec(_MoldFriction):
     """A mold read from a triangle-mesh file (any format :func:`clothsim.mold.load_mold` reads).
 
     path: the file (relative paths resolve against the scene file's folder); scale: a positive
@@ -809,22 +832,22 @@ class BoxParams(_Strict):
         return self
 
 
-class SphereMoldSpec(_Strict):
+class SphereMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "sphere"
     sphere: SphereParams
 
 
-class CylinderMoldSpec(_Strict):
+class CylinderMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "cylinder"
     cylinder: CylinderParams
 
 
-class PlaneMoldSpec(_Strict):
+class PlaneMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "plane"
     plane: PlaneParams
 
 
-class BoxMoldSpec(_Strict):
+class BoxMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "box"
     box: BoxParams
 
@@ -965,6 +988,16 @@ class Scene(_Strict):
                     index_range(c.nodes.j, ny, "j", "constraints")
                 except SelectionError as exc:
                     raise ValueError(f"constraints.{n}.nodes: {exc}") from None
+        return self
+
+    @model_validator(mode="after")
+    def _friction_method(self):
+        """The paper's relaxation is frictionless: a scene with friction asks for Newton."""
+        mu = getattr(self.mold, "friction", None) if self.mold is not None else None
+        if mu and self.solver.method == "paper":
+            raise ValueError(f"solver.method: 'paper' is frictionless (the paper's relaxation has no "
+                             f"friction) but mold.friction is {mu:g}: use method newton or auto, or "
+                             f"mold.friction: 0")
         return self
 
     @model_validator(mode="after")

@@ -153,6 +153,9 @@ class Simulation:
         self.residual = math.nan
         self.energy = math.nan
         self.ips = 0.0
+        # the load steps of a staged scene (friction, solver.load_steps) and how many are done
+        self._controls = None
+        self._steps_done = 0
         self.version += 1
 
     @property
@@ -237,7 +240,10 @@ class Simulation:
             self.status = "running"
             self._pause_requested = False
         try:
-            res = run_solver(self.model, self.state, settings, self._callback, self.history)
+            if self._staged():
+                res = self._run_steps(settings)
+            else:
+                res = run_solver(self.model, self.state, settings, self._callback, self.history)
         except Exception as exc:  # keep the state, report the failure
             with self._lock:
                 self.status = "error"
@@ -264,6 +270,34 @@ class Simulation:
             self.on_progress(self)
         return res
 
+    def _staged(self) -> bool:
+        """Whether the scene is solved in load steps: friction with the mold, or
+        ``solver.load_steps`` > 1 (a scene without either pays nothing for them)."""
+        return self.model.friction_mu > 0 or self.settings.load_steps > 1
+
+    def _run_steps(self, settings) -> SolveResult:
+        """The load steps still to do (clothsim.solvers.friction.solve_steps): the constraints'
+        prescribed coordinates from the placed sheet to their values in ``solver.load_steps``
+        equal steps; a paused run goes on with the step it was in."""
+        from .solvers import load_steps, make_solver
+        from .solvers.friction import solve_steps
+
+        if self._controls is None:
+            start = self.model.placement.apply(self.model.rest_positions)
+            start = np.where(self.model.fixed_axes, start, self.model.prescribed_positions)
+            n = int(settings.load_steps)
+            self._controls = load_steps(start, self.model.prescribed_positions, n) if n > 1 else \
+                load_steps(self.model.prescribed_positions, self.model.prescribed_positions, 1)
+            self._steps_done = 0
+        todo = self._controls[self._steps_done:]
+        if not todo:
+            todo = self._controls[-1:]
+        model, res = solve_steps(self.model, self.state, todo, settings, self._callback, self.history,
+                                 lambda m: make_solver(m, settings))
+        self._steps_done += int(res.friction["steps_solved"]) if res.friction else 0
+        self.model = model
+        return res
+
     def result(self, startup_s: float = 0.0) -> Result:
         """The current state as a Result (cumulative history across start/pause segments)."""
         with self._lock:
@@ -277,7 +311,7 @@ class Simulation:
             hist = self.history.copy()
             solve = SolveResult(r.converged, r.status, r.message, self.state.iteration, r.residual,
                                 r.relative_residual, r.energy, r.contact_count, self.total_time, r.method,
-                                hist, r.best_residual)
+                                hist, r.best_residual, r.friction)
             return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s)
 
     # background thread -------------------------------------------------

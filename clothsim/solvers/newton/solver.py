@@ -36,7 +36,9 @@ class NewtonSolver(Solver):
     def __init__(self, model, options: NewtonOptions | None = None):
         super().__init__(model, options)
         self.fine = NewtonLevel(model, kink=self.options.kink)
-        self._seq_done = not self.options.sequencing
+        # (a frictional load step starts from the previous equilibrium: no coarse grids, which
+        # would not carry its frozen friction)
+        self._seq_done = not self.options.sequencing or model.friction is not None
         self._v = None  # ||V||_inf [N] at (self._at_pos, self._at_contact), when known
         self._at_pos = None
         self._at_contact = None
