@@ -23,6 +23,10 @@ from .driver import History
 
 # re-solves of one load step with the friction refreshed before the step counts as failed
 MAX_RELAGS = 40
+# the friction refreshed before every Newton iteration (True) or once per solve (False)
+REFRESH_EVERY_ITERATION = True
+# a refresh's solve stops at this share of the residual it starts from (or at e, the last one)
+REFRESH_FORCING = 0.1
 # halvings of one load step in a row before the sequence ends
 MAX_CUTS = 8
 
@@ -36,25 +40,47 @@ def _newton(model, limits):
                                              sequencing=bool(getattr(limits, "newton_sequencing", True))))
 
 
+def _with_e(limits, e):
+    """``limits`` (SolverSettings or RunLimits) with its e replaced."""
+    if hasattr(limits, "model_copy"):
+        return limits.model_copy(update={"e": e})
+    return dataclasses.replace(limits, e=e)
+
+
 def _frictional_step(base, state, control, limits, callback, hist):
     """One load step with friction: (converged, model with the refreshed friction, the last
-    SolveResult, relags, report dict)."""
+    SolveResult, refreshes, report dict). With REFRESH_EVERY_ITERATION the Newton solver takes
+    the friction refreshed at every iterate; otherwise each solve keeps one frozen friction and
+    stops at REFRESH_FORCING times the residual it starts from (or e). Either way the step is
+    done when the residual with the friction refreshed at its equilibrium is at most e."""
     anchor = state.positions.copy()
     m = control.apply(base, state)
     lag = lag_friction(m, state, anchor)
+    mm = dataclasses.replace(m, friction=lag)
+    solver = _newton(mm, limits)
+    if REFRESH_EVERY_ITERATION:
+        def refresh(st):
+            return dataclasses.replace(m, friction=lag_friction(m, st, anchor))
+        solver.refresh = refresh
+    e = limits.e
     res = None
     for r in range(1, MAX_RELAGS + 1):
-        mm = dataclasses.replace(m, friction=lag)
-        res = _newton(mm, limits).solve(state, limits, callback, hist)
+        lim = limits
+        if not REFRESH_EVERY_ITERATION:
+            v0, _ = residual(mm, state)
+            lim = _with_e(limits, max(e, REFRESH_FORCING * v0))
+        res = solver.solve(state, lim, callback, hist)
         if not res.converged:
-            return False, mm, res, r, None
+            return False, solver.model, res, r, None
+        lag = solver.model.friction
         new = lag_friction(m, state, anchor)
         m2 = dataclasses.replace(m, friction=new)
         v, _ = residual(m2, state)
-        if v <= limits.e:
+        if v <= e and res.residual <= e:
             rep = friction_report(lag, new, state.positions)
             return True, m2, dataclasses.replace(res, residual=float(v)), r, rep
-        lag = new
+        mm = m2
+        solver.retarget(mm)
     return False, mm, dataclasses.replace(res, converged=False, status=Status.STALLED,
                                           message=f"friction not settled after {MAX_RELAGS} refreshes"), \
         MAX_RELAGS, None
