@@ -191,3 +191,37 @@ def test_bad_friction_is_refused_with_file_and_line(tmp_path):
     p = _write(tmp_path, head + "solver: {load_steps: 0}\n")
     with pytest.raises(SceneError, match=r"s\.yaml:2: solver\.load_steps: must be at least 1"):
         load_scene(p)
+
+
+def test_a_failing_load_step_is_cut_in_half_and_the_run_goes_on(monkeypatch):
+    """A load step that fails (here: any step that moves the pulled end by more than 4 mm is made
+    to stall) is cut in half until its pieces pass; the run converges through them and says how
+    many steps were cut. A step whose control does not move cannot be cut: it fails at once."""
+    import clothsim.solvers.friction as sf
+    from clothsim.solvers.base import Status
+
+    real = sf._frictional_step
+
+    def flaky(base, state, control, limits, callback, hist):
+        fixed = base.fixed_axes
+        move = np.abs(control.prescribed_positions[fixed] - state.positions[fixed]).max()
+        if move > 0.004:
+            ok, m, res, r, rep = real(base, state, control, limits, callback, hist)
+            return False, m, dataclasses.replace(res, converged=False, status=Status.STALLED), r, None
+        return real(base, state, control, limits, callback, hist)
+
+    monkeypatch.setattr(sf, "_frictional_step", flaky)
+    sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml",
+                    ["fabric.divisions=[20,2]", "solver.method=newton", "solver.e=1e-7"])
+    model = compile_model(sc)
+    state = compile_state(sc, model)
+    assert solve(model, state, sc.solver).converged
+    target = model.prescribed_positions.copy()
+    right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
+    target[right, 2] -= 0.01
+    _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state, load_steps(model.prescribed_positions,
+                                                                                     target, 2), sc.solver)
+    assert res.converged, res.message
+    assert res.friction["cuts"] == 2 and res.friction["steps_solved"] == 4  # 5 mm steps cut to 2.5 mm
+    assert "2 load step(s) cut in half" in res.message
+    assert np.allclose(state.positions[right, 2], target[right, 2])
