@@ -225,3 +225,35 @@ def test_a_failing_load_step_is_cut_in_half_and_the_run_goes_on(monkeypatch):
     assert res.friction["cuts"] == 2 and res.friction["steps_solved"] == 4  # 5 mm steps cut to 2.5 mm
     assert "2 load step(s) cut in half" in res.message
     assert np.allclose(state.positions[right, 2], target[right, 2])
+
+
+def test_stages_drape_then_pull_reach_the_capstan_and_keep_every_stage():
+    """``stages:`` (the capstan as a scene: drape frictionless, then friction on and the right end
+    pulled 0.06 m in 20 steps) gives the same equilibrium as the path built by hand, and the
+    summary keeps both stages."""
+    from clothsim.simulation import solve as run
+
+    r = run(load_scene(ROOT / "tests" / "data" / "capstan_stages.yaml"))
+    assert r.solve.converged, r.solve.message
+    s = r.summary()
+    st = s["friction"]["stages"]
+    assert [x["name"] for x in st] == ["drape", "pull"]
+    assert [x["load_steps"] for x in st] == [1, 20]
+    assert st[0]["friction"]["mu"] == 0.0 and st[1]["friction"]["mu"] == 0.3
+    assert s["friction"]["slip"] > 0 and s["friction"]["stick"] == 0
+    (tl, dl), (tr, dr) = _end_tensions(r.model, r.state.positions)
+    phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
+    assert abs(tr / tl / math.exp(MU * phi) - 1) < 2e-3
+    ratio, _, _ = _capstan(40)
+    assert tr / tl == pytest.approx(ratio, rel=1e-5)
+
+
+def test_a_stage_that_sets_a_bad_value_or_field_is_refused_with_file_and_line(tmp_path):
+    text = (ROOT / "tests" / "data" / "capstan_stages.yaml").read_text()
+    p = tmp_path / "s.yaml"
+    p.write_text(text.replace("mold.friction: 0.3", "mold.friction: -1"))
+    with pytest.raises(SceneError, match=r"s\.yaml:\d+: stages\.1\.set: mold\.friction: must be a number"):
+        load_scene(p)
+    p.write_text(text.replace("mold.friction: 0.3", "fabric.divisions: [80, 4]"))
+    with pytest.raises(SceneError, match=r"s\.yaml:\d+: stages\.1\.set: 'fabric\.divisions': a stage may change"):
+        load_scene(p)
