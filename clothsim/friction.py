@@ -95,22 +95,21 @@ def slides(lag: FrictionLag, positions) -> np.ndarray:
     return np.linalg.norm(u, axis=1)
 
 
-def friction_report(solved: FrictionLag, now: FrictionLag, positions) -> dict:
-    """The Coulomb state of an equilibrium solved with the friction ``solved``, ``now`` being the
-    friction refreshed there: stick and slip counts over the contact nodes pressed onto the mold
-    (slip: slid at least eps in the step), and the cone violation max((|f_t| - mu f_n)+ / f_n),
-    f_t the friction force the equilibrium carries and f_n the normal force there."""
-    y = slides(solved, positions)
-    eps = solved.eps
-    f1 = np.where(y < eps, 2.0 * y / eps - (y / eps) ** 2, 1.0)
-    ft = dict(zip(solved.nodes.tolist(), (solved.weight * f1).tolist()))
-    fn = dict(zip(now.nodes.tolist(), now.lam.tolist()))
-    slid = dict(zip(solved.nodes.tolist(), (y >= eps).tolist()))
-    pressed = [k for k, v in fn.items() if v > 0.0]
+def friction_report(model, lag: FrictionLag, positions, e: float) -> dict:
+    """The Coulomb state of an equilibrium, ``lag`` being the friction refreshed there: stick and
+    slip counts over the contact nodes pressed onto the mold (slip: slid at least eps in the
+    step), and the cone violation max((|f_t| - mu f_n)+ / f_n) of the mold's reaction (f_n its
+    normal part, f_t its tangential part: minus the springs' and loads' resultant) over the
+    nodes pressed by more than e [N], the residual limit (below it the cone holds to within the
+    solve's own tolerance)."""
+    pressed = lag.lam > 0.0
+    slip = int(np.count_nonzero(pressed & (slides(lag, positions) >= lag.eps)))
     viol = 0.0
-    slip = 0
-    for k in pressed:
-        t = ft.get(k, 0.0)
-        viol = max(viol, max(0.0, t - now.mu * fn[k]) / fn[k])
-        slip += bool(slid.get(k, False))
-    return {"stick": len(pressed) - slip, "slip": slip, "cone_violation": float(viol)}
+    big = lag.lam > e
+    if big.any():
+        F = elastic_forces(model, positions)[lag.nodes[big]]
+        n = lag.normal[big]
+        ft = np.linalg.norm(F - np.einsum("ij,ij->i", F, n)[:, None] * n, axis=1)
+        fn = lag.lam[big]
+        viol = float(np.max(np.maximum(0.0, ft - lag.mu * fn) / fn))
+    return {"stick": int(np.count_nonzero(pressed)) - slip, "slip": slip, "cone_violation": viol}

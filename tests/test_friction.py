@@ -257,3 +257,34 @@ def test_a_stage_that_sets_a_bad_value_or_field_is_refused_with_file_and_line(tm
     p.write_text(text.replace("mold.friction: 0.3", "fabric.divisions: [80, 4]"))
     with pytest.raises(SceneError, match=r"s\.yaml:\d+: stages\.1\.set: 'fabric\.divisions': a stage may change"):
         load_scene(p)
+
+
+def _tube_on_cone(mu):
+    """The knit tube on the faceted leg cone (tan(alpha) = 0.05) solved frictionless with its
+    cuffs held along the leg, then released with friction mu in one load step: (result, mean move
+    along the leg [m], contact nodes before, after)."""
+    sc = load_scene(ROOT / "configs" / "tube_on_leg_cone.yaml",
+                    ["constraints.1.displacement=[0,0,0]", "fabric.divisions=[34,16]", "solver.e=3e-6",
+                     "solver.time_limit_s=300"])
+    model = compile_model(sc)
+    state = compile_state(sc, model)
+    assert solve(model, state, sc.solver).converged
+    z0 = state.positions[:, 2].copy()
+    c0 = int(state.in_contact.sum())
+    fixed = model.fixed_axes.copy()
+    fixed[:, 2] = False  # the cuffs let go along the leg
+    m = dataclasses.replace(model, fixed_axes=fixed, friction_mu=mu)
+    _, res = solve_steps(m, state, [Control(m.prescribed_positions)], sc.solver)
+    return res, float(np.mean(state.positions[:, 2] - z0)), c0, int(state.in_contact.sum())
+
+
+def test_tube_on_a_cone_stays_above_its_slip_threshold_and_slides_off_below():
+    """A tube pressed on a cone of half-angle alpha only by its own hoop tension is held while mu >=
+    tan(alpha) (0.05 here) and slides towards the narrow end below it."""
+    res, dz, c0, c1 = _tube_on_cone(0.1)
+    assert res.converged, res.message
+    assert abs(dz) < 1e-3 and c1 == c0
+    assert res.friction["stick"] > res.friction["slip"]
+    assert res.friction["cone_violation"] < 1e-3
+    res, dz, c0, c1 = _tube_on_cone(0.03)
+    assert dz < -0.05 and c1 < 0.2 * c0  # slid down and off the cone's narrow end

@@ -72,12 +72,11 @@ def _frictional_step(base, state, control, limits, callback, hist):
         res = solver.solve(state, lim, callback, hist)
         if not res.converged:
             return False, solver.model, res, r, None
-        lag = solver.model.friction
         new = lag_friction(m, state, anchor)
         m2 = dataclasses.replace(m, friction=new)
         v, _ = residual(m2, state)
         if v <= e and res.residual <= e:
-            rep = friction_report(lag, new, state.positions)
+            rep = friction_report(m, new, state.positions, e)
             return True, m2, dataclasses.replace(res, residual=float(v)), r, rep
         mm = m2
         solver.retarget(mm)
