@@ -10,6 +10,7 @@ plain records and arrays, never the Scene.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -280,7 +281,7 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
         _warn_scale(mold, panels)
     seams, constraints = _named_vertices(scene)
     try:
-        return build_model(
+        model = build_model(
             panels=panels,
             constraints=constraints,
             shear_stiffness=None if scene.shear is None else scene.shear.stiffness,
@@ -291,6 +292,11 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
         )
     except SelectionError as exc:
         raise SceneError(str(exc)) from None
+    mu = getattr(scene.mold, "friction", None) if scene.mold is not None else None
+    if mu and mold is not None:
+        # Coulomb friction with the mold (clothsim.friction): only a scene that asks pays for it
+        model = dataclasses.replace(model, friction_mu=float(mu))
+    return model
 
 
 def _named_vertices(scene: Scene):

@@ -612,6 +612,10 @@ class SolverSettings(_Strict):
     # search direction only, never the forces); and whether to solve coarser grids first
     newton_kink: float = Field(default=1e-3, ge=0.0, le=1e3)
     newton_sequencing: bool = True
+    # load steps: the constraints' displacements (and stretches) are applied in this many equal
+    # steps from the placed sheet, each solved to equilibrium from the one before (a path: with
+    # friction the answer depends on it; without, only the last step's equilibrium counts)
+    load_steps: Int = 1
 
     @field_validator("C")
     @classmethod
@@ -632,7 +636,7 @@ class SolverSettings(_Strict):
     def _time(cls, v):
         return _positive(v)
 
-    @field_validator("max_iterations", "max_retries", "stall_iterations")
+    @field_validator("max_iterations", "max_retries", "stall_iterations", "load_steps")
     @classmethod
     def _pos(cls, v):
         if v < 1:
@@ -662,7 +666,26 @@ def _nonzero3(v):
     return v
 
 
-class MeshMoldSpec(_Strict):
+# the largest Coulomb coefficient a scene may give (measured fabric-skin values lie about 0.2-0.7)
+FRICTION_MAX = 10.0
+
+
+class _MoldFriction(_Strict):
+    """friction: the Coulomb coefficient mu between the fabric and the mold (>= 0; one value for
+    static and kinetic friction; omitted or 0: frictionless contact). A scene with mu > 0 is
+    solved in load steps by Newton (``solver.load_steps``; see docs/friction.md)."""
+
+    friction: float | None = None
+
+    @field_validator("friction")
+    @classmethod
+    def _mu(cls, v):
+        if v is not None and not (math.isfinite(v) and 0.0 <= v <= FRICTION_MAX):
+            raise ValueError(f"must be a number from 0 to {FRICTION_MAX:g} (got {_short(v)})")
+        return v
+
+
+class MeshMoldSpec(_MoldFriction):
     """A mold read from a triangle-mesh file (any format :func:`clothsim.mold.load_mold` reads).
 
     path: the file (relative paths resolve against the scene file's folder); scale: a positive
@@ -809,22 +832,22 @@ class BoxParams(_Strict):
         return self
 
 
-class SphereMoldSpec(_Strict):
+class SphereMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "sphere"
     sphere: SphereParams
 
 
-class CylinderMoldSpec(_Strict):
+class CylinderMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "cylinder"
     cylinder: CylinderParams
 
 
-class PlaneMoldSpec(_Strict):
+class PlaneMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "plane"
     plane: PlaneParams
 
 
-class BoxMoldSpec(_Strict):
+class BoxMoldSpec(_MoldFriction):
     kind: ClassVar[str] = "box"
     box: BoxParams
 
@@ -880,6 +903,37 @@ def validate_mold_spec(spec: Any) -> Any:
         raise ValueError(format_validation_error(exc, "", None).replace("\n: ", "\n").lstrip(": ")) from None
 
 
+# the scene fields a stage may change (the lattice, seams and start are the scene's own)
+STAGE_FIELDS = ("constraints", "mold", "gravity", "solver")
+
+
+class Stage(_Strict):
+    """One stage of a loading path (``stages:``): name; steps, its load steps (>= 1); set, scene
+    fields (dotted paths as in ``--set``, under constraints, mold, gravity or solver) and the
+    values they take from this stage on. The constraints' prescribed coordinates go linearly from
+    where the previous stage left them to this stage's values over its steps; the other changes
+    (mold.friction, gravity, a mold) apply from the stage's first step."""
+
+    name: str = ""
+    steps: Int = 1
+    set: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("steps")
+    @classmethod
+    def _steps(cls, v):
+        if not 1 <= v <= 100_000:
+            raise ValueError(f"must be from 1 to 100000 (got {v})")
+        return v
+
+    @field_validator("set")
+    @classmethod
+    def _paths(cls, v):
+        for k in v:
+            if str(k).split(".")[0] not in STAGE_FIELDS:
+                raise ValueError(f"'{k}': a stage may change {', '.join(STAGE_FIELDS)} only")
+        return v
+
+
 class Scene(_Strict):
     """A complete, validated scene. ``source`` (not part of the file) is where it was read from;
     relative paths inside resolve against its folder."""
@@ -899,6 +953,8 @@ class Scene(_Strict):
     probes: list[Probe] = Field(default_factory=list)
     profiles: list[Profile] = Field(default_factory=list)
     classes: Classes | None = None
+    # a loading path in stages (empty: one stage, the scene as it is)
+    stages: list[Stage] = Field(default_factory=list)
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
@@ -965,6 +1021,16 @@ class Scene(_Strict):
                     index_range(c.nodes.j, ny, "j", "constraints")
                 except SelectionError as exc:
                     raise ValueError(f"constraints.{n}.nodes: {exc}") from None
+        return self
+
+    @model_validator(mode="after")
+    def _friction_method(self):
+        """The paper's relaxation is frictionless: a scene with friction asks for Newton."""
+        mu = getattr(self.mold, "friction", None) if self.mold is not None else None
+        if mu and self.solver.method == "paper":
+            raise ValueError(f"solver.method: 'paper' is frictionless (the paper's relaxation has no "
+                             f"friction) but mold.friction is {mu:g}: use method newton or auto, or "
+                             f"mold.friction: 0")
         return self
 
     @model_validator(mode="after")
@@ -1038,7 +1104,7 @@ class Scene(_Strict):
 
     def to_dict(self) -> dict:
         d = self.model_dump(mode="json", exclude_none=True)
-        for key in ("probes", "profiles"):  # optional sections: absent unless used
+        for key in ("probes", "profiles", "stages"):  # optional sections: absent unless used
             if not d.get(key):
                 d.pop(key, None)
         return d
@@ -1276,6 +1342,8 @@ def scene_from_dict(data: dict, source: str | Path | None = None, root: yaml.Nod
         scene._label = label
     scene._yaml_root = root
     scene._blame = dict(blame) if blame else None
+    if scene.stages:
+        stage_scenes(scene)  # every stage's scene is valid before any work
     return scene
 
 
@@ -1303,6 +1371,29 @@ def load_scene(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
     for k, v, _ in items:
         _set_path(data, k, v)
     return scene_from_dict(data, path, root, {k: label for k, _, label in items})
+
+
+def stage_scenes(scene: Scene) -> list[tuple[Stage, Scene]]:
+    """Each stage of ``scene.stages`` with the scene it solves: the scene's fields with every
+    stage's ``set`` up to it applied (empty without stages). A value a field refuses is reported
+    as ``file:line: stages.N.set: field: message``."""
+    if not scene.stages:
+        return []
+    data = scene.to_dict()
+    data.pop("stages", None)
+    out = []
+    for n, st in enumerate(scene.stages):
+        try:
+            for k, v in st.set.items():
+                _set_path(data, k, copy.deepcopy(v))
+            s = Scene.model_validate(copy.deepcopy(data))
+        except (SceneError, ValidationError) as exc:
+            why = format_validation_error(exc, "", None).lstrip(": ") if isinstance(exc, ValidationError) \
+                else str(exc).replace("--set ", "")
+            raise SceneError(scene.locate(f"stages.{n}.set: {why}")) from None
+        s._source, s._label = scene._source, scene._label
+        out.append((st, s))
+    return out
 
 
 def dump_scene(scene: Scene, path: str | Path) -> None:

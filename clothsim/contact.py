@@ -233,3 +233,86 @@ def max_penetration(pos, margs):
         if -sd > worst:
             worst = -sd
     return worst
+
+
+# ----------------------------------------------------------------------------- friction
+# Coulomb friction as a lagged, smoothed dissipation potential per load step (Incremental
+# Potential Contact's form): node k slides u = P_k (x_k - a_k) from its anchor a_k (its position
+# at the previous load step's equilibrium) in the tangent plane P_k = I - n_k n_k^T of a frozen
+# normal n_k, and carries D_k = w_k f0(|u|) with w_k = mu lam_k (lam_k the frozen normal force
+# [N]); f0 is |u| above the slip eps and the C1 cubic -y^3/(3 eps^2) + y^2/eps + eps/3 below it,
+# so the force -w_k f1(|u|) u/|u| has magnitude mu lam_k once the node slips (|u| >= eps) and less
+# while it sticks. D is convex in x (Li M. et al., Incremental Potential Contact, ACM Trans.
+# Graph. 39 (4), 2020, section 5).
+
+
+@njit(cache=True)
+def _friction_u(pos, k, anchor, normal, i):
+    """(u0, u1, u2, |u|): the tangential slide of node k (friction row i) from its anchor [m]."""
+    d0 = pos[k, 0] - anchor[i, 0]
+    d1 = pos[k, 1] - anchor[i, 1]
+    d2 = pos[k, 2] - anchor[i, 2]
+    dn = d0 * normal[i, 0] + d1 * normal[i, 1] + d2 * normal[i, 2]
+    u0 = d0 - dn * normal[i, 0]
+    u1 = d1 - dn * normal[i, 1]
+    u2 = d2 - dn * normal[i, 2]
+    return u0, u1, u2, _norm3(u0, u1, u2)
+
+
+@njit(cache=True)
+def friction_forces_energy(pos, nodes, anchor, normal, weight, eps, out):
+    """Add the friction forces [N] of the nodes ``nodes`` (m,) to out (N, 3) and return their
+    dissipation potential [J]. anchor (m, 3) [m], normal (m, 3) unit, weight (m,) = mu lam [N],
+    eps the slip below which a node sticks [m] (see the section's comment)."""
+    e = 0.0
+    for i in range(nodes.shape[0]):
+        w = weight[i]
+        if w == 0.0:
+            continue
+        k = nodes[i]
+        u0, u1, u2, y = _friction_u(pos, k, anchor, normal, i)
+        if y < eps:
+            f0 = -y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0
+            c = 2.0 / eps - y / (eps * eps)
+        else:
+            f0 = y
+            c = 1.0 / y
+        e += w * f0
+        out[k, 0] -= w * c * u0
+        out[k, 1] -= w * c * u1
+        out[k, 2] -= w * c * u2
+    return e
+
+
+@njit(cache=True)
+def friction_hessian_block(u0, u1, u2, y, n, w, eps, H):
+    """The 3x3 Hessian H [N/m] of one node's w f0(|u|), u = (I - n n^T)(x - a) with |u| = y:
+    w ((f1/y) P + (f1' - f1/y)/y^2 u u^T), positive semi-definite."""
+    if y < eps:
+        c = 2.0 / eps - y / (eps * eps)
+        b = -1.0 / (eps * eps * y) if y > 0.0 else 0.0
+    else:
+        c = 1.0 / y
+        b = -1.0 / (y * y * y)
+    u = (u0, u1, u2)
+    for a in range(3):
+        for bb in range(3):
+            p = (1.0 if a == bb else 0.0) - n[a] * n[bb]
+            H[a, bb] = w * (c * p + b * u[a] * u[bb])
+
+
+@njit(cache=True)
+def friction_assemble(pos, nodes, anchor, normal, weight, eps, diag, K):
+    """Add each friction node's Hessian block to its diagonal block K[diag[k]] (BSR blocks)."""
+    H = np.empty((3, 3))
+    for i in range(nodes.shape[0]):
+        w = weight[i]
+        if w == 0.0:
+            continue
+        k = nodes[i]
+        u0, u1, u2, y = _friction_u(pos, k, anchor, normal, i)
+        friction_hessian_block(u0, u1, u2, y, normal[i], w, eps, H)
+        q = diag[k]
+        for a in range(3):
+            for b in range(3):
+                K[q, a, b] += H[a, b]

@@ -177,7 +177,10 @@ class Model:
     Seam elements (seams of unequal node counts, clothsim.kernels.seam_forces_and_energy):
     seam_nodes (Q,K) int64, seam_weight (Q,K) the gap's coefficients, seam_stiffness (Q,)
     [N/m]; Q = 0 when the scene has none (each element's first node is the node it sews, with
-    weight 1). seams: one SeamInfo per scene seam."""
+    weight 1). seams: one SeamInfo per scene seam.
+    friction_mu: the scene's Coulomb coefficient between fabric and mold (``mold.friction``; 0:
+    frictionless); friction: the frozen friction of the load step being solved (a
+    clothsim.friction.FrictionLag, set by the frictional load steps; None: no friction force)."""
 
     node_count: int
     topology: Topology
@@ -205,6 +208,8 @@ class Model:
     seam_weight: np.ndarray = _empty((0, 1))
     seam_stiffness: np.ndarray = _empty(0)
     seams: tuple = ()
+    friction_mu: float = 0.0
+    friction: object = None
 
     @property
     def seam_count(self) -> int:
@@ -223,6 +228,16 @@ class Model:
         from .kernels import seam_forces_and_energy
 
         return seam_forces_and_energy(pos, self.seam_nodes, self.seam_weight, self.seam_stiffness, out)
+
+    def add_friction_forces(self, pos: np.ndarray, out: np.ndarray) -> float:
+        """Adds the frozen friction's forces [N] into out (N,3); returns its dissipation
+        potential [J] (0 and nothing done without friction)."""
+        f = self.friction
+        if f is None:
+            return 0.0
+        from .contact import friction_forces_energy
+
+        return friction_forces_energy(pos, f.nodes, f.anchor, f.normal, f.weight, f.eps, out)
 
     def seam_gaps(self, pos: np.ndarray) -> list:
         """Per seam (in scene order) its gaps [m] at positions pos (N,3): the zero-length

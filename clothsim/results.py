@@ -656,6 +656,9 @@ class Result:
             "node_count": int(self.model.node_count),
             "clothsim_version": __version__,
         }
+        if getattr(s, "friction", None):
+            # the load steps and the Coulomb state at the last one (stick, slip, cone violation)
+            d["friction"] = {k: v for k, v in s.friction.items()}
         d.update(self.diagnostics())
         d.update(self.compression())
         return d

@@ -10,6 +10,7 @@ unchanged.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -153,6 +154,13 @@ class Simulation:
         self.residual = math.nan
         self.energy = math.nan
         self.ips = 0.0
+        # the load path of a staged scene (stages, friction, solver.load_steps): the stages to
+        # do, the current one's load steps and how many are done, the finished stages' reports
+        self._plan = None
+        self._controls = None
+        self._stage_model = None
+        self._steps_done = 0
+        self._stage_reports = []
         self.version += 1
 
     @property
@@ -237,7 +245,10 @@ class Simulation:
             self.status = "running"
             self._pause_requested = False
         try:
-            res = run_solver(self.model, self.state, settings, self._callback, self.history)
+            if self._staged():
+                res = self._run_steps(settings)
+            else:
+                res = run_solver(self.model, self.state, settings, self._callback, self.history)
         except Exception as exc:  # keep the state, report the failure
             with self._lock:
                 self.status = "error"
@@ -264,6 +275,71 @@ class Simulation:
             self.on_progress(self)
         return res
 
+    def _staged(self) -> bool:
+        """Whether the scene is solved in load steps: stages, friction with the mold, or
+        ``solver.load_steps`` > 1 (a scene without any pays nothing for them)."""
+        return bool(self.scene.stages) or self.model.friction_mu > 0 or self.settings.load_steps > 1
+
+    def _stages(self) -> list:
+        """[[name, Model, steps]]: the scene's stages (config.stage_scenes), or the scene itself
+        as one stage of ``solver.load_steps`` steps from the placed sheet."""
+        from .config import stage_scenes
+
+        if not self.scene.stages:
+            return [["", self.model, int(self.settings.load_steps), None]]
+        out = []
+        for n, (st, sc) in enumerate(stage_scenes(self.scene)):
+            m = compile_model(sc)
+            if m.node_count != self.model.node_count:
+                raise SceneError(self.scene.locate(f"stages.{n}.set: changes the lattice"))
+            out.append([st.name or f"stage {n + 1}", m, int(st.steps), sc.solver])
+        return out
+
+    def _run_steps(self, settings) -> SolveResult:
+        """The load steps still to do, stage by stage (clothsim.solvers.friction.solve_steps):
+        each stage's prescribed coordinates from where the last one left them (the scene without
+        stages: from the placed sheet) to its values in its steps; a paused run goes on with the
+        step it was in. The result's ``friction`` holds the last stage's report and ``stages``
+        every stage's."""
+        from .solvers import load_steps, make_solver
+        from .solvers.friction import solve_steps
+
+        if self._plan is None:
+            self._plan = self._stages()
+            self._stage_reports = []
+        res = None
+        while self._plan:
+            name, model, steps, stage_solver = self._plan[0]
+            if self._controls is None:
+                if self.scene.stages:
+                    start = self.state.positions.copy()
+                else:
+                    start = model.placement.apply(model.rest_positions) if steps > 1 else model.prescribed_positions
+                start = np.where(model.fixed_axes, start, model.prescribed_positions)
+                self._controls = load_steps(start, model.prescribed_positions, steps)
+                self._stage_model = dataclasses.replace(model, prescribed_positions=start)
+                self._steps_done = 0
+            todo = self._controls[self._steps_done:]
+            # a stage's own solver fields (its set may change e), the run's limits otherwise
+            s = settings if stage_solver is None else stage_solver.model_copy(
+                update={"max_iterations": settings.max_iterations})
+            m, res = solve_steps(self._stage_model, self.state, todo, s, self._callback, self.history,
+                                 lambda mm: make_solver(mm, s))
+            self._steps_done += int(res.friction["steps_solved"])
+            self.model = self._stage_model = m
+            if not res.converged:
+                break
+            self._stage_reports.append({"name": name, "load_steps": len(self._controls),
+                                        "converged": True, "iterations": int(res.iterations),
+                                        "residual": float(res.residual), "friction": res.friction})
+            self._plan.pop(0)
+            self._controls = None
+        if self.scene.stages and res is not None:
+            rep = dict(res.friction or {})
+            rep["stages"] = list(self._stage_reports)
+            res = dataclasses.replace(res, friction=rep)
+        return res
+
     def result(self, startup_s: float = 0.0) -> Result:
         """The current state as a Result (cumulative history across start/pause segments)."""
         with self._lock:
@@ -277,7 +353,7 @@ class Simulation:
             hist = self.history.copy()
             solve = SolveResult(r.converged, r.status, r.message, self.state.iteration, r.residual,
                                 r.relative_residual, r.energy, r.contact_count, self.total_time, r.method,
-                                hist, r.best_residual)
+                                hist, r.best_residual, r.friction)
             return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s)
 
     # background thread -------------------------------------------------

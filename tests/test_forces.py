@@ -124,3 +124,53 @@ def test_zero_length_spring_is_finite():
     pos[2] = pos[0]
     F = _forces(model, pos)
     assert np.isfinite(F).all()
+
+
+@pytest.mark.parametrize("slide", [0.3, 0.9, 1.0, 1.7, 40.0])
+def test_friction_force_and_hessian_are_derivatives_of_its_potential(slide):
+    """Coulomb friction's lagged potential (clothsim.contact.friction_*): the force is minus its
+    gradient and the Hessian block the force's derivative (central differences), for slides
+    below the slip eps (the C1 mollifier: sticking), at it and beyond it (slipping, |f| = mu lam),
+    with a tilted frozen normal and the normal component of the move ignored."""
+    from clothsim.contact import friction_assemble, friction_forces_energy
+
+    eps = 1e-4
+    n = np.array([[0.3, -0.2, 0.9]])
+    n /= np.linalg.norm(n)
+    anchor = np.array([[0.01, 0.02, -0.03]])
+    t = np.cross(n[0], [1.0, 0.0, 0.0])
+    t /= np.linalg.norm(t)
+    pos = anchor + slide * eps * t + 2e-3 * n  # a slide in the tangent plane, plus a normal offset
+    pos = np.vstack([pos, [[5.0, 5.0, 5.0]]])  # a node without friction
+    nodes = np.array([0], np.int64)
+    weight = np.array([0.7])
+
+    def energy(p):
+        return friction_forces_energy(p, nodes, anchor, n, weight, eps, np.zeros_like(p))
+
+    def force(p):
+        out = np.zeros_like(p)
+        friction_forces_energy(p, nodes, anchor, n, weight, eps, out)
+        return out
+
+    F = force(pos)
+    h = 1e-9
+    fd = np.zeros_like(pos)
+    H_fd = np.zeros((3, 3))
+    for a in range(3):
+        p, m = pos.copy(), pos.copy()
+        p[0, a] += h
+        m[0, a] -= h
+        fd[0, a] = -(energy(p) - energy(m)) / (2 * h)
+        H_fd[:, a] = -(force(p)[0] - force(m)[0]) / (2 * h)
+    np.testing.assert_allclose(F, fd, rtol=0, atol=1e-6 * weight[0])
+    assert abs(F[0] @ n[0]) < 1e-12 * weight[0]  # tangential only
+    assert np.linalg.norm(F[0]) <= weight[0] * (1 + 1e-12)  # never beyond mu lam
+    if slide >= 1.0:
+        assert np.linalg.norm(F[0]) == pytest.approx(weight[0], rel=1e-12)
+    K = np.zeros((1, 3, 3))
+    friction_assemble(pos, nodes, anchor, n, weight, eps, np.array([0, 0], np.int64), K)
+    scale = np.abs(K[0]).max()
+    assert scale > 0
+    np.testing.assert_allclose(K[0], H_fd, rtol=0, atol=2e-5 * scale)
+    assert np.linalg.eigvalsh(K[0]).min() >= -1e-9 * scale  # convex

@@ -47,7 +47,8 @@ class SolveResult:
     relative_residual (residual / largest spring force); energy [J]; contact_count; wall_time_s
     [s]; method (the solver's name, ``newton+paper`` for auto's rescue); history: the run's
     ``History`` (a mapping of arrays iteration, residual [N], energy [J], time [s]);
-    best_residual [N]: the smallest residual reached."""
+    best_residual [N]: the smallest residual reached; friction: the load steps' report of a scene
+    solved in load steps (clothsim.solvers.friction.solve_steps), else None."""
 
     converged: bool
     status: Status | str
@@ -61,6 +62,7 @@ class SolveResult:
     method: str
     history: dict = field(default_factory=dict)
     best_residual: float = math.nan
+    friction: dict | None = None
 
 
 @functools.lru_cache(maxsize=1)
@@ -86,6 +88,8 @@ def residual(model, state, V: Optional[np.ndarray] = None) -> tuple[float, np.nd
     F = np.empty_like(state.positions)
     forces_and_energy(state.positions, *model.spring_args(), model.external_force, F)
     model.add_seam_forces(state.positions, F)
+    if model.friction is not None:
+        model.add_friction_forces(state.positions, F)
     vinf = residual_from_forces(state.positions, F, model.fixed_axes, state.in_contact, has_mold, margs, V)
     return vinf, V
 
@@ -94,7 +98,10 @@ def energy(model, state) -> float:
     """Total potential energy [J] (springs minus external work)."""
     out = np.empty_like(state.positions)
     e = forces_and_energy(state.positions, *model.spring_args(), model.external_force, out)
-    return e + model.add_seam_forces(state.positions, out)
+    e = e + model.add_seam_forces(state.positions, out)
+    if model.friction is not None:
+        e = e + model.add_friction_forces(state.positions, out)
+    return e
 
 
 def force_scale(model, state) -> float:

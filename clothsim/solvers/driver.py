@@ -205,6 +205,8 @@ def run(solver, state, limits, callback=None, history: History | None = None, be
                 break
     wall = time.perf_counter() - t0
     hist.elapsed_s = t_base + wall
+    # (solver.model: a frictional solve refreshes its model's friction as it goes)
+    model = solver.model
     r, _ = residual(model, st)
     en = energy(model, st)
     fs = force_scale(model, st)

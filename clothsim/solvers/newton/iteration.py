@@ -14,6 +14,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
+from ...contact import friction_assemble
 from ...contact import residual_from_forces as _residual_from_forces
 from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...mold import MOLD_MESH, MOLD_SMOOTH
@@ -261,6 +262,8 @@ class NewtonLevel:
         e = forces_and_energy(pos, *self.sargs, self.model.external_force, F)
         if self.model.seam_count:
             e += self.model.add_seam_forces(pos, F)
+        if self.model.friction is not None:
+            e += self.model.add_friction_forces(pos, F)
         return e
 
     def residual(self, pos, contact, F=None):
@@ -489,6 +492,9 @@ class NewtonLevel:
         _assemble(pos, *self.sargs, self.kink, self.slot, self.K)
         if m.seam_count:
             seam_assemble(*m.seam_args(), self.seam_slot, self.K)
+        if m.friction is not None:
+            fr = m.friction
+            friction_assemble(pos, fr.nodes, fr.anchor, fr.normal, fr.weight, fr.eps, self.diag, self.K)
         self._curv_full = False
         self._curv_test = False
         curv_had = False  # a direct level with the curvature term (and so its definiteness test)

@@ -36,10 +36,23 @@ class NewtonSolver(Solver):
     def __init__(self, model, options: NewtonOptions | None = None):
         super().__init__(model, options)
         self.fine = NewtonLevel(model, kink=self.options.kink)
-        self._seq_done = not self.options.sequencing
+        # (a frictional load step starts from the previous equilibrium: no coarse grids, which
+        # would not carry its frozen friction)
+        self._seq_done = not self.options.sequencing or model.friction is not None
         self._v = None  # ||V||_inf [N] at (self._at_pos, self._at_contact), when known
         self._at_pos = None
         self._at_contact = None
+        # None, or state -> Model: the model with the friction refreshed at the state, taken
+        # before every iteration (set by clothsim.solvers.friction)
+        self.refresh = None
+
+    def retarget(self, model):
+        """Go on with ``model``: the same lattice and mold with another frozen friction
+        (Model.friction), forgetting the old model's forces."""
+        self.model = model
+        self.fine.model = model
+        self.fine._cache = None
+        self._v = None
 
     def _known_residual(self, state):
         """The residual [N] of the last iteration when ``state`` is still where it left it (the
@@ -85,6 +98,11 @@ class NewtonSolver(Solver):
                     state.in_contact[:] = trial.in_contact
                     self._remember(state, v_new)
                     return 1, v_new, E_new, StepStatus.CONVERGED if v_new <= e else StepStatus.OK
+        if self.refresh is not None:
+            # friction refreshed at the iterate (its normal forces and tangent planes frozen
+            # there for this iteration: clothsim.solvers.friction)
+            self.retarget(self.refresh(state))
+            model = self.model
         v0 = self._known_residual(state)
         if v0 is None:
             v0 = fine.residual(state.positions, state.in_contact)

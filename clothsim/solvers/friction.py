@@ -1,0 +1,155 @@
+"""Load steps with Coulomb friction between the fabric and the mold (quasi-static and
+path-dependent): each step's controls are applied, the step is solved by Newton with the friction
+frozen at its start (``clothsim.friction.lag_friction``: normal forces and tangent planes, every
+contact node anchored at the previous step's equilibrium), and solved again with the friction
+refreshed at the equilibrium found until the residual with the refreshed friction (the full
+residual: springs, loads and friction) is at most e. A step that fails is cut in half (both halves
+solved in turn), at most ``MAX_CUTS`` times in a row, and the result says how many were cut.
+Without friction the steps are solved as ``control.solve_load_steps`` does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..friction import friction_report, lag_friction
+from .base import Status
+from .common import SolveResult, residual
+from .control import Control
+from .driver import History
+
+# re-solves of one load step with the friction refreshed before the step counts as failed
+MAX_RELAGS = 40
+# the friction refreshed before every Newton iteration (True) or once per solve (False)
+REFRESH_EVERY_ITERATION = True
+# a refresh's solve stops at this share of the residual it starts from (or at e, the last one)
+REFRESH_FORCING = 0.1
+# halvings of one load step in a row before the sequence ends
+MAX_CUTS = 8
+
+
+def _newton(model, limits):
+    """Newton for ``model`` with a SolverSettings' newton options (defaults for RunLimits)."""
+    from .newton import NewtonSolver
+    from .options import NewtonOptions
+
+    return NewtonSolver(model, NewtonOptions(kink=float(getattr(limits, "newton_kink", NewtonOptions.kink)),
+                                             sequencing=bool(getattr(limits, "newton_sequencing", True))))
+
+
+def _with_e(limits, e):
+    """``limits`` (SolverSettings or RunLimits) with its e replaced."""
+    if hasattr(limits, "model_copy"):
+        return limits.model_copy(update={"e": e})
+    return dataclasses.replace(limits, e=e)
+
+
+def _frictional_step(base, state, control, limits, callback, hist):
+    """One load step with friction: (converged, model with the refreshed friction, the last
+    SolveResult, refreshes, report dict). With REFRESH_EVERY_ITERATION the Newton solver takes
+    the friction refreshed at every iterate; otherwise each solve keeps one frozen friction and
+    stops at REFRESH_FORCING times the residual it starts from (or e). Either way the step is
+    done when the residual with the friction refreshed at its equilibrium is at most e."""
+    anchor = state.positions.copy()
+    m = control.apply(base, state)
+    lag = lag_friction(m, state, anchor)
+    mm = dataclasses.replace(m, friction=lag)
+    solver = _newton(mm, limits)
+    if REFRESH_EVERY_ITERATION:
+        def refresh(st):
+            return dataclasses.replace(m, friction=lag_friction(m, st, anchor))
+        solver.refresh = refresh
+    e = limits.e
+    res = None
+    for r in range(1, MAX_RELAGS + 1):
+        lim = limits
+        if not REFRESH_EVERY_ITERATION:
+            v0, _ = residual(mm, state)
+            lim = _with_e(limits, max(e, REFRESH_FORCING * v0))
+        res = solver.solve(state, lim, callback, hist)
+        if not res.converged:
+            return False, solver.model, res, r, None
+        new = lag_friction(m, state, anchor)
+        m2 = dataclasses.replace(m, friction=new)
+        v, _ = residual(m2, state)
+        if v <= e and res.residual <= e:
+            rep = friction_report(m, new, state.positions, e)
+            return True, m2, dataclasses.replace(res, residual=float(v)), r, rep
+        mm = m2
+        solver.retarget(mm)
+    return False, mm, dataclasses.replace(res, converged=False, status=Status.STALLED,
+                                          message=f"friction not settled after {MAX_RELAGS} refreshes"), \
+        MAX_RELAGS, None
+
+
+def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None):
+    """Solve ``state`` in place through the load steps ``controls`` (Controls, from the model's
+    current prescribed positions), with friction when ``model.friction_mu`` > 0 (``limits``: a
+    SolverSettings or RunLimits; the Newton solver's options from it when it is a SolverSettings);
+    ``make_solver(model)`` solves the frictionless steps (default: Newton). Returns (the last step's Model, a
+    SolveResult over all steps whose ``friction`` holds the steps' report: load steps, cuts,
+    refreshes, and at the last step the stick and slip counts and the cone violation)."""
+    hist = history if history is not None else History()
+    if make_solver is None:
+        def make_solver(m):
+            return _newton(m, limits)
+    t0 = time.perf_counter()
+    it0 = state.iteration
+    base = dataclasses.replace(model, friction=None)
+    frictional = model.friction_mu > 0 and model.mold is not None
+    queue = [c.prescribed_positions for c in controls]
+    prev = model.prescribed_positions
+    fixed = model.fixed_axes
+    steps, cuts, relags_total = [], 0, 0
+    res, m, rep = None, model, None
+    cut_run = 0
+    while queue:
+        target = queue.pop(0)
+        snap = state.copy()
+        ts = time.perf_counter()
+        if frictional:
+            ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target), limits, callback, hist)
+        else:
+            m_new = Control(target).apply(base, state)
+            res = make_solver(m_new).solve(state, limits, callback, hist)
+            ok, relags, rep_new = res.converged, 1, None
+        relags_total += relags
+        if ok:
+            m, rep, prev, cut_run = m_new, rep_new, target, 0
+            steps.append({"iterations": int(res.iterations), "refreshes": int(relags),
+                          "seconds": time.perf_counter() - ts, **(rep_new or {})})
+            continue
+        m = m_new
+        if res.status not in (Status.DIVERGED, Status.STALLED):
+            break  # stopped, out of iterations or time: no cut
+        moved = not np.array_equal(prev[fixed], target[fixed])
+        if not moved or cut_run >= MAX_CUTS:
+            break
+        # cut the failing step in half and go on from where it started
+        state.positions[:] = snap.positions
+        state.in_contact[:] = snap.in_contact
+        half = np.where(fixed, 0.5 * (prev + target), target)
+        queue[:0] = [half, target]
+        cuts += 1
+        cut_run += 1
+    done = len(steps)
+    converged = res is not None and res.converged and not queue
+    report = {"mu": float(model.friction_mu), "load_steps": len(controls), "steps_solved": done,
+              "cuts": cuts, "refreshes": relags_total, "steps": steps}
+    if rep is not None:
+        report.update(rep)
+    msg = res.message if res is not None else "no load step"
+    if cuts:
+        msg += f"; {cuts} load step(s) cut in half"
+    if not converged and frictional and res is not None and res.status == Status.DIVERGED:
+        msg += " (with friction: no static equilibrium held the load, the sheet slid away)"
+    out = SolveResult(
+        converged=converged, status=res.status if res is not None else Status.STALLED,
+        message=f"{done} load steps: {msg}" if converged else f"load step {done + 1} failed: {msg}",
+        iterations=state.iteration - it0, residual=res.residual, relative_residual=res.relative_residual,
+        energy=res.energy, contact_count=int(state.in_contact.sum()), wall_time_s=time.perf_counter() - t0,
+        method=res.method, history=hist, best_residual=res.best_residual, friction=report)
+    return m, out
