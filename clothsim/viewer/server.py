@@ -28,7 +28,8 @@ the current shape as a warm start) or **Reset** (from the initial deformation).
 Safety (:mod:`clothsim.viewer.guard`): binds 127.0.0.1 unless ``--host`` says otherwise; the
 websocket accepts only the viewer's own page as Origin (and, off loopback, only with the token of
 :attr:`ViewerApp.url`); every GUI value is checked before viser stores or broadcasts it; uploads
-are limited by the bytes actually received; uploads are parsed in memory; an accepted mold upload
+are limited by the bytes actually received, per upload and for all tabs together, and
+abandoned ones are dropped (closed tab, or no data for a minute); uploads are parsed in memory; an accepted mold upload
 is stored in a private temporary folder (mode 0700) under a name chosen here, never the browser's.
 A refused value is shown as an error and its widget shows the last valid value again.
 """
@@ -115,14 +116,17 @@ class ViewerApp:
     def __init__(self, scene: Scene, *, host: str = "127.0.0.1", port: int = 8080,
                  upload_limit_mb: float = 200.0, max_rate_hz: float = 25.0, duty: float = 0.02,
                  verbose: bool = False, token: str | None = None, background: bool = False,
-                 autostart: bool = False, warm: Callable[[Simulation], None] | None = None):
+                 autostart: bool = False, warm: Callable[[Simulation], None] | None = None,
+                 upload_idle_s: float = 60.0):
         """``background``: serve the page at once, with a "compiling kernels" note, and in a
         start-up thread build the model and the panels (the scene is drawn), then compile (or
         load from numba's cache) the solver's kernels with ``warm(sim)`` (default
         :func:`warm_kernels`); ``ready`` is set when done (``startup_error`` holds the message if
         the scene could not be built). Otherwise the model and panels are built here, before the
         constructor returns, and nothing is warmed. ``autostart``: start the relaxation once
-        ready."""
+        ready. ``upload_limit_mb`` bounds one upload and, for the whole server, the uploads in
+        flight from every tab together; an upload with no data for ``upload_idle_s`` seconds is
+        dropped."""
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ValueError(f"port must be a whole number from 0 to 65535 (got {port})")
         if not (math.isfinite(upload_limit_mb) and upload_limit_mb >= 0):
@@ -179,7 +183,8 @@ class ViewerApp:
         self.server.scene.set_up_direction("+z")
         self.framed_box: tuple | None = None  # the box every tab's camera was last pointed at
         self.reframes = 0
-        self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused)
+        self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused,
+                                        idle_timeout=upload_idle_s)
 
         if background:
             self._startup_note = self.server.gui.add_html(_startup_html(0.0))
@@ -611,7 +616,7 @@ class ViewerApp:
         groups = {self.gui[k]._impl.uuid: g for k, g in (("mold_upload", "mold"), ("scene_upload", "files"),
                                                                   ("pattern_upload", "pattern"))
                   if k in self.gui}
-        group = groups.get(message.source_component_uuid, "material")
+        group = groups.get(getattr(message, "source_component_uuid", None), "material")
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
         client = self.server.get_clients().get(client_id)
         if client is not None:
