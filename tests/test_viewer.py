@@ -512,3 +512,87 @@ def test_unequal_seam_threads_and_widest_gap_list():
         assert float(found.group(1)) < 1e-5
     finally:
         a.close()
+
+
+# --------------------------------------------------------------------------- issue 28, items 10, 16
+def _scene_yaml(**fabric) -> str:
+    import yaml
+
+    d = {**SMALL, "name": "uploaded", "fabric": {**SMALL["fabric"], **fabric}}
+    return yaml.safe_dump(d, sort_keys=False)
+
+
+def test_uploaded_scene_reads_only_its_own_files(app, tmp_path):
+    """Issue 28, item 10: a scene uploaded to the viewer naming a weft table elsewhere on the
+    server (absolute, or ``../``) used to open, and 'Save scene + files (.zip)' sent that file
+    back; an error quoted the server file's first cell and showed the private upload path.
+    Now it is refused before any file is read, naming the line and field; no message shows the
+    upload folder; a zip's own table opens and is the only file saved with it."""
+    import zipfile
+
+    secret = tmp_path / "secret.csv"
+    secret.write_text("TOPSECRET,cell\n1,2\n")
+    fp = app.panels["files"]
+    for ref in (str(secret), "../../" + secret.name, "files/../../x.csv"):
+        text = _scene_yaml(weft={"csv": ref})
+        app.post(lambda t=text: fp.open_scene("evil.yaml", t.encode()), "files")
+        settle(app)
+        err = app.errors["files"]
+        assert re.search(r"evil\.yaml:\d+: fabric\.weft\.csv: .*not a file of this upload", err), err
+        assert "TOPSECRET" not in err and str(app.upload_dir) not in err and "clothsim-uploads" not in err
+        assert app.sim.scene.name == "small-cap"
+    # a zip with its own table: a bad one is reported by its name in the zip, never the folder
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
+        z.writestr("files/weft.csv", "strain,tension\n0,0\nzero,5\n")
+    app.post(lambda: fp.open_scene("bad.zip", buf.getvalue()), "files")
+    settle(app)
+    err = app.errors["files"]
+    assert "fabric.weft.csv" in err and "files/weft.csv" in err and "clothsim-uploads" not in err, err
+    assert app.sim.scene.name == "small-cap"
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
+        z.writestr("files/weft.csv", "strain,tension\n0,0\n1,300\n")
+    app.post(lambda: fp.open_scene("good.zip", buf.getvalue()), "files")
+    settle(app)
+    assert app.errors["files"] == "" and app.sim.scene.name == "uploaded", app.errors
+    saved = zipfile.ZipFile(io.BytesIO(app.scene_draft.scene_zip()))
+    assert sorted(saved.namelist()) == ["files/weft.csv", "scene.yaml"]
+    assert saved.read("files/weft.csv").decode().endswith("1,300\n")
+
+
+def test_bundled_scenes_open_from_an_upload_and_from_the_picker(app):
+    """Issue 28, item 16: 'Open scene' with a bundled example naming files beside it used to fail
+    ("../../static/bodies/smpl_man.stl: cannot open", no line or field). A bundled scene's bytes
+    now open it from configs/ (its files resolved beside it); a missing file names the line and
+    field; the Files tab lists every bundled scene but the sweeps and opens one without a
+    restart."""
+    fp = app.panels["files"]
+    calf = ROOT / "configs" / "garments" / "calf_band.yaml"
+    app.post(lambda: fp.open_scene("calf_band.yaml", calf.read_bytes()), "files")
+    settle(app)
+    assert app.errors["files"] == "", app.errors
+    assert app.sim.scene.name == "calf-band" and "mesh" in app.sim.model.mold.kind_name
+    assert app.sim.scene.source == calf and "calf-band" in app.gui["title"].content
+    import yaml
+
+    d = yaml.safe_load(_scene_yaml())
+    d["mold"] = {"path": "missing_leg.stl"}
+    text = yaml.safe_dump(d, sort_keys=False)
+    line = next(n for n, t in enumerate(text.splitlines(), 1) if "missing_leg" in t)
+    app.post(lambda: fp.open_scene("mine.yaml", text.encode()), "files")
+    settle(app)
+    err = app.errors["files"]
+    assert f"mine.yaml:{line}: mold.path: " in err and "missing_leg.stl" in err and "cannot open" in err, err
+    assert "clothsim-uploads" not in err and app.sim.scene.name == "calf-band"
+    options = app.gui["bundled"].options
+    assert "garments/calf_band.yaml" in options and "thermoform.yaml" in options
+    assert not any(o.startswith("sweeps/") for o in options)
+    assert len(options) - 1 == len(list((ROOT / "configs").rglob("*.yaml"))) - len(list((ROOT / "configs" / "sweeps").glob("*.yaml")))
+    app.gui["bundled"].value = "torso_band.yaml"
+    app.post(lambda: fp.open_bundled(app.gui["bundled"].value), "files")
+    settle(app)
+    assert app.errors["files"] == "" and app.sim.scene.name == "torso-band", app.errors
+    assert "mesh" in app.sim.model.mold.kind_name and app.draft["name"] == "torso-band"

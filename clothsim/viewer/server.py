@@ -540,6 +540,10 @@ class ViewerApp:
 
     def _clean(self, msg: str) -> str:
         msg = msg.replace(f"{self._label}: ", "").replace("<scene>: ", "")
+        # never show the private upload folder: an uploaded scene's files by their names in it
+        up = re.escape(str(self.upload_dir))
+        msg = re.sub(up + r"/scene_\d+/", "", msg)
+        msg = re.sub(up + r"/?", "(upload)/", msg)
         # pydantic ValidationError text from set_solver: keep the useful lines
         if "validation error" in msg:
             lines = [ln.strip() for ln in msg.splitlines()[1:] if ln.strip() and not ln.strip().startswith("For further")]
