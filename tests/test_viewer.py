@@ -630,3 +630,108 @@ def test_frame_the_sheet_frames_the_garment_on_a_body():
         assert 1.6 * half * 1.1 < dist < 0.6, dist  # off the box with a margin, not the body's distance
     finally:
         app.close()
+
+
+# --------------------------------------------------------------------------- issue 28, item 18
+FLAT = {"name": "flat", "fabric": {"size": [0.1, 0.1], "divisions": [6, 6],
+                                   "warp": {"strain": [0, 1], "tension": [0, 250]},
+                                   "weft": {"strain": [0, 1], "tension": [0, 250]}},
+        "constraints": [{"nodes": "left", "axes": "xyz"}, {"nodes": "right", "axes": "xyz"}],
+        "solver": {"method": "paper", "e": 1e-6}}
+
+
+def test_zero_field_legend_and_range_widgets_follow_the_bar(app):
+    """Issue 28, item 18: an all-zero pressure field said "uniform (0.5)" on a 0-1 bar (the middle
+    of the widened range, not the field); Range min/max kept showing 0/1 while the bar spanned
+    0-85. Now: "0 everywhere"; with Auto range on the two widgets show the bar's range (and
+    turning Auto range off keeps it)."""
+    view = app.gui
+    view["field"].value = "contact pressure"
+    settle(app)
+    assert "contact pressure" in app.panels["view"].legend
+    assert "0 everywhere" in app.panels["view"].legend, app.panels["view"].legend  # flat sheet: no contact yet
+    app.start(wait=True)
+    assert app.sim.wait(300) == "converged"
+    settle(app, 0.5)
+    lo, hi = app.renderer.range
+    print(f"pressure bar {lo:g}..{hi:g} mmHg; legend {app.panels['view'].legend}")
+    assert hi > 5 and lo == 0.0
+    assert view["range_min"].value == float(f"{lo:.4g}") and view["range_max"].value == float(f"{hi:.4g}")
+    view["auto_range"].value = False
+    settle(app, 0.5)
+    assert app.renderer.range == pytest.approx((lo, hi), rel=1e-3)
+
+
+def test_invalid_table_keeps_the_typing_and_apply_resumes_a_run(app):
+    """Issue 28, item 18: an invalid table edit threw the typing away and showed its error in the
+    Material group's line below the uploads; Apply edits during a run left it paused. Now the
+    text stays with the error on the table's own line (cleared by a valid edit) and a running
+    relaxation goes on with the applied model."""
+    before = dict(app.draft["fabric"]["warp"])
+    bad = "0, 0\n0.5, 10\n0.3, 20"
+    app.gui["warp_text"].value = bad  # as a tab's edit (not quiet): posted to the loop
+    settle(app)
+    assert app.gui["warp_text"].value == bad
+    assert "strictly increasing" in app.errors["warp_table"] and app.errors["material"] == "", app.errors
+    assert app.draft["fabric"]["warp"] == before and "material" not in app.pending
+    app.gui["warp_text"].value = "0, 0\n1, 300"
+    settle(app)
+    assert app.errors["warp_table"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 300]
+    big = ViewerApp(scene_from_dict({**SMALL, "fabric": {**SMALL["fabric"], "divisions": [60, 60]},
+                                     "solver": {"method": "paper", "C": 2.0, "e": 1e-12}}), port=free_port())
+    try:  # a run of minutes
+        big.wait_idle(20)
+        big.start(wait=True)
+        assert poll_until(lambda: big.sim.state.iteration > 20) and big.sim.status == "running"
+        big.gui["lift"].value = 0.031  # an edit of the model, as a tab makes it
+        settle(big)
+        assert "fabric" in big.pending, big.errors
+        big.apply(wait=True)
+        assert big.errors["run"] == "" and not big.pending
+        it = big.sim.state.iteration
+        assert poll_until(lambda: big.sim.state.iteration > it + 5), big.sim.status
+        assert big.sim.status == "running"
+        big.pause(wait=True)
+    finally:
+        big.close()
+
+
+def poll_until(fn, timeout=30.0) -> bool:
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        if fn():
+            return True
+        time.sleep(0.05)
+    return bool(fn())
+
+
+def test_probe_table_columns_and_undetermined_advice():
+    """Issue 28, item 18: the probe table's five columns (the classes' long names among them)
+    crowded the panel: now three (probe, mmHg to 0.1, covered) and the classes on a line below;
+    "6 undetermined nodes" gave no advice: the status now says what it means and what to do."""
+    from types import SimpleNamespace
+
+    from clothsim.viewer.panels.probes import ProbesPanel
+
+    fake = SimpleNamespace(gui={}, sim=SimpleNamespace(scene=SimpleNamespace(probes=[1, 2])))
+    panel = ProbesPanel(fake)
+    panel.readings = [
+        {"name": "ankle", "pressure_mmhg": 21.3456, "pressure_pa": 2845.8, "contact_fraction": 0.97,
+         "classes": {"RAL-GZ 387": "below I", "UK Drug Tariff": "2"}},
+        {"name": "calf", "pressure_mmhg": 14.06, "pressure_pa": 1874.5, "contact_fraction": 1.0}]
+    text = panel.table()
+    rows = [ln for ln in text.splitlines() if ln.startswith("|")]
+    assert rows[0] == "| probe | mmHg | covered |" and all(ln.count("|") == 4 for ln in rows), text
+    assert "| ankle | 21.3 | 97% |" in rows and "| calf | 14.1 | 100% |" in rows
+    assert "Class at *ankle*: RAL-GZ 387 **below I** · UK Drug Tariff **2**" in text
+    a = ViewerApp(scene_from_dict(FLAT), port=free_port())
+    try:
+        a.start(wait=True)
+        assert a.sim.wait(120) == "converged"
+        settle(a, 0.5)
+        text = a.gui["status"].content
+        m = re.search(r"(\d+) undetermined nodes", text)
+        assert m and int(m.group(1)) > 0, text
+        assert "Hold the ends along the axis, add pre-tension" in text and "shear or bending" in text, text
+    finally:
+        a.close()

@@ -110,8 +110,12 @@ def is_uniform(values: np.ndarray, key: str) -> bool:
     return hi - lo <= range_floor(key, lo, hi)
 
 
-def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False) -> str:
-    """The markdown under the colour bar: the range's ends and middle, or 'uniform'."""
+def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False,
+                value: float | None = None) -> str:
+    """The markdown under the colour bar: the range's ends and middle, or for a uniform field its
+    ``value`` (default: the range's middle): "0 everywhere" for a field that is zero (rounding
+    noise included: an all-zero pressure field is not "uniform (0.5)" of its widened range), else
+    "uniform (3)"."""
     if key == "contact":
         return "**in contact**: dark = free, yellow = touching the mold"
     unit = FIELDS[label][0]
@@ -122,8 +126,13 @@ def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = Fals
         return fmt(0.0 if abs(x) < tiny else x)
 
     if uniform:
-        mid = 0.5 * (lo + hi)
-        return f"{head}: uniform ({show(mid if abs(mid) > range_floor(key, lo, hi) else 0.0)})"
+        if value is None:
+            mid = 0.5 * (lo + hi)
+            v = mid if abs(mid) > range_floor(key, lo, hi) else 0.0
+        else:  # the field's own value; a strain within its noise floor is zero
+            v = float(value)
+            v = 0.0 if key in ("strain_warp", "strain_weft") and abs(v) <= STRAIN_FLOOR else v
+        return f"{head}: 0 everywhere" if show(v) == "0" else f"{head}: uniform ({show(v)})"
     return f"{head}: {show(lo)} (dark) · {show(0.5 * (lo + hi))} · {show(hi)} (yellow)"
 
 
@@ -262,6 +271,8 @@ class SceneRenderer:
         vals = node_field(f.model, f.positions, f.in_contact, self.field_key)
         lo, hi = field_range(vals, self.field_key, view)
         uniform = view.auto_range and is_uniform(vals, self.field_key)
+        finite = vals[np.isfinite(vals)]
+        value = float(np.median(finite)) if uniform and len(finite) else None
         self.range = (lo, hi)
         glb = self.glb.build(f.positions, colormap(vals, lo, hi), vertex_normals(f.positions, f.model.topology),
                              opacity=float(view.sheet_opacity))
@@ -274,7 +285,7 @@ class SceneRenderer:
         if self.h_outlines is not None:
             self.h_outlines.points = f.positions[self.outline_ab].astype(np.float32)
             self.h_outlines.visible = bool(view.show_outlines)
-        return legend_text(view.field, self.field_key, lo, hi, uniform)
+        return legend_text(view.field, self.field_key, lo, hi, uniform, value)
 
 
 #: the camera's view holds the framed box grown by this share of its size on every side (issue 28,

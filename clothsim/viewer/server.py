@@ -302,7 +302,8 @@ class ViewerApp:
         self._control(self._do_reset, wait)
 
     def apply(self, wait: bool = False) -> None:
-        """Rebuild the model from the edited scene, keeping the current shape as a warm start."""
+        """Rebuild the model from the edited scene, keeping the current shape as a warm start; a
+        running relaxation goes on with the new model."""
         self._control(lambda: self._do_apply(reset=False), wait)
 
     def scene_yaml(self) -> str:
@@ -353,26 +354,28 @@ class ViewerApp:
     def is_quiet(self) -> bool:
         return self._quiet.depth > 0
 
-    def on(self, handle, fn: Callable, group: str | None):
+    def on(self, handle, fn: Callable, group: str | None, restore: bool = True):
         """Register fn(value) as a user edit of handle, run by the update loop. If fn refuses
-        the value (raises), the widget shows its last valid value again."""
+        the value (raises), the widget shows its last valid value again, unless ``restore`` is
+        False (a text the user is typing: it stays, with its error next to it)."""
 
         def cb(_event) -> None:
             if self.is_quiet():
                 return
             value = handle.value
-            self.post(lambda: self._edit(handle, fn, value), group)
+            self.post(lambda: self._edit(handle, fn, value, restore), group)
 
         handle.on_update(cb)
         self._edit_group[id(handle)] = group
         self._edit_handles.append(handle)
         return handle
 
-    def _edit(self, handle, fn: Callable, value) -> None:
+    def _edit(self, handle, fn: Callable, value, restore: bool = True) -> None:
         try:
             fn(value)
         except Exception:
-            self._restore(handle)
+            if restore:
+                self._restore(handle)
             raise
         self._mark_valid(self._edit_group[id(handle)])
 
@@ -459,6 +462,8 @@ class ViewerApp:
         with self.quiet():
             for key in ("solver", "fabric", "material", "constraints", "garment", "run"):
                 self.panels[key].sync()
+        for group in ("warp_table", "weft_table"):  # the tables show the draft's again
+            self._set_error(group, "")
         self.panels["material"].refresh()
 
     # ------------------------------------------------------------------ solver thread hook
@@ -564,13 +569,13 @@ class ViewerApp:
     # ------------------------------------------------------------------ tasks
     def _do_start(self) -> None:
         if self.pending:  # Start with unapplied edits: apply them first (warm start)
-            self._do_apply(reset=False)
+            self._do_apply(reset=False, resume=False)
         self._begin_segment()
         self.sim.start()
 
     def _do_step(self) -> None:
         if self.pending:
-            self._do_apply(reset=False)
+            self._do_apply(reset=False, resume=False)
         self._begin_segment()
         self.sim.step()
 
@@ -582,14 +587,17 @@ class ViewerApp:
 
     def _do_reset(self) -> None:
         if self.pending:
-            self._do_apply(reset=True)
+            self._do_apply(reset=True, resume=False)
         else:
             self.sim.reset()
             self._after_model_change()
 
-    def _do_apply(self, reset: bool) -> None:
+    def _do_apply(self, reset: bool, resume: bool | None = None) -> None:
+        """Rebuild the model from the draft (warm start unless ``reset``); a relaxation that was
+        running goes on from the new model (``resume``: None = if it was running)."""
         import warnings
 
+        resume = self.sim.status == "running" if resume is None else resume
         scene = self.scene_draft.validate()
         with warnings.catch_warnings(record=True) as caught:  # the mold's units and reach
             warnings.simplefilter("always")
@@ -598,6 +606,9 @@ class ViewerApp:
         self.panels["fabric"].mold_preview = None
         self._after_model_change()
         self.panels["fabric"].refresh_mold_info()
+        if resume:
+            self._begin_segment()
+            self.sim.start()
 
     def _after_model_change(self) -> None:
         with self._lock:
@@ -707,6 +718,7 @@ class ViewerApp:
         if frame is not None:
             self.panels["view"].set_legend(r.push_frame(frame, view))
             self.panels["view"].set_colorbar(*r.range, r.field_key)
+            self.panels["view"].show_range(*r.range)
             self.pushed_positions = frame.positions
             self.pushed_iteration = frame.iteration
             self.frames_pushed += 1
