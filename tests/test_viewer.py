@@ -161,11 +161,11 @@ def test_material_constraint_fabric_edits(app):
     before = app.draft["fabric"]["warp"]
     app.gui["warp_text"].value = "0, 0\n0.5, 10\n0.3, 20"
     settle(app)
-    assert "strictly increasing" in app.errors["material"]
+    assert "strictly increasing" in app.errors["warp_table"]  # on the table's own line
     assert app.draft["fabric"]["warp"] == before and not app.pending
     app.gui["warp_text"].value = "0, 0\n0.2, 40\n1.0, 400"
     settle(app)
-    assert app.errors["material"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 40, 400]
+    assert app.errors["warp_table"] == "" and app.errors["material"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 40, 400]
     app.gui["weft_unit"].value = "Pa (stress)"  # no thickness: refused
     settle(app)
     assert "thickness" in app.errors["material"]

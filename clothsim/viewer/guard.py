@@ -13,8 +13,10 @@ there is, and only here:
 - **Uploads.** :class:`UploadGuard` registers handlers on viser's websocket server (public
   ``register_handler`` of ``viser.infra.WebsockServer``, reached through the private
   ``ViserServer._websock_server``); the part handler is put *before* viser's own, so a part is
-  counted before viser buffers it, and a refused transfer, or one whose connection closed, is
-  removed from viser's private ``GuiApi._current_file_upload_states`` (which frees its parts).
+  counted before viser buffers it, and a refused transfer, one whose connection closed or one
+  idle past its timeout (a check scheduled on viser's event loop) is removed from viser's private
+  ``GuiApi._current_file_upload_states`` (which frees its parts). The limits are per transfer and,
+  as a byte budget, for all tabs' transfers together.
 - **GUI values.** :class:`GuiValueGuard` is put before viser's own ``GuiUpdateMessage``
   handler, so a value is checked before viser stores it and broadcasts it to every tab.
 """
