@@ -732,6 +732,6 @@ def test_probe_table_columns_and_undetermined_advice():
         text = a.gui["status"].content
         m = re.search(r"(\d+) undetermined nodes", text)
         assert m and int(m.group(1)) > 0, text
-        assert "Hold the ends along the axis, add pre-tension" in text and "shear or bending" in text, text
+        assert "Hold the ends along the axis, add pre-tension" in text and "`shear:`/`bending:`" in text, text
     finally:
         a.close()

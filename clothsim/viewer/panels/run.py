@@ -11,10 +11,9 @@ from ..render import Frame, fmt
 from . import Panel
 
 #: what undetermined nodes mean and what to do (issue 28, item 18)
-UNDETERMINED_ADVICE = ("Undetermined nodes: nothing fixes where they sit (their springs are slack or "
-                       "only pull across, and neither contact nor a constraint holds them), so the result "
-                       "there is one of many. Hold the ends along the axis, add pre-tension (a stretch), "
-                       "or switch on shear or bending springs (`shear:`, `bending:` in the scene).")
+UNDETERMINED_ADVICE = ("Undetermined: nothing fixes where these nodes sit (slack springs, no contact, no "
+                       "constraint). Hold the ends along the axis, add pre-tension, or switch on "
+                       "`shear:`/`bending:` springs.")
 STATE_TEXT = {"idle": "ready", "max_iterations": "stopped (max iterations)", "time_limit": "stopped (time limit)"}
 
 
