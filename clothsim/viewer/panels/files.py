@@ -11,7 +11,8 @@ import threading
 
 import viser
 
-from ..draft import SceneDraft, bundled_scenes, open_bundled, open_scene_upload
+from ..draft import SceneDraft, open_scene_upload
+from ..scenes import bundled_scenes, open_bundled
 from . import Panel
 
 PICK = "(pick a scene)"
