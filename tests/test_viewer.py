@@ -161,11 +161,11 @@ def test_material_constraint_fabric_edits(app):
     before = app.draft["fabric"]["warp"]
     app.gui["warp_text"].value = "0, 0\n0.5, 10\n0.3, 20"
     settle(app)
-    assert "strictly increasing" in app.errors["material"]
+    assert "strictly increasing" in app.errors["warp_table"]  # on the table's own line
     assert app.draft["fabric"]["warp"] == before and not app.pending
     app.gui["warp_text"].value = "0, 0\n0.2, 40\n1.0, 400"
     settle(app)
-    assert app.errors["material"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 40, 400]
+    assert app.errors["warp_table"] == "" and app.errors["material"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 40, 400]
     app.gui["weft_unit"].value = "Pa (stress)"  # no thickness: refused
     settle(app)
     assert "thickness" in app.errors["material"]
@@ -510,5 +510,228 @@ def test_unequal_seam_threads_and_widest_gap_list():
         found = re.search(r"seam 0: widest gap ([0-9.e+-]+) m \(ease 10\.0 %\)", text)
         assert found, repr(text)
         assert float(found.group(1)) < 1e-5
+    finally:
+        a.close()
+
+
+# --------------------------------------------------------------------------- issue 28, items 10, 16
+def _scene_yaml(**fabric) -> str:
+    import yaml
+
+    d = {**SMALL, "name": "uploaded", "fabric": {**SMALL["fabric"], **fabric}}
+    return yaml.safe_dump(d, sort_keys=False)
+
+
+def test_uploaded_scene_reads_only_its_own_files(app, tmp_path):
+    """Issue 28, item 10: a scene uploaded to the viewer naming a weft table elsewhere on the
+    server (absolute, or ``../``) used to open, and 'Save scene + files (.zip)' sent that file
+    back; an error quoted the server file's first cell and showed the private upload path.
+    Now it is refused before any file is read, naming the line and field; no message shows the
+    upload folder; a zip's own table opens and is the only file saved with it."""
+    import zipfile
+
+    secret = tmp_path / "secret.csv"
+    secret.write_text("TOPSECRET,cell\n1,2\n")
+    fp = app.panels["files"]
+    for ref in (str(secret), "../../" + secret.name, "files/../../x.csv"):
+        text = _scene_yaml(weft={"csv": ref})
+        app.post(lambda t=text: fp.open_scene("evil.yaml", t.encode()), "files")
+        settle(app)
+        err = app.errors["files"]
+        assert re.search(r"evil\.yaml:\d+: fabric\.weft\.csv: .*not a file of this upload", err), err
+        assert "TOPSECRET" not in err and str(app.upload_dir) not in err and "clothsim-uploads" not in err
+        assert app.sim.scene.name == "small-cap"
+    # a zip with its own table: a bad one is reported by its name in the zip, never the folder
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
+        z.writestr("files/weft.csv", "strain,tension\n0,0\nzero,5\n")
+    app.post(lambda: fp.open_scene("bad.zip", buf.getvalue()), "files")
+    settle(app)
+    err = app.errors["files"]
+    assert "fabric.weft.csv" in err and "files/weft.csv" in err and "clothsim-uploads" not in err, err
+    assert app.sim.scene.name == "small-cap"
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
+        z.writestr("files/weft.csv", "strain,tension\n0,0\n1,300\n")
+    app.post(lambda: fp.open_scene("good.zip", buf.getvalue()), "files")
+    settle(app)
+    assert app.errors["files"] == "" and app.sim.scene.name == "uploaded", app.errors
+    saved = zipfile.ZipFile(io.BytesIO(app.scene_draft.scene_zip()))
+    assert sorted(saved.namelist()) == ["files/weft.csv", "scene.yaml"]
+    assert saved.read("files/weft.csv").decode().endswith("1,300\n")
+
+
+def test_bundled_scenes_open_from_an_upload_and_from_the_picker(app):
+    """Issue 28, item 16: 'Open scene' with a bundled example naming files beside it used to fail
+    ("../../static/bodies/smpl_man.stl: cannot open", no line or field). A bundled scene's bytes
+    now open it from configs/ (its files resolved beside it); a missing file names the line and
+    field; the Files tab lists every bundled scene but the sweeps and opens one without a
+    restart."""
+    fp = app.panels["files"]
+    calf = ROOT / "configs" / "garments" / "calf_band.yaml"
+    app.post(lambda: fp.open_scene("calf_band.yaml", calf.read_bytes()), "files")
+    settle(app)
+    assert app.errors["files"] == "", app.errors
+    assert app.sim.scene.name == "calf-band" and "mesh" in app.sim.model.mold.kind_name
+    assert app.sim.scene.source == calf and "calf-band" in app.gui["title"].content
+    import yaml
+
+    d = yaml.safe_load(_scene_yaml())
+    d["mold"] = {"path": "missing_leg.stl"}
+    text = yaml.safe_dump(d, sort_keys=False)
+    line = next(n for n, t in enumerate(text.splitlines(), 1) if "missing_leg" in t)
+    app.post(lambda: fp.open_scene("mine.yaml", text.encode()), "files")
+    settle(app)
+    err = app.errors["files"]
+    assert f"mine.yaml:{line}: mold.path: " in err and "missing_leg.stl" in err and "cannot open" in err, err
+    assert "clothsim-uploads" not in err and app.sim.scene.name == "calf-band"
+    options = app.gui["bundled"].options
+    assert "garments/calf_band.yaml" in options and "thermoform.yaml" in options
+    assert not any(o.startswith("sweeps/") for o in options)
+    assert len(options) - 1 == len(list((ROOT / "configs").rglob("*.yaml"))) - len(list((ROOT / "configs" / "sweeps").glob("*.yaml")))
+    app.gui["bundled"].value = "torso_band.yaml"
+    app.post(lambda: fp.open_bundled(app.gui["bundled"].value), "files")
+    settle(app)
+    assert app.errors["files"] == "" and app.sim.scene.name == "torso-band", app.errors
+    assert "mesh" in app.sim.model.mold.kind_name and app.draft["name"] == "torso-band"
+
+
+def test_frame_the_sheet_frames_the_garment_on_a_body():
+    """Issue 28, item 15: on a body, 'Frame the sheet' framed the whole 1.8 m body whenever the
+    mold was under 10x the sheet (the stocking: a 1.84 m box for a 0.3 m garment, the camera
+    2.5 m away). It now frames the garment's box and the body only within 10 % of the garment's
+    size around it, and the camera stands off that box with a margin; the button does it for
+    the asking tab."""
+    from types import SimpleNamespace
+
+    from clothsim.config import load_scene
+
+    app = ViewerApp(load_scene(ROOT / "configs" / "garments" / "stocking.yaml"), port=free_port())
+    try:
+        settle(app)
+        p = app.pushed_positions
+        lo, hi = (np.asarray(x) for x in app.framed_box)
+        sheet = np.ptp(p, axis=0)
+        body = np.ptp(np.asarray(app.sim.model.mold.bounds), axis=0)
+        print(f"sheet {sheet.round(3)} m, body {body.round(3)} m, framed {(hi - lo).round(3)} m")
+        assert body.max() > 1.5 and sheet.max() < 0.4
+        assert (lo <= p.min(axis=0) + 1e-9).all() and (hi >= p.max(axis=0) - 1e-9).all()
+        assert (hi - lo).max() <= sheet.max() * 1.2 + 1e-9
+        cam = SimpleNamespace(camera=SimpleNamespace())
+        app.post(lambda: app.frame(cam))  # what the button posts for its tab
+        settle(app)
+        look = np.asarray(cam.camera.look_at)
+        dist = float(np.linalg.norm(np.asarray(cam.camera.position) - look))
+        half = 0.5 * float(np.linalg.norm(hi - lo))
+        print(f"camera {dist:.3f} m from the framed box's centre")
+        np.testing.assert_allclose(look, 0.5 * (lo + hi))
+        assert 1.6 * half * 1.1 < dist < 0.6, dist  # off the box with a margin, not the body's distance
+    finally:
+        app.close()
+
+
+# --------------------------------------------------------------------------- issue 28, item 18
+FLAT = {"name": "flat", "fabric": {"size": [0.1, 0.1], "divisions": [6, 6],
+                                   "warp": {"strain": [0, 1], "tension": [0, 250]},
+                                   "weft": {"strain": [0, 1], "tension": [0, 250]}},
+        "constraints": [{"nodes": "left", "axes": "xyz"}, {"nodes": "right", "axes": "xyz"}],
+        "solver": {"method": "paper", "e": 1e-6}}
+
+
+def test_zero_field_legend_and_range_widgets_follow_the_bar(app):
+    """Issue 28, item 18: an all-zero pressure field said "uniform (0.5)" on a 0-1 bar (the middle
+    of the widened range, not the field); Range min/max kept showing 0/1 while the bar spanned
+    0-85. Now: "0 everywhere"; with Auto range on the two widgets show the bar's range (and
+    turning Auto range off keeps it)."""
+    view = app.gui
+    view["field"].value = "contact pressure"
+    settle(app)
+    assert "contact pressure" in app.panels["view"].legend
+    assert "0 everywhere" in app.panels["view"].legend, app.panels["view"].legend  # flat sheet: no contact yet
+    app.start(wait=True)
+    assert app.sim.wait(300) == "converged"
+    settle(app, 0.5)
+    lo, hi = app.renderer.range
+    print(f"pressure bar {lo:g}..{hi:g} mmHg; legend {app.panels['view'].legend}")
+    assert hi > 5 and lo == 0.0
+    assert view["range_min"].value == float(f"{lo:.4g}") and view["range_max"].value == float(f"{hi:.4g}")
+    view["auto_range"].value = False
+    settle(app, 0.5)
+    assert app.renderer.range == pytest.approx((lo, hi), rel=1e-3)
+
+
+def test_invalid_table_keeps_the_typing_and_apply_resumes_a_run(app):
+    """Issue 28, item 18: an invalid table edit threw the typing away and showed its error in the
+    Material group's line below the uploads; Apply edits during a run left it paused. Now the
+    text stays with the error on the table's own line (cleared by a valid edit) and a running
+    relaxation goes on with the applied model."""
+    before = dict(app.draft["fabric"]["warp"])
+    bad = "0, 0\n0.5, 10\n0.3, 20"
+    app.gui["warp_text"].value = bad  # as a tab's edit (not quiet): posted to the loop
+    settle(app)
+    assert app.gui["warp_text"].value == bad
+    assert "strictly increasing" in app.errors["warp_table"] and app.errors["material"] == "", app.errors
+    assert app.draft["fabric"]["warp"] == before and "material" not in app.pending
+    app.gui["warp_text"].value = "0, 0\n1, 300"
+    settle(app)
+    assert app.errors["warp_table"] == "" and app.draft["fabric"]["warp"]["tension"] == [0, 300]
+    big = ViewerApp(scene_from_dict({**SMALL, "fabric": {**SMALL["fabric"], "divisions": [60, 60]},
+                                     "solver": {"method": "paper", "C": 2.0, "e": 1e-12}}), port=free_port())
+    try:  # a run of minutes
+        big.wait_idle(20)
+        big.start(wait=True)
+        assert poll_until(lambda: big.sim.state.iteration > 20) and big.sim.status == "running"
+        big.gui["lift"].value = 0.031  # an edit of the model, as a tab makes it
+        settle(big)
+        assert "fabric" in big.pending, big.errors
+        big.apply(wait=True)
+        assert big.errors["run"] == "" and not big.pending
+        it = big.sim.state.iteration
+        assert poll_until(lambda: big.sim.state.iteration > it + 5), big.sim.status
+        assert big.sim.status == "running"
+        big.pause(wait=True)
+    finally:
+        big.close()
+
+
+def poll_until(fn, timeout=30.0) -> bool:
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        if fn():
+            return True
+        time.sleep(0.05)
+    return bool(fn())
+
+
+def test_probe_table_columns_and_undetermined_advice():
+    """Issue 28, item 18: the probe table's five columns (the classes' long names among them)
+    crowded the panel: now three (probe, mmHg to 0.1, covered) and the classes on a line below;
+    "6 undetermined nodes" gave no advice: the status now says what it means and what to do."""
+    from types import SimpleNamespace
+
+    from clothsim.viewer.panels.probes import ProbesPanel
+
+    fake = SimpleNamespace(gui={}, sim=SimpleNamespace(scene=SimpleNamespace(probes=[1, 2])))
+    panel = ProbesPanel(fake)
+    panel.readings = [
+        {"name": "ankle", "pressure_mmhg": 21.3456, "pressure_pa": 2845.8, "contact_fraction": 0.97,
+         "classes": {"RAL-GZ 387": "below I", "UK Drug Tariff": "2"}},
+        {"name": "calf", "pressure_mmhg": 14.06, "pressure_pa": 1874.5, "contact_fraction": 1.0}]
+    text = panel.table()
+    rows = [ln for ln in text.splitlines() if ln.startswith("|")]
+    assert rows[0] == "| probe | mmHg | covered |" and all(ln.count("|") == 4 for ln in rows), text
+    assert "| ankle | 21.3 | 97% |" in rows and "| calf | 14.1 | 100% |" in rows
+    assert "Class at *ankle*: RAL-GZ 387 **below I** · UK Drug Tariff **2**" in text
+    a = ViewerApp(scene_from_dict(FLAT), port=free_port())
+    try:
+        a.start(wait=True)
+        assert a.sim.wait(120) == "converged"
+        settle(a, 0.5)
+        text = a.gui["status"].content
+        m = re.search(r"(\d+) undetermined nodes", text)
+        assert m and int(m.group(1)) > 0, text
+        assert "Hold the ends along the axis, add pre-tension" in text and "`shear:`/`bending:`" in text, text
     finally:
         a.close()

@@ -18,7 +18,7 @@ def test_noise_is_uniform_not_hotspots():
     t = (vals - lo) / (hi - lo)
     assert np.ptp(t) < 0.1 and abs(t.mean() - 0.5) < 0.1
     assert is_uniform(vals, "strain_weft")
-    assert legend_text("weft strain", "strain_weft", lo, hi, True) == "**weft strain**: uniform (0)"
+    assert legend_text("weft strain", "strain_weft", lo, hi, True) == "**weft strain**: 0 everywhere"
 
 
 def test_real_spread_keeps_its_range():

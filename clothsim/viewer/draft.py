@@ -19,8 +19,9 @@ from pathlib import Path
 
 from ..config import Scene, SceneError, scene_from_dict
 from ..material import MaterialError, check_table, parse_table_csv
-from ..mold import MoldError, cache_mold, check_mold, load_mold, load_mold_bytes
+from ..mold import MoldError, cache_mold, load_mold, load_mold_bytes
 from ..presets import PRESETS
+from .scenes import bundled_match, check_references, check_scene_files, open_bundled, scrub
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 MOLD_DIR = ROOT / "static" / "molds"
@@ -668,13 +669,21 @@ def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> S
     is written into ``dest``, a new private folder, so that relative references resolve inside it.
     A zip must hold exactly one ``.yaml`` at its top level (``scene.yaml`` preferred), at most
     ZIP_MAX_MEMBERS members of at most ``limit_bytes`` in all once unpacked, no absolute path,
-    no ``..`` and no link. Raises SceneError with the uploaded file's name (never ``dest``)."""
+    no ``..`` and no link. The scene may name only files of the upload (:func:`check_references`:
+    a relative name inside ``dest``), which are read before it is returned
+    (:func:`check_scene_files`). A ``.yaml`` whose bytes are those of a bundled scene
+    (``configs/``) is opened from there instead, its files resolved beside it. Raises SceneError
+    (or MoldError, MaterialError) with the uploaded file's name and the line and field, never
+    ``dest``."""
     import zipfile
 
     label = _safe_name(name)
     ext = Path(str(name)).suffix.lower()
     if ext not in SCENE_EXTS:
         raise SceneError(f"{label}: a scene is a .yaml file or a .zip of scene.yaml and its files (got '{ext or 'no extension'}')")
+    bundled = bundled_match(data) if ext != ".zip" else None
+    if bundled is not None:  # a scene from configs/: its files are beside it, not in the upload
+        return open_bundled(bundled)
     dest.mkdir(mode=0o700, parents=True, exist_ok=False)
     if ext == ".zip":
         import io
@@ -720,9 +729,8 @@ def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> S
 
     try:
         scene = load_scene(path)
-        if scene.mold is not None:
-            check_mold(scene.mold, scene.base_dir)  # the file and mesh, not the surface
+        check_references(scene, dest)
+        check_scene_files(scene)
     except (SceneError, MoldError, MaterialError) as exc:
-        msg = str(exc).replace(str(path), label).replace(str(dest) + "/", "")
-        raise type(exc)(msg) from None
+        raise type(exc)(scrub(str(exc), path, dest, label)) from None
     return scene

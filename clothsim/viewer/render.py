@@ -110,8 +110,12 @@ def is_uniform(values: np.ndarray, key: str) -> bool:
     return hi - lo <= range_floor(key, lo, hi)
 
 
-def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False) -> str:
-    """The markdown under the colour bar: the range's ends and middle, or 'uniform'."""
+def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False,
+                value: float | None = None) -> str:
+    """The markdown under the colour bar: the range's ends and middle, or for a uniform field its
+    ``value`` (default: the range's middle): "0 everywhere" for a field that is zero (rounding
+    noise included: an all-zero pressure field is not "uniform (0.5)" of its widened range), else
+    "uniform (3)"."""
     if key == "contact":
         return "**in contact**: dark = free, yellow = touching the mold"
     unit = FIELDS[label][0]
@@ -122,8 +126,13 @@ def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = Fals
         return fmt(0.0 if abs(x) < tiny else x)
 
     if uniform:
-        mid = 0.5 * (lo + hi)
-        return f"{head}: uniform ({show(mid if abs(mid) > range_floor(key, lo, hi) else 0.0)})"
+        if value is None:
+            mid = 0.5 * (lo + hi)
+            v = mid if abs(mid) > range_floor(key, lo, hi) else 0.0
+        else:  # the field's own value; a strain within its noise floor is zero
+            v = float(value)
+            v = 0.0 if key in ("strain_warp", "strain_weft") and abs(v) <= STRAIN_FLOOR else v
+        return f"{head}: 0 everywhere" if show(v) == "0" else f"{head}: uniform ({show(v)})"
     return f"{head}: {show(lo)} (dark) · {show(0.5 * (lo + hi))} · {show(hi)} (yellow)"
 
 
@@ -262,6 +271,8 @@ class SceneRenderer:
         vals = node_field(f.model, f.positions, f.in_contact, self.field_key)
         lo, hi = field_range(vals, self.field_key, view)
         uniform = view.auto_range and is_uniform(vals, self.field_key)
+        finite = vals[np.isfinite(vals)]
+        value = float(np.median(finite)) if uniform and len(finite) else None
         self.range = (lo, hi)
         glb = self.glb.build(f.positions, colormap(vals, lo, hi), vertex_normals(f.positions, f.model.topology),
                              opacity=float(view.sheet_opacity))
@@ -274,15 +285,20 @@ class SceneRenderer:
         if self.h_outlines is not None:
             self.h_outlines.points = f.positions[self.outline_ab].astype(np.float32)
             self.h_outlines.visible = bool(view.show_outlines)
-        return legend_text(view.field, self.field_key, lo, hi, uniform)
+        return legend_text(view.field, self.field_key, lo, hi, uniform, value)
+
+
+#: the camera's view holds the framed box grown by this share of its size on every side (issue 28,
+#: item 15: the garment framed with a margin)
+FRAME_MARGIN = 0.1
 
 
 def frame_camera(client, model, positions: np.ndarray | None = None) -> None:
     """Point a tab's camera at the sheet (its ``positions`` [m] (N, 3), default the rest
-    positions) and its mold."""
+    positions) and the part of the mold near it (:func:`camera_box`), with a margin."""
     lo, hi = camera_box(model, positions)
     c = 0.5 * (lo + hi)
-    r = max(float(np.linalg.norm(hi - lo)) * 0.5, 1e-3)
+    r = max(float(np.linalg.norm(hi - lo)) * 0.5 * (1.0 + 2.0 * FRAME_MARGIN), 1e-3)
     d = np.array([0.45, -1.0, 0.8])
     client.camera.up_direction = (0.0, 0.0, 1.0)
     client.camera.position = tuple(c + 1.6 * r * d / np.linalg.norm(d))
@@ -309,9 +325,17 @@ def needs_reframe(framed, box) -> bool:
     return bool((lo < flo - margin).any() or (hi > fhi + margin).any())
 
 
+#: the mold is framed only within this share of the sheet's largest extent around the sheet
+#: (issue 28, item 15: a sleeve on a 1.8 m body was framed with the whole body, the garment a
+#: sliver of the view)
+MOLD_REACH = 0.1
+
+
 def camera_box(model, positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) [m] of the sheet (``positions``, default the rest positions) and, when it is not
-    much larger than the sheet, the mold: what the camera frames."""
+    """(lo, hi) [m] of what the camera frames: the sheet (``positions``, default the rest
+    positions, i.e. the garment) and the part of the mold's box within MOLD_REACH of the
+    sheet's largest extent around it (the sphere under a cap, the body under a band: not the
+    whole body)."""
     p = model.rest_positions if positions is None else positions
     p = p[np.isfinite(p).all(axis=1)]
     if not len(p):
@@ -320,9 +344,11 @@ def camera_box(model, positions: np.ndarray | None = None) -> tuple[np.ndarray, 
     if model.mold is not None:
         try:
             mb = np.asarray(model.mold.bounds, float)
-            if (mb.shape == (2, 3) and np.isfinite(mb).all()
-                    and np.ptp(mb, axis=0).max() < 10 * max(np.ptp(p, axis=0).max(), 1e-9)):
-                lo, hi = np.minimum(lo, mb[0]), np.maximum(hi, mb[1])
+            if mb.shape == (2, 3) and np.isfinite(mb).all():
+                g = MOLD_REACH * max(float(np.ptp(p, axis=0).max()), 1e-9)
+                mlo, mhi = np.maximum(mb[0], lo - g), np.minimum(mb[1], hi + g)
+                if (mlo <= mhi).all():
+                    lo, hi = np.minimum(lo, mlo), np.maximum(hi, mhi)
         except Exception:
             pass
     return lo, hi

@@ -28,7 +28,8 @@ the current shape as a warm start) or **Reset** (from the initial deformation).
 Safety (:mod:`clothsim.viewer.guard`): binds 127.0.0.1 unless ``--host`` says otherwise; the
 websocket accepts only the viewer's own page as Origin (and, off loopback, only with the token of
 :attr:`ViewerApp.url`); every GUI value is checked before viser stores or broadcasts it; uploads
-are limited by the bytes actually received; uploads are parsed in memory; an accepted mold upload
+are limited by the bytes actually received, per upload and for all tabs together, and
+abandoned ones are dropped (closed tab, or no data for a minute); uploads are parsed in memory; an accepted mold upload
 is stored in a private temporary folder (mode 0700) under a name chosen here, never the browser's.
 A refused value is shown as an error and its widget shows the last valid value again.
 """
@@ -115,14 +116,17 @@ class ViewerApp:
     def __init__(self, scene: Scene, *, host: str = "127.0.0.1", port: int = 8080,
                  upload_limit_mb: float = 200.0, max_rate_hz: float = 25.0, duty: float = 0.02,
                  verbose: bool = False, token: str | None = None, background: bool = False,
-                 autostart: bool = False, warm: Callable[[Simulation], None] | None = None):
+                 autostart: bool = False, warm: Callable[[Simulation], None] | None = None,
+                 upload_idle_s: float = 60.0):
         """``background``: serve the page at once, with a "compiling kernels" note, and in a
         start-up thread build the model and the panels (the scene is drawn), then compile (or
         load from numba's cache) the solver's kernels with ``warm(sim)`` (default
         :func:`warm_kernels`); ``ready`` is set when done (``startup_error`` holds the message if
         the scene could not be built). Otherwise the model and panels are built here, before the
         constructor returns, and nothing is warmed. ``autostart``: start the relaxation once
-        ready."""
+        ready. ``upload_limit_mb`` bounds one upload and, for the whole server, the uploads in
+        flight from every tab together; an upload with no data for ``upload_idle_s`` seconds is
+        dropped."""
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ValueError(f"port must be a whole number from 0 to 65535 (got {port})")
         if not (math.isfinite(upload_limit_mb) and upload_limit_mb >= 0):
@@ -179,7 +183,8 @@ class ViewerApp:
         self.server.scene.set_up_direction("+z")
         self.framed_box: tuple | None = None  # the box every tab's camera was last pointed at
         self.reframes = 0
-        self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused)
+        self.upload_guard = UploadGuard(self.server, self.upload_limit, self._upload_refused,
+                                        idle_timeout=upload_idle_s)
 
         if background:
             self._startup_note = self.server.gui.add_html(_startup_html(0.0))
@@ -297,7 +302,8 @@ class ViewerApp:
         self._control(self._do_reset, wait)
 
     def apply(self, wait: bool = False) -> None:
-        """Rebuild the model from the edited scene, keeping the current shape as a warm start."""
+        """Rebuild the model from the edited scene, keeping the current shape as a warm start; a
+        running relaxation goes on with the new model."""
         self._control(lambda: self._do_apply(reset=False), wait)
 
     def scene_yaml(self) -> str:
@@ -348,26 +354,28 @@ class ViewerApp:
     def is_quiet(self) -> bool:
         return self._quiet.depth > 0
 
-    def on(self, handle, fn: Callable, group: str | None):
+    def on(self, handle, fn: Callable, group: str | None, restore: bool = True):
         """Register fn(value) as a user edit of handle, run by the update loop. If fn refuses
-        the value (raises), the widget shows its last valid value again."""
+        the value (raises), the widget shows its last valid value again, unless ``restore`` is
+        False (a text the user is typing: it stays, with its error next to it)."""
 
         def cb(_event) -> None:
             if self.is_quiet():
                 return
             value = handle.value
-            self.post(lambda: self._edit(handle, fn, value), group)
+            self.post(lambda: self._edit(handle, fn, value, restore), group)
 
         handle.on_update(cb)
         self._edit_group[id(handle)] = group
         self._edit_handles.append(handle)
         return handle
 
-    def _edit(self, handle, fn: Callable, value) -> None:
+    def _edit(self, handle, fn: Callable, value, restore: bool = True) -> None:
         try:
             fn(value)
         except Exception:
-            self._restore(handle)
+            if restore:
+                self._restore(handle)
             raise
         self._mark_valid(self._edit_group[id(handle)])
 
@@ -454,6 +462,8 @@ class ViewerApp:
         with self.quiet():
             for key in ("solver", "fabric", "material", "constraints", "garment", "run"):
                 self.panels[key].sync()
+        for group in ("warp_table", "weft_table"):  # the tables show the draft's again
+            self._set_error(group, "")
         self.panels["material"].refresh()
 
     # ------------------------------------------------------------------ solver thread hook
@@ -535,6 +545,10 @@ class ViewerApp:
 
     def _clean(self, msg: str) -> str:
         msg = msg.replace(f"{self._label}: ", "").replace("<scene>: ", "")
+        # never show the private upload folder: an uploaded scene's files by their names in it
+        up = re.escape(str(self.upload_dir))
+        msg = re.sub(up + r"/scene_\d+/", "", msg)
+        msg = re.sub(up + r"/?", "(upload)/", msg)
         # pydantic ValidationError text from set_solver: keep the useful lines
         if "validation error" in msg:
             lines = [ln.strip() for ln in msg.splitlines()[1:] if ln.strip() and not ln.strip().startswith("For further")]
@@ -555,13 +569,13 @@ class ViewerApp:
     # ------------------------------------------------------------------ tasks
     def _do_start(self) -> None:
         if self.pending:  # Start with unapplied edits: apply them first (warm start)
-            self._do_apply(reset=False)
+            self._do_apply(reset=False, resume=False)
         self._begin_segment()
         self.sim.start()
 
     def _do_step(self) -> None:
         if self.pending:
-            self._do_apply(reset=False)
+            self._do_apply(reset=False, resume=False)
         self._begin_segment()
         self.sim.step()
 
@@ -573,14 +587,17 @@ class ViewerApp:
 
     def _do_reset(self) -> None:
         if self.pending:
-            self._do_apply(reset=True)
+            self._do_apply(reset=True, resume=False)
         else:
             self.sim.reset()
             self._after_model_change()
 
-    def _do_apply(self, reset: bool) -> None:
+    def _do_apply(self, reset: bool, resume: bool | None = None) -> None:
+        """Rebuild the model from the draft (warm start unless ``reset``); a relaxation that was
+        running goes on from the new model (``resume``: None = if it was running)."""
         import warnings
 
+        resume = self.sim.status == "running" if resume is None else resume
         scene = self.scene_draft.validate()
         with warnings.catch_warnings(record=True) as caught:  # the mold's units and reach
             warnings.simplefilter("always")
@@ -589,6 +606,9 @@ class ViewerApp:
         self.panels["fabric"].mold_preview = None
         self._after_model_change()
         self.panels["fabric"].refresh_mold_info()
+        if resume:
+            self._begin_segment()
+            self.sim.start()
 
     def _after_model_change(self) -> None:
         with self._lock:
@@ -611,7 +631,7 @@ class ViewerApp:
         groups = {self.gui[k]._impl.uuid: g for k, g in (("mold_upload", "mold"), ("scene_upload", "files"),
                                                                   ("pattern_upload", "pattern"))
                   if k in self.gui}
-        group = groups.get(message.source_component_uuid, "material")
+        group = groups.get(getattr(message, "source_component_uuid", None), "material")
         self.post(lambda: (_ for _ in ()).throw(ValueError(msg)), group)
         client = self.server.get_clients().get(client_id)
         if client is not None:
@@ -698,6 +718,7 @@ class ViewerApp:
         if frame is not None:
             self.panels["view"].set_legend(r.push_frame(frame, view))
             self.panels["view"].set_colorbar(*r.range, r.field_key)
+            self.panels["view"].show_range(*r.range)
             self.pushed_positions = frame.positions
             self.pushed_iteration = frame.iteration
             self.frames_pushed += 1

@@ -1,5 +1,6 @@
 """The Files tab: download the edited scene (YAML, or a zip with the files it references), the
-results (npz, ply, csv) and the HTML report; open another scene (.yaml or .zip)."""
+results (npz, ply, csv) and the HTML report; open another scene: one of the bundled scenes
+(``configs/``, picked from a list) or an upload (.yaml or .zip)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,10 @@ import threading
 import viser
 
 from ..draft import SceneDraft, open_scene_upload
+from ..scenes import bundled_scenes, open_bundled
 from . import Panel
 
+PICK = "(pick a scene)"
 EXPORTS = (("npz", "Export result (.npz)"), ("ply", "Export sheet (.ply)"), ("csv", "Export history (.csv)"))
 
 
@@ -35,6 +38,12 @@ class FilesPanel(Panel):
         g["export_html"] = gui.add_button("Report (.html)", icon=viser.Icon.DOWNLOAD,
                                           hint="the same self-contained report as 'app.py report'")
         g["export_html"].on_click(lambda e: self.download(e, "html"))
+        scenes = tuple(bundled_scenes())
+        g["bundled"] = gui.add_dropdown("Bundled scene", (PICK,) + scenes, initial_value=PICK,
+                                        hint="the scenes in configs/ (sweeps excepted)")
+        g["open_bundled"] = gui.add_button("Open bundled scene", icon=viser.Icon.FOLDER_OPEN,
+                                           hint="replaces the current scene (checked first)")
+        g["open_bundled"].on_click(lambda _e: app.post(lambda: self.open_bundled(g["bundled"].value), "files"))
         up = gui.add_upload_button("Open scene (.yaml / .zip)", icon=viser.Icon.UPLOAD, mime_type="*/*",
                                    hint="replaces the current scene (checked first; an invalid one changes nothing)")
         up.on_upload(app.upload_callback(up, self.open_scene, "files"))
@@ -100,7 +109,19 @@ class FilesPanel(Panel):
         invalid scene raises and nothing changes."""
         app = self.app
         self.opened += 1
-        scene = open_scene_upload(name, data, app.upload_dir / f"scene_{self.opened}", app.upload_limit)
+        self.replace(open_scene_upload(name, data, app.upload_dir / f"scene_{self.opened}", app.upload_limit))
+
+    def open_bundled(self, label: str) -> None:
+        """(update loop) Replace the simulation's scene by the bundled scene ``label`` (a key of
+        :func:`bundled_scenes`), validated first."""
+        scenes = bundled_scenes()
+        if label not in scenes:
+            raise ValueError("pick a bundled scene from the list first")
+        self.replace(open_bundled(scenes[label]))
+
+    def replace(self, scene) -> None:
+        """(update loop) Make ``scene`` (validated, its files read) the simulation's scene."""
+        app = self.app
         app.sim.replace_scene(scene, warm_start=False)
         count = app.scene_draft.upload_count
         app.scene_draft = SceneDraft(scene, upload_dir=app.upload_dir)

@@ -31,9 +31,12 @@ class MaterialPanel(Panel):
         for d in ("warp", "weft"):
             g[f"{d}_unit"] = app.on(gui.add_dropdown(f"{d.capitalize()} unit", UNITS),
                                     lambda v: self.set_tables(), "material")
+            # an invalid table keeps what was typed and shows its error right under it (issue 28,
+            # item 18: the text was thrown away and the error shown below the fold)
             g[f"{d}_text"] = app.on(gui.add_text(f"{d.capitalize()} table", "", multiline=True,
                                                  hint="one 'strain, value' pair per line"),
-                                    lambda v: self.set_tables(), "material")
+                                    lambda v: self.set_tables(), f"{d}_table", restore=False)
+            app.err(f"{d}_table")
             up = gui.add_upload_button(f"Upload {d} CSV", icon=viser.Icon.UPLOAD, mime_type="*/*",
                                        hint="header: strain,tension (N/m) or strain,stress (Pa)")
             up.on_upload(app.upload_callback(up, lambda name, data, d=d: self.csv_uploaded(d, name, data),
@@ -73,6 +76,8 @@ class MaterialPanel(Panel):
         g = self.gui
         self.app.scene_draft.set_tables((g["warp_text"].value, _kind(g["warp_unit"].value)),
                                   (g["weft_text"].value, _kind(g["weft_unit"].value)), g["thickness"].value)
+        for group in ("warp_table", "weft_table", "material"):  # both tables are valid now
+            self.app._set_error(group, "")
         self.app.draft_changed()
         with self.app.quiet():
             g["preset"].value = CUSTOM

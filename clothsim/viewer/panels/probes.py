@@ -162,13 +162,18 @@ class ProbesPanel(Panel):
                     "file (see the README's Compression engineering).")
         if not self.readings:
             return "Probes are read when the sheet is still (pause, or wait for convergence)."
-        rows = ["| probe | mmHg | Pa | covered | class |", "|---|---|---|---|---|"]
+        # three narrow columns (issue 28, item 18: five, the classes' long names among them,
+        # crowded the panel); the classes of the classified probe on a line of their own
+        rows = ["| probe | mmHg | covered |", "|:---|---:|---:|"]
         for r in self.readings:
-            cls = "; ".join(f"{k}: {v}" for k, v in (r.get("classes") or {}).items())
-            rows.append(f"| {html.escape(r['name'])} | {r['pressure_mmhg']:.2f} | {r['pressure_pa']:.4g} | "
-                        f"{r['contact_fraction']:.0%} | {html.escape(cls)} |")
-        notes = [f"*{html.escape(r['name'])}*: {html.escape(r['note'])}" for r in self.readings if r.get("note")]
-        return "\n".join(rows) + ("\n\n" + "  \n".join(notes) if notes else "")
+            rows.append(f"| {html.escape(r['name'])} | {r['pressure_mmhg']:.1f} | {r['contact_fraction']:.0%} |")
+        lines = []
+        for r in self.readings:
+            if r.get("classes"):
+                cls = " · ".join(f"{html.escape(k)} **{html.escape(str(v))}**" for k, v in r["classes"].items())
+                lines.append(f"Class at *{html.escape(r['name'])}*: {cls}")
+        lines += [f"*{html.escape(r['name'])}*: {html.escape(r['note'])}" for r in self.readings if r.get("note")]
+        return "\n".join(rows) + ("\n\n" + "  \n".join(lines) if lines else "")
 
     def reset(self) -> None:
         """A new model: forget the picked node and the readings."""

@@ -10,6 +10,10 @@ from ...results import seam_report, sheet_health
 from ..render import Frame, fmt
 from . import Panel
 
+#: what undetermined nodes mean and what to do (issue 28, item 18)
+UNDETERMINED_ADVICE = ("Undetermined: nothing fixes where these nodes sit (slack springs, no contact, no "
+                       "constraint). Hold the ends along the axis, add pre-tension, or switch on "
+                       "`shear:`/`bending:` springs.")
 STATE_TEXT = {"idle": "ready", "max_iterations": "stopped (max iterations)", "time_limit": "stopped (time limit)"}
 
 
@@ -32,7 +36,8 @@ class RunPanel(Panel):
 
         g["run"].on_click(on_run)
         g["apply"] = gui.add_button("Apply edits", disabled=True, hint="rebuild the model from the edited scene, "
-                                                                        "keeping the current shape")
+                                                                        "keeping the current shape (a run "
+                                                                        "goes on)")
         g["apply"].on_click(lambda _e: app.apply())
         g["pending"] = gui.add_markdown("No unapplied edits.")
         app.err("run")
@@ -89,6 +94,8 @@ class RunPanel(Panel):
                    f"{h['min_weft_extent_ratio']:.0%} of the rest width")
             if h["min_weft_extent_ratio"] < 0.5:
                 txt += " (the sheet gathers: nothing holds its width)"
+            if h["undetermined_nodes"] > 0:
+                txt += f"  \n{UNDETERMINED_ADVICE}"
             self.health = f"<small>{'⚠ ' if warn else ''}{txt}</small>" + seam_text(f.model, f.positions)
             self.health_key = key
         return self.health

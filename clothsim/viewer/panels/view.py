@@ -27,8 +27,11 @@ class ViewPanel(Panel):
         g, app = self.gui, self.app
         g["field"] = gui.add_dropdown("Colour by", tuple(FIELDS), initial_value="warp strain")
         g["auto_range"] = gui.add_checkbox("Auto range", True)
-        g["range_min"] = gui.add_number("Range min", 0.0, min=-1e12, max=1e12)
-        g["range_max"] = gui.add_number("Range max", 1.0, min=-1e12, max=1e12)
+        # with Auto range on they show the range the colour bar spans (issue 28, item 18)
+        g["range_min"] = gui.add_number("Range min", 0.0, min=-1e12, max=1e12, step=1e-6,
+                                        hint="the colour bar's low end (set by Auto range while it is on)")
+        g["range_max"] = gui.add_number("Range max", 1.0, min=-1e12, max=1e12, step=1e-6,
+                                        hint="the colour bar's high end (set by Auto range while it is on)")
         g["sheet_opacity"] = gui.add_slider("Sheet opacity", min=0.2, max=1.0, step=0.05,
                                             initial_value=DEFAULT_SHEET_OPACITY)
         for k in ("field", "auto_range", "range_min", "range_max", "sheet_opacity"):
@@ -52,6 +55,18 @@ class ViewPanel(Panel):
                             sheet_opacity=float(g["sheet_opacity"].value), show_fixed=bool(g["show_fixed"].value),
                             show_mold=bool(g["show_mold"].value), mold_opacity=float(g["mold_opacity"].value),
                             show_outlines=bool(g["show_outlines"].value))
+
+    def show_range(self, lo: float, hi: float) -> None:
+        """(update loop) With Auto range on, Range min and max show the range the colour bar
+        spans (4 significant digits; not counted as edits), so that turning Auto range off keeps
+        the colours as they are."""
+        g = self.gui
+        if not g["auto_range"].value:
+            return
+        vals = tuple(float(f"{x:.4g}") for x in (lo, hi))
+        if (g["range_min"].value, g["range_max"].value) != vals:
+            with self.app.quiet():
+                g["range_min"].value, g["range_max"].value = vals
 
     def set_legend(self, text: str) -> None:
         if text != self.legend:
