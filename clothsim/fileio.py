@@ -268,8 +268,10 @@ class FolderLock:
     out/LOCK_FILE, which holds "PID COMMAND" (``command``: run, fit, sweep). A second command on
     the same folder is refused at once with OutputError naming the holder (two runs into one
     folder mixed their files: one's summary.json beside the other's result.npz). The kernel drops
-    the lock with the process however it ends, so a stale lock file never blocks; the file stays
-    (removing it would race with a new holder)."""
+    the lock with the process however it ends, so a stale lock file (after kill -9) never blocks.
+    The holder removes the file when it is done, still holding the lock; a command that locked
+    a file already removed (it opened it just before) sees that its inode is no longer the path's
+    and tries again, so two commands never both hold a lock."""
 
     def __init__(self, out: str | Path, command: str, flag: str = "--out"):
         self.out, self.command, self.flag = Path(out), command, flag
@@ -281,20 +283,31 @@ class FolderLock:
             import fcntl
         except ImportError:  # pragma: no cover (not POSIX): no lock
             return self
-        try:
-            fh = open(self.path, "a+")
-        except OSError as exc:
-            raise OutputError(f"{self.flag} {self.out}: cannot write there ({exc.strerror or exc})") from None
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            fh.seek(0)
-            words = fh.read(200).split()
-            fh.close()
-            pid = words[0] if words else "unknown"
-            what = words[1] if len(words) > 1 and words[1].isalpha() else "clothsim command"
-            raise OutputError(f"{self.flag} {self.out}: in use by another {what} (pid {pid}); wait for it to "
-                              f"finish or stop it, or choose another {self.flag}") from None
+        for _ in range(100):
+            try:
+                fh = open(self.path, "a+")
+            except OSError as exc:
+                raise OutputError(f"{self.flag} {self.out}: cannot write there ({exc.strerror or exc})") from None
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.seek(0)
+                words = fh.read(200).split()
+                fh.close()
+                pid = words[0] if words else "unknown"
+                what = words[1] if len(words) > 1 and words[1].isalpha() else "clothsim command"
+                raise OutputError(f"{self.flag} {self.out}: in use by another {what} (pid {pid}); wait for it to "
+                                  f"finish or stop it, or choose another {self.flag}") from None
+            mine = os.fstat(fh.fileno())
+            try:
+                now = os.stat(self.path)
+            except FileNotFoundError:
+                now = None
+            if now is not None and (now.st_ino, now.st_dev) == (mine.st_ino, mine.st_dev):
+                break
+            fh.close()  # locked a file its holder had just removed: lock the current one
+        else:  # pragma: no cover (the file replaced a hundred times meanwhile)
+            raise OutputError(f"{self.flag} {self.out}: cannot lock the folder (its lock file keeps changing)")
         fh.seek(0)
         fh.truncate()
         fh.write(f"{os.getpid()} {self.command}")
@@ -304,5 +317,9 @@ class FolderLock:
 
     def __exit__(self, *exc):
         if self.fh is not None:
+            try:
+                os.unlink(self.path)  # still locked: a waiting opener sees the inode change
+            except OSError:
+                pass
             self.fh.close()  # the lock goes with the descriptor
             self.fh = None

@@ -72,12 +72,12 @@ def test_a_second_run_into_a_busy_out_is_refused_at_once(tmp_path):
         so, se = a.communicate(timeout=300)
     assert a.returncode == 130, se
     s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "stopped" and s["node_count"] != 27  # the sphere cap's, not the small strip's
+    assert s["status"] == "stopped" and s["node_count"] == 41 * 41  # the sphere cap's, not the strip's
     # once the first has ended, the folder is free again
     small_run = subprocess.run([sys.executable, str(ROOT / "app.py"), "run", str(small), "--out", str(out), "--quiet"],
                                cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert small_run.returncode == 0, small_run.stderr
-    assert json.loads((out / "summary.json").read_text())["node_count"] == 27
+    assert json.loads((out / "summary.json").read_text())["node_count"] == 11 * 3  # the strip's
 
 
 # ----------------------------------------------------------------------------- item 6
@@ -140,8 +140,6 @@ def test_a_bad_dask_address_is_refused_naming_dask(tmp_path, capsys, address):
 def test_a_port_that_never_answers_is_refused_within_the_timeout(tmp_path):
     """A port that accepts and never answers (not a scheduler) hung the sweep over 300 s; it is
     refused after clothsim.sweep.DASK_CONNECT_TIMEOUT_S (15 s) with exit 2."""
-    from clothsim.sweep import DASK_CONNECT_TIMEOUT_S
-
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))
     srv.listen(8)  # connections are accepted by the kernel and never answered
@@ -150,14 +148,13 @@ def test_a_port_that_never_answers_is_refused_within_the_timeout(tmp_path):
         t0 = time.monotonic()
         r = subprocess.run([sys.executable, str(ROOT / "app.py"), "sweep", str(_strip_sweep(tmp_path)), "--out",
                             str(tmp_path / "out"), "--dask", f"tcp://127.0.0.1:{port}"],
-                           cwd=ROOT, capture_output=True, text=True, timeout=280)
+                           cwd=ROOT, capture_output=True, text=True, timeout=240)
         took = time.monotonic() - t0
     finally:
         srv.close()
     print(f"refused after {took:.1f} s")
     assert r.returncode == 2, (r.returncode, r.stderr)
-    assert (f"error: --dask tcp://127.0.0.1:{port}: no Dask scheduler answered within "
-            f"{DASK_CONNECT_TIMEOUT_S:g} s") in r.stderr, r.stderr
+    assert f"error: --dask tcp://127.0.0.1:{port}: no Dask scheduler answered within 15 s" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
 
 
