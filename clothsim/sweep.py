@@ -1153,7 +1153,9 @@ def _reach_scheduler(address: str, timeout: float = None) -> None:
     timeout = DASK_CONNECT_TIMEOUT_S if timeout is None else timeout
 
     async def probe():
-        comm = await connect(address, timeout=timeout)
+        # Dask's own timeout (it retries a refused connection) ends first and says why; the outer
+        # one ends a connection accepted but never answered, where Dask's handshake waits on
+        comm = await connect(address, timeout=0.8 * timeout)
         await comm.close()
 
     try:
@@ -1162,7 +1164,8 @@ def _reach_scheduler(address: str, timeout: float = None) -> None:
         raise SweepError(f"--dask {address}: no Dask scheduler answered within {timeout:g} s (is it one? "
                          f"start it with dask scheduler, or use --dask local)") from None
     except Exception as exc:  # refused, unknown host, a handshake that failed, ...
-        raise SweepError(f"--dask {address}: cannot reach the Dask scheduler ({type(exc).__name__}: {exc}); "
+        why = str(exc) if isinstance(exc, OSError) and str(exc) else f"{type(exc).__name__}: {exc}"
+        raise SweepError(f"--dask {address}: cannot reach the Dask scheduler ({why}); "
                          f"start it (dask scheduler) or use --dask local") from None
 
 
