@@ -360,3 +360,18 @@ def test_fit_and_report_have_a_description():
         assert sub.choices[name].description, name
     assert "Inverse sizing" in sub.choices["fit"].format_help()
     assert "HTML report" in sub.choices["report"].format_help()
+
+
+def test_a_fitting_sweep_refuses_a_bound_before_anything_runs(tmp_path):
+    """The same check for a sweep's fit: block, before any run (it would have ended a run's fit
+    with a message blaming the base scene, or not at all)."""
+    from clothsim import sweep as sw
+
+    p = tmp_path / "chart.yaml"
+    p.write_text(yaml.safe_dump({"base": str(ROOT / "configs" / "class2_sleeve.yaml"),
+                                 "sweep": {"parameters": {"mold.cylinder.radius": [0.035, 0.04]}},
+                                 "fit": {"vary": ["fabric.size.0=-0.1:0.3"], "target": ["ankle=25mmHg"]},
+                                 "outputs": ["fit:fabric.size.0"]}))
+    errors = sw.validate_runs(sw.load_sweep(p))
+    assert len(errors) == 2 and all(
+        "fit: vary fabric.size.0=-0.1:0.3: its lower bound -0.1: fabric.size: must be positive" in e for e in errors), errors

@@ -328,7 +328,9 @@ def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, ov
 def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list[Target]) -> list[float]:
     """Check a fit before any solve: the scene validates, every target names one of its probes
     (once), every varied path (given once) is a continuous number of the scene or of its schema
-    (see :func:`start_value`). Returns the start values; raises FitError (or SceneError)."""
+    (see :func:`start_value`) and the scene takes both its bounds (:func:`_check_bounds`; a sweep
+    checks every run's fit so before anything runs). Returns the start values; raises FitError
+    (or SceneError)."""
     from ..config import scene_from_dict
 
     if not varies or not targets:
@@ -343,7 +345,20 @@ def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list
         if t.probe not in names:
             raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
                            f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
-    return [start_value(data, v.path, scene) for v in varies]
+    x0 = [start_value(data, v.path, scene) for v in varies]
+    lo, hi = _bounds(varies, x0)
+    _check_bounds(data, source, varies, [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)], lo, hi)
+    return x0
+
+
+def _bounds(varies: list[Vary], x0: list[float]) -> tuple[list[float], list[float]]:
+    """(LO, HI) of each varied field: the --vary bounds, else the start value +-30 %."""
+    lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
+    hi = [v.hi if v.hi is not None else x + 0.3 * abs(x) for v, x in zip(varies, x0)]
+    for v, x, a, b in zip(varies, x0, lo, hi):
+        if not a < b:
+            raise FitError(f"--vary {v.path}: give bounds (FIELD=LO:HI): the start value is {x}")
+    return lo, hi
 
 
 def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[Target], *,
@@ -357,13 +372,8 @@ def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[
         raise FitError(f"max_solves: must be an integer, at least 1 (got {max_solves!r})")
     x0 = check_fit(data, source, varies, targets)
     scene_path = source
-    lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
-    hi = [v.hi if v.hi is not None else x + 0.3 * abs(x) for v, x in zip(varies, x0)]
-    for v, x, a, b in zip(varies, x0, lo, hi):
-        if not a < b:
-            raise FitError(f"--vary {v.path}: give bounds (FIELD=LO:HI): the start value is {x}")
+    lo, hi = _bounds(varies, x0)
     x0 = [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)]
-    _check_bounds(data, source, varies, x0, lo, hi)
     f = _Solver(data, scene_path, varies, targets, log, stop)
 
     def search(x, budget):
