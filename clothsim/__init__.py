@@ -48,6 +48,23 @@ def _numba_cache_dir() -> None:
 
 _numba_cache_dir()
 
+
+def kernels_cached() -> bool:
+    """Whether numba's on-disk cache for these sources (see _numba_cache_dir) holds compiled
+    kernels (index files, ``*.nbi``): False on the first start after an install or an update,
+    when the kernels are compiled (about a minute), True once a run has cached them."""
+    import os
+
+    from numba import config
+
+    root = getattr(config, "CACHE_DIR", None)
+    if not root or not os.path.isdir(root):
+        return False
+    for _dir, _subdirs, files in os.walk(root):
+        if any(f.endswith(".nbi") for f in files):
+            return True
+    return False
+
 from .config import Scene, SceneError, load_scene, scene_from_dict  # noqa: E402
 from .simulation import Simulation, solve  # noqa: E402
 

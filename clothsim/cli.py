@@ -1,8 +1,9 @@
 """Headless commands: run, sweep, bench, fit, report, view (the default).
 
 Exit status: 0 converged (or all runs converged), 1 stopped without converging (or some runs
-did not converge), 2 bad input, 130 interrupted (Ctrl+C; SIGTERM too for run and sweep; a run
-keeps the state it reached).
+did not converge), 2 bad input (or an --out another run, fit or sweep is writing), 130
+interrupted (Ctrl+C; SIGTERM too for run, fit and sweep; a run keeps the state it reached, a fit
+the tries it finished).
 """
 
 from __future__ import annotations
@@ -62,15 +63,16 @@ SEAM_OPEN_WARN = 0.01
 def cmd_run(args) -> int:
     stop: list[str] = []  # the signal that asked the run to stop (SIGINT, SIGTERM)
     # from the solve to the last file written: a signal while the summary is worked out or the
-    # files written (seconds on a big sheet) must not lose the finished result either
-    with _stop_on_signals(stop):
-        return _cmd_run(args, stop)
+    # files written (seconds on a big sheet) must not lose the finished result either; the --out
+    # lock (taken before the solve) is held until the last file is written
+    with _stop_on_signals(stop), contextlib.ExitStack() as held:
+        return _cmd_run(args, stop, held)
 
 
-def _cmd_run(args, stop: list[str]) -> int:
+def _cmd_run(args, stop: list[str], held: contextlib.ExitStack) -> int:
     from . import simulation
     from .config import SceneError, load_scene
-    from .fileio import OutputError, check_out_dir, describe_write_error
+    from .fileio import FolderLock, OutputError, check_out_dir, describe_write_error
     from .mold import MoldError
     from .material import MaterialError
 
@@ -84,6 +86,8 @@ def _cmd_run(args, stop: list[str]) -> int:
         scene = load_scene(args.scene, args.set)
         if out is not None:  # before the solve: a bad --out must not cost a whole run
             check_out_dir(out)
+            # one command per folder: a second run into it is refused at once (two mixed their files)
+            held.enter_context(FolderLock(out, "run"))
         show = sys.stderr.isatty() or args.progress
         cb = _progress_printer(sys.stderr) if (show and not args.quiet) else None
 
@@ -105,14 +109,16 @@ def _cmd_run(args, stop: list[str]) -> int:
         try:
             result.save(out, ply_field=args.color)
         except OSError as exc:  # a full disk, the folder removed meanwhile, ...
-            print(f"error: {describe_write_error(exc, out)} ({s['status']} after {s['iterations']} iterations; "
-                  f"no summary.json was written)", file=sys.stderr)
+            print(f"error: {describe_write_error(exc, out)} ({s['status']} after {s['iterations']} iterations); "
+                  f"{_left_behind(out, before)}", file=sys.stderr)
             return 2
     line = (f"{s['status']}: {s['iterations']} iterations, ||V||_inf = {s['residual']:.3e} N "
             f"(relative {s['relative_residual']:.1e}), energy {s['energy']:.6e} J, "
             f"{s['wall_time_s']:.3f} s relaxing + {s['startup_s']:.2f} s start-up, solver {s['solver']}, "
             f"{s['contact_count']} contact nodes")
     say(line)
+    _print_pressure(s, result.model.mold is not None, say)
+    _print_compression(s, say)
     if result.model.mold is not None and not s["contact_count"] and s["status"] == "converged":
         say("  warning: no node touches the mold: the sheet does not reach it, or a garment narrower than the "
             "form closed beside it (its probes read no pressure)")
@@ -147,7 +153,6 @@ def _cmd_run(args, stop: list[str]) -> int:
             f"area: their load is a line load (contact_force, N); their pressure is inf and left out of the peak"
             + (f"; line load up to {s['contact_line_load_n_per_m']:.4g} N/m along the rope"
                if s.get("contact_line_load_n_per_m") is not None else ""))
-    _print_compression(s, say)
     if out is not None:
         written = _written_files(out, before)
         say(f"  wrote {out}/" + ", ".join(written))
@@ -161,7 +166,7 @@ def _cmd_run(args, stop: list[str]) -> int:
 
 
 @contextlib.contextmanager
-def _stop_on_signals(stop: list):
+def _stop_on_signals(stop: list, kept: str = "the state reached is kept"):
     """While in the block, SIGINT and SIGTERM append their name to ``stop`` (the run's callback
     then stops it at its next iteration, and a run already finished writes its files); a second
     signal ends the process at once with the signal's default action (a KeyboardInterrupt raised
@@ -178,7 +183,7 @@ def _stop_on_signals(stop: list):
             return
         stop.append(signal.Signals(signum).name)
         # os.write, not print: the handler may run inside a buffered write to stderr
-        os.write(2, f"\n{stop[0]}: stopping; the state reached is kept (again to quit at once)\n".encode())
+        os.write(2, f"\n{stop[0]}: stopping; {kept} (again to quit at once)\n".encode())
     old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
@@ -208,6 +213,31 @@ def _written_files(out: Path, before: dict[str, tuple[int, int]]) -> list[str]:
     after = _file_stamps(out)
     new = [n for n, st in after.items() if not n.startswith(".") and before.get(n) != st]
     return sorted(new, key=lambda n: (after[n][1], n))
+
+
+def _left_behind(out: Path, before: dict) -> str:
+    """What a failed save left in ``out``: the files it wrote before failing (each complete:
+    written to a temporary name and renamed) and that summary.json is missing."""
+    written = [n for n in _written_files(out, before) if n != "summary.json"]
+    if not written:
+        return "nothing was written and no summary.json (the folder holds no finished result)"
+    return (f"written before it failed: {', '.join(written)}; no summary.json, so the folder does not count as a "
+            f"finished result (result.npz's positions can start a rerun: initial.file)"
+            if "result.npz" in written else
+            f"written before it failed: {', '.join(written)}; no summary.json, so the folder does not count as a "
+            f"finished result")
+
+
+def _print_pressure(s: dict, has_mold: bool, say=print) -> None:
+    """The contact pressure a run reached: the peak a sensor disc reads (mmHg and Pa, and the
+    node peak beside it), when the scene has a mold."""
+    mmhg, pa = s.get("max_sensor_pressure_mmhg"), s.get("max_sensor_pressure_pa")
+    if not has_mold or mmhg is None or pa is None:
+        return  # no mold, or every loaded node gathered (the line load is reported below)
+    node = s.get("max_contact_pressure_mmhg")
+    say(f"  pressure: peak {mmhg:.2f} mmHg ({pa:.1f} Pa) on a sensor disc of radius "
+        f"{1000 * s.get('sensor_radius_m', 0.005):.3g} mm"
+        + (f"; {node:.2f} mmHg at a single node" if node is not None and mmhg > 0 else ""))
 
 
 def _print_compression(s: dict, say=print) -> None:
@@ -278,25 +308,35 @@ COMMANDS = ("run", "view", "sweep", "bench", "fit", "report")
 
 def cmd_fit(args) -> int:
     """Inverse sizing (clothsim.compression.fit): exit 0 fitted, 1 not within tolerance, 2 bad
-    input or an unreachable target."""
-    from .compression.fit import FitError, fit, parse_target, parse_vary, write_outputs
+    input or an unreachable target, 130 interrupted (SIGINT or SIGTERM: the tries finished so far
+    are kept in fit.csv)."""
+    stop: list[str] = []
+    with _stop_on_signals(stop, "the tries finished so far are kept"), contextlib.ExitStack() as held:
+        return _cmd_fit(args, stop, held)
+
+
+def _cmd_fit(args, stop: list[str], held: contextlib.ExitStack) -> int:
+    from .compression.fit import FitError, FitInterrupted, fit, parse_target, parse_vary, write_outputs
     from .config import SceneError
-    from .fileio import OutputError, check_out_dir, describe_write_error
+    from .fileio import FolderLock, OutputError, check_out_dir, describe_write_error
     from .material import MaterialError
     from .mold import MoldError
 
     def log(t):
         vals = ", ".join(f"{x:.8g}" for x in t.values)
         reads = ", ".join(f"{p:.3f} mmHg ({r:+.3f})" for p, r in zip(t.readings_mmhg, t.residuals_mmhg))
-        print(f"  try {vals}: {reads}  {t.time_s:.2f} s  {t.status}", file=sys.stderr)
+        print(f"  try {vals}: {reads}  {t.time_s:.2f} s  {t.status}", file=sys.stderr, flush=True)
 
     try:
         varies = [parse_vary(v) for v in args.vary]
         targets = [parse_target(t) for t in args.target]
         if args.out:  # before the solves: a bad --out must not cost a whole fit
             check_out_dir(args.out)
+            held.enter_context(FolderLock(args.out, "fit"))
         res = fit(args.scene, varies, targets, overrides=args.set, tol_mmhg=args.tol, max_solves=args.max_solves,
-                  log=None if args.quiet else log)
+                  log=None if args.quiet else log, stop=stop)
+    except FitInterrupted as exc:
+        return _fit_interrupted(args, exc, varies, targets)
     except (FitError, SceneError, MoldError, MaterialError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -307,13 +347,41 @@ def cmd_fit(args) -> int:
         print(f"  {t.probe}: {p:.3f} mmHg (target {t.mmhg:.3f})")
     print(res.tries_csv(varies, targets), end="")
     if args.out:
+        before = _file_stamps(Path(args.out))
         try:
             out = write_outputs(res, args.out, varies, targets)
         except OSError as exc:  # a full disk, the folder removed meanwhile, ...
-            print(f"error: {describe_write_error(exc, args.out)}", file=sys.stderr)
+            print(f"error: {describe_write_error(exc, args.out)}; {_left_behind(Path(args.out), before)}",
+                  file=sys.stderr)
             return 2
         print(f"  wrote {out}/fitted.yaml, fit.csv, fit.json and the fitted run's result files")
     return 0 if res.converged else 1
+
+
+def _fit_interrupted(args, exc, varies, targets) -> int:
+    """A signal stopped the fit: the tries it finished go to standard output and, with --out, to
+    fit.csv and fit.json (each written atomically); exit 130."""
+    from .compression.fit import FitResult, fit_info
+    from .fileio import atomic_write_bytes, describe_write_error
+    from .results import strict_json
+
+    res = FitResult(False, f"{exc}; not fitted", [], [], tries=exc.tries)
+    print(f"not fitted: {res.message}")
+    text = res.tries_csv(varies, targets)
+    print(text, end="")
+    wrote = ""
+    if args.out:
+        out = Path(args.out)
+        info = {**fit_info(res, varies, targets), "interrupted": exc.name}
+        try:
+            atomic_write_bytes(out / "fit.csv", text.encode())
+            atomic_write_bytes(out / "fit.json", strict_json(info).encode())
+        except OSError as err:
+            print(f"error: {describe_write_error(err, out)}", file=sys.stderr)
+            return 2
+        wrote = f"; wrote {out}/fit.csv and fit.json"
+    print(f"interrupted ({exc.name}): {len(exc.tries)} finished tries kept{wrote}", file=sys.stderr)
+    return 130
 
 
 def cmd_report(args) -> int:
@@ -335,7 +403,11 @@ def cmd_report(args) -> int:
 
 def add_compression_commands(sub) -> None:
     """The compression-engineering subcommands: fit and report."""
-    f = sub.add_parser("fit", help="inverse sizing: find a field's value that gives target probe pressures")
+    f = sub.add_parser("fit", help="inverse sizing: find a field's value that gives target probe pressures",
+                       description="Inverse sizing: vary scene fields (a panel width, a stretch, a material "
+                                   "scale) until the scene's probes read the target pressures; writes the "
+                                   "fitted scene and every try. Exit 0 fitted, 1 not within --tol, 2 bad input "
+                                   "or a target out of reach, 130 interrupted (the tries so far are kept).")
     f.add_argument("scene", help="scene YAML file with probes")
     f.add_argument("--vary", action="append", required=True, metavar="FIELD[=LO:HI]",
                    help="a scene field to vary (a --set path; one the file omits starts from its default, "
@@ -351,7 +423,10 @@ def add_compression_commands(sub) -> None:
     f.add_argument("--quiet", action="store_true", help="do not print each try")
     f.set_defaults(func=cmd_fit)
 
-    r = sub.add_parser("report", help="write a self-contained HTML report of a result folder")
+    r = sub.add_parser("report", help="write a self-contained HTML report of a result folder",
+                       description="Write a self-contained HTML report (pressure map, probes, profiles, "
+                                   "run summary) of a folder written by run --out or fit --out; it opens "
+                                   "in any browser without a server.")
     r.add_argument("result_dir", help="a folder written by run --out or fit --out")
     r.add_argument("--out", help="HTML file to write (default RESULT_DIR/report.html)")
     r.set_defaults(func=cmd_report)
@@ -365,7 +440,10 @@ def build_parser() -> argparse.ArgumentParser:
                "reached is kept).")
     sub = p.add_subparsers(dest="command")
 
-    r = sub.add_parser("run", help="relax a scene headless and write its results")
+    r = sub.add_parser("run", help="relax a scene headless and write its results",
+                       description="Relax a scene headless, print its summary (the pressure peak and probes "
+                                   "included) and, with --out, write its result files (the folder is locked "
+                                   "while the run writes it).")
     r.add_argument("scene", help="scene YAML file")
     r.add_argument("--out", help="output folder (result.npz, summary.json, history.csv, sheet.ply, scene.yaml)")
     r.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",

@@ -31,6 +31,7 @@ NODE_SETS = (
 
 
 from .errors import SceneError  # noqa: E402  (re-exported: clothsim.config.SceneError)
+from .fileio import fmt_beyond  # noqa: E402
 
 
 class _Strict(BaseModel):
@@ -59,7 +60,7 @@ def _positive(v, hi: float | None = None, unit: str = ""):
     if v is not None and not (math.isfinite(v) and v > 0):
         raise ValueError(f"must be positive and finite (got {v})")
     if v is not None and hi is not None and v > hi:
-        raise ValueError(f"at most {hi:.0e}{' ' + unit if unit else ''} (got {v:g})")
+        raise ValueError(f"at most {hi:.0e}{' ' + unit if unit else ''} (got {fmt_beyond(v, hi)})")
     return v
 
 
@@ -70,7 +71,7 @@ def _coords(v):
     for x in (v if isinstance(v, (tuple, list)) else [v]):
         _finite(x)
         if abs(x) > COORD_MAX:
-            raise ValueError(f"|x| must be at most {COORD_MAX:.0e} m (got {x:g})")
+            raise ValueError(f"|x| must be at most {COORD_MAX:.0e} m (got {fmt_beyond(x, COORD_MAX) if x > 0 else fmt_beyond(x, -COORD_MAX)})")
     return v
 
 
@@ -260,7 +261,7 @@ class Constraint(_Strict):
             if not (math.isfinite(s) and s > 0):
                 raise ValueError(f"must be positive (got {s})")
             if s > 1e3:
-                raise ValueError(f"at most 1e+03 (got {s:g})")
+                raise ValueError(f"at most 1e+03 (got {fmt_beyond(s, 1e3)})")
         return v
 
     @field_validator("displacement")
@@ -1098,7 +1099,7 @@ class Scene(_Strict):
         value = value * (m.scale or 1.0)
         if value.size and value.max() > TENSION_MAX:
             field = name if "." in name else f"fabric.{name}"
-            raise SceneError(f"{field}: tension reaches {value.max():g} N/m (after thickness and scale); "
+            raise SceneError(f"{field}: tension reaches {fmt_beyond(value.max(), TENSION_MAX)} N/m (after thickness and scale); "
                              f"at most {TENSION_MAX:.0e} N/m")
         return Table(strain, value)
 

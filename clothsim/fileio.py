@@ -13,7 +13,8 @@ piece (a file may not be what its name says: a link to ``/etc/shadow`` named ``.
 Writing: :func:`atomic_write_bytes` writes a temporary name beside the target and renames it, and
 removes the temporary file if anything fails (a full disk included); :func:`check_out_dir` makes
 sure an output folder can be written, and :func:`check_free_space` that it has room, before a
-long computation starts.
+long computation starts; :class:`FolderLock` keeps a second command (a run, fit or sweep) out of
+an output folder another one is writing.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ TEXT_LIMIT = 10 * 2**20
 #: most YAML nodes that aliases may add by repeating an anchored node (a scene with shared tables
 #: uses a few hundred; a billion-laughs bomb needs millions)
 ALIAS_BUDGET = 100_000
+#: held (fcntl.flock) by the command writing an output folder (run, fit, sweep); holds "PID COMMAND"
+LOCK_FILE = ".clothsim.lock"
 #: free space kept beyond the estimated size of the files about to be written [bytes]
 SPACE_MARGIN = 1 * 2**20
 
@@ -260,5 +263,80 @@ def describe_write_error(exc: OSError, out: str | Path, flag: str = "--out") -> 
     if isinstance(exc, OutputError):
         return str(exc)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        return f"{flag} {out}: the disk is full ({exc.strerror}); nothing partial was left behind"
+        # each file is written to a temporary name and renamed: no half-written file stays, but
+        # the files written before the disk filled do (the caller says which)
+        return f"{flag} {out}: the disk is full ({exc.strerror}); no half-written file was left"
     return f"{flag} {out}: cannot write ({exc.strerror or exc})"
+
+
+def fmt_beyond(x: float, bound: float) -> str:
+    """``x`` in the fewest significant digits (``%g``, 6 to 17) that still show it on its side of
+    ``bound``: "at most 1e+09 N/m (got 1.0000001e+09 N/m)", never "(got 1e+09 N/m)"."""
+    x = float(x)
+    for digits in range(6, 18):
+        text = f"{x:.{digits}g}"
+        if (float(text) > bound) == (x > bound) and (float(text) < bound) == (x < bound):
+            return text
+    return repr(x)
+
+
+class FolderLock:
+    """An exclusive lock on an output folder while a command writes it: ``fcntl.flock`` on
+    out/LOCK_FILE, which holds "PID COMMAND" (``command``: run, fit, sweep). A second command on
+    the same folder is refused at once with OutputError naming the holder (two runs into one
+    folder mixed their files: one's summary.json beside the other's result.npz). The kernel drops
+    the lock with the process however it ends, so a stale lock file (after kill -9) never blocks.
+    The holder removes the file when it is done, still holding the lock; a command that locked
+    a file already removed (it opened it just before) sees that its inode is no longer the path's
+    and tries again, so two commands never both hold a lock."""
+
+    def __init__(self, out: str | Path, command: str, flag: str = "--out"):
+        self.out, self.command, self.flag = Path(out), command, flag
+        self.path = self.out / LOCK_FILE
+        self.fh = None
+
+    def __enter__(self):
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover (not POSIX): no lock
+            return self
+        for _ in range(100):
+            try:
+                fh = open(self.path, "a+")
+            except OSError as exc:
+                raise OutputError(f"{self.flag} {self.out}: cannot write there ({exc.strerror or exc})") from None
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.seek(0)
+                words = fh.read(200).split()
+                fh.close()
+                pid = words[0] if words else "unknown"
+                what = words[1] if len(words) > 1 and words[1].isalpha() else "clothsim command"
+                raise OutputError(f"{self.flag} {self.out}: in use by another {what} (pid {pid}); wait for it to "
+                                  f"finish or stop it, or choose another {self.flag}") from None
+            mine = os.fstat(fh.fileno())
+            try:
+                now = os.stat(self.path)
+            except FileNotFoundError:
+                now = None
+            if now is not None and (now.st_ino, now.st_dev) == (mine.st_ino, mine.st_dev):
+                break
+            fh.close()  # locked a file its holder had just removed: lock the current one
+        else:  # pragma: no cover (the file replaced a hundred times meanwhile)
+            raise OutputError(f"{self.flag} {self.out}: cannot lock the folder (its lock file keeps changing)")
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"{os.getpid()} {self.command}")
+        fh.flush()
+        self.fh = fh
+        return self
+
+    def __exit__(self, *exc):
+        if self.fh is not None:
+            try:
+                os.unlink(self.path)  # still locked: a waiting opener sees the inode change
+            except OSError:
+                pass
+            self.fh.close()  # the lock goes with the descriptor
+            self.fh = None

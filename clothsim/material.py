@@ -92,7 +92,9 @@ def check_table(strain, value, value_name: str = "stress", shown=None) -> None:
         hi, unit = VALUE_MAX[value_name]
         for k, x in enumerate(value):
             if float(x) > hi:
-                raise _bad(f"{value_name}: at most {hi:.0e} {unit} (got {float(x):g} {unit})", k)
+                from .fileio import fmt_beyond
+
+                raise _bad(f"{value_name}: at most {hi:.0e} {unit} (got {fmt_beyond(x, hi)} {unit})", k)
     for k in range(1, len(value)):
         if float(value[k]) < float(value[k - 1]):
             raise _bad(f"{value_name}: must be non-decreasing ({v_txt[k]} after {v_txt[k - 1]})", k)
@@ -167,6 +169,14 @@ def _cells(row: list[str]) -> list[str]:
     return row
 
 
+def _csv_number(cell: str) -> float:
+    """A CSV cell's number: what float() reads, but not with the underscores Python allows
+    between digits (``1_5`` would read as 15: a typo, or a locale's separator)."""
+    if "_" in cell:
+        raise ValueError(cell)
+    return float(cell)
+
+
 def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.ndarray, str]:
     """Parse CSV text as in :func:`read_table_csv` (used for browser uploads too)."""
     from .fileio import excerpt
@@ -201,8 +211,8 @@ def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.nd
         if len(row) != 2:
             raise MaterialError(f"{source}:{line}: expected two columns, got {len(row)}")
         try:
-            s = float(row[0])
-            v = float(row[1])
+            s = _csv_number(row[0])
+            v = _csv_number(row[1])
         except ValueError:
             raise MaterialError(f"{source}:{line}: not a number: {excerpt(','.join(row), 40, quote=False)}") from None
         if not (math.isfinite(s) and math.isfinite(v)):

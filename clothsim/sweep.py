@@ -21,7 +21,8 @@ Output folder (``--out``)::
     run-0003-1a2b3c4d/               one folder per run: result.npz, history.csv, sheet.ply,
                                      scene.yaml, sweep_run.json, summary.json (written last)
     summary.csv                      one row per run, rebuilt from the run folders
-    plots/<output>__vs__<param>.png  one plot per (output, varied parameter)
+    plots/<output>__vs__<param>.png  one plot per (output, varied parameter; zip: one parameter),
+                                     timings left out unless listed under plots:
 
 Design decisions (why):
 
@@ -38,8 +39,8 @@ Design decisions (why):
   the same command runs only the rest (``--force`` reruns all). A finished run whose scene no
   longer matches what the sweep file now expands to (the base scene was edited) is rerun, and so
   is one that ended in status ``error`` (``--skip-errors`` keeps those).
-* **One sweep per folder.** The driver holds ``fcntl.flock`` on ``out/.clothsim-sweep.lock``
-  (holding its pid) while it runs; a second sweep is refused naming that pid. The kernel drops the
+* **One sweep per folder.** The driver holds ``fcntl.flock`` on ``out/.clothsim.lock``
+  (holding its pid) while it runs; a second sweep (or a run or fit) is refused naming that pid. The kernel drops the
   lock with the driver, however it ends, so a stale lock file never blocks.
 * **Workers die with the driver.** SIGTERM/SIGHUP act as Ctrl-C (the pool is terminated). Local
   workers (children of the forkserver, not of the driver) set PR_SET_PDEATHSIG and poll the
@@ -81,6 +82,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .config import SceneError, apply_overrides, format_validation_error, read_yaml, scene_from_dict
+from .fileio import LOCK_FILE  # noqa: F401  (the lock a sweep, run or fit holds on its --out)
 
 #: keys of Result.summary() a sweep can tabulate and plot
 SUMMARY_KEYS = (
@@ -110,8 +112,6 @@ def _probe_output(name: str) -> bool:
 TIMING_KEYS = ("wall_time_s", "startup_s", "run_time_s")
 DEFAULT_OUTPUTS = ["iterations", "residual", "energy", "wall_time_s"]
 FINISHED_FILE = "summary.json"
-#: held (fcntl.flock) by the sweep writing a folder; holds that driver's pid
-LOCK_FILE = ".clothsim-sweep.lock"
 
 
 class SweepError(ValueError):
@@ -169,10 +169,19 @@ class Space(_Strict):
 
 class SweepBlock(_Strict):
     """mode: grid (every combination, first parameter slowest) or zip (element by element; all
-    lists the same length). parameters: scene field path -> list of values or a Space."""
+    lists the same length). parameters: scene field path -> list of values or a Space. x: the
+    parameter the plots put on their x axis in zip mode (default: the first that varies; the
+    zipped parameters change together, so one axis tells it all)."""
 
     mode: Literal["grid", "zip"] = "grid"
     parameters: dict[str, Union[list[Any], Space]]
+    x: str | None = None
+
+    @model_validator(mode="after")
+    def _x(self):
+        if self.x is not None and self.x not in self.parameters:
+            raise ValueError(f"x: '{self.x}' is not one of the parameters ({', '.join(self.parameters)})")
+        return self
 
     @field_validator("parameters")
     @classmethod
@@ -275,7 +284,8 @@ class SweepFile(_Strict):
     parameters to vary, an optional ``fit`` (each run an inverse sizing, see FitBlock) and the
     outputs to tabulate and plot (keys of summary.json, max_z_m, min_z_m, run_time_s, a probe's
     reading: probe:NAME_mmhg, probe:NAME_pa, probe:NAME_contact_fraction; with ``fit``:
-    fit:PATH, the fitted value of a varied field, fit_converged and fit_solves)."""
+    fit:PATH, the fitted value of a varied field, fit_converged and fit_solves) and the outputs to
+    plot (``plots``; default: the numeric outputs but the timings, BOOKKEEPING)."""
 
     name: str | None = None
     base: str
@@ -283,6 +293,14 @@ class SweepFile(_Strict):
     sweep: SweepBlock
     fit: FitBlock | None = None
     outputs: list[str] = Field(default_factory=lambda: list(DEFAULT_OUTPUTS))
+    plots: list[str] | None = None
+
+    @model_validator(mode="after")
+    def _plots(self):
+        for o in self.plots or []:
+            if o not in self.outputs:
+                raise ValueError(f"plots: '{o}' is not one of the outputs ({', '.join(self.outputs)})")
+        return self
 
     @field_validator("outputs")
     @classmethod
@@ -669,39 +687,25 @@ def _status(d: Path) -> str | None:
 
 
 class _FolderLock:
-    """An exclusive lock on a sweep's output folder: fcntl.flock on out/LOCK_FILE, which holds
-    the driver's pid. Released when the driver exits, however it exits (the kernel drops the
-    lock with the file descriptor). Raises SweepError naming the holder if another sweep has it."""
+    """The sweep's lock on its output folder (clothsim.fileio.FolderLock, shared with run and
+    fit: a run into a sweep's folder is refused too). Raises SweepError naming the holder."""
 
     def __init__(self, out: Path):
-        self.path = out / LOCK_FILE
-        self.fh = None
+        from .fileio import FolderLock
+
+        self.lock = FolderLock(out, "sweep")
 
     def __enter__(self):
+        from .fileio import OutputError
+
         try:
-            import fcntl
-        except ImportError:  # pragma: no cover (not POSIX): no lock
-            return self
-        fh = open(self.path, "a+")
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            fh.seek(0)
-            holder = fh.read().strip() or "unknown"
-            fh.close()
-            raise SweepError(f"--out {self.path.parent}: in use by another sweep (pid {holder}); wait for it to "
-                             f"finish or stop it, or choose another --out") from None
-        fh.seek(0)
-        fh.truncate()
-        fh.write(str(os.getpid()))
-        fh.flush()
-        self.fh = fh
+            self.lock.__enter__()
+        except OutputError as exc:
+            raise SweepError(str(exc)) from None
         return self
 
     def __exit__(self, *exc):
-        if self.fh is not None:
-            self.fh.close()  # the lock goes with the descriptor; the file stays (no unlink race)
-            self.fh = None
+        self.lock.__exit__(*exc)
 
 
 def read_row(out: Path, run: Run) -> dict:
@@ -779,8 +783,43 @@ def _label(v) -> str:
     return _fmt(v)
 
 
+#: outputs that keep the books (timings) rather than describe the result: not plotted unless the
+#: sweep file lists them under ``plots``
+BOOKKEEPING = TIMING_KEYS
+
+
+def plot_axes(sweep: Sweep, rows: list[dict]) -> list[str]:
+    """The parameters the plots put on their x axis: in grid mode each parameter that takes more
+    than one value; in zip mode one (the zipped parameters change together): ``sweep.x`` or the
+    first that takes more than one value."""
+    def varies(param):
+        seen = []
+        for r in rows:
+            if r.get(param) not in seen:
+                seen.append(r.get(param))
+        return len(seen) > 1
+
+    moving = [p for p in sweep.varied if varies(p)]
+    if sweep.spec.sweep.mode == "zip":
+        if sweep.spec.sweep.x is not None:
+            return [sweep.spec.sweep.x]
+        return moving[:1]
+    return moving
+
+
+def plot_outputs(sweep: Sweep, rows: list[dict]) -> list[str]:
+    """The outputs plotted: the sweep file's ``plots``, or every numeric output but the
+    bookkeeping ones (BOOKKEEPING: timings)."""
+    chosen = sweep.spec.plots if sweep.spec.plots is not None else [
+        o for o in sweep.spec.outputs if o not in BOOKKEEPING]
+    return [o for o in chosen
+            if any(isinstance(r.get(o), (int, float)) and not isinstance(r.get(o), bool) for r in rows)]
+
+
 def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
-    """One PNG per (numeric output, varied parameter): out/plots/<output>__vs__<param>.png.
+    """One PNG per (plotted output, x axis): out/plots/<output>__vs__<param>.png, axes labelled
+    with readable names and units (clothsim.labels). The x axes are :func:`plot_axes`, the
+    outputs :func:`plot_outputs`.
 
     grid mode with several parameters: one line per combination of the other parameters (up to
     10, with a legend), otherwise points. zip mode: one line. Runs that did not converge are
@@ -791,16 +830,16 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    from .labels import axis_label
     from .plottext import PLAIN, plain_legend
 
-    outputs = [o for o in sweep.spec.outputs
-               if any(isinstance(r.get(o), (int, float)) and not isinstance(r.get(o), bool) for r in rows)]
+    outputs = plot_outputs(sweep, rows)
     pdir = out / "plots"
     pdir.mkdir(parents=True, exist_ok=True)
     written = []
     varied = sweep.varied
     spaces = sweep.spec.sweep.parameters
-    for param in varied:
+    for param in plot_axes(sweep, rows):
         all_vals = []
         for r in rows:
             if r[param] not in all_vals:
@@ -854,10 +893,14 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
             pos = [y for y in ys if math.isfinite(y) and y > 0]
             if pos and len(pos) == len(ys) and max(pos) / min(pos) > 1e3:
                 ax.set_yscale("log")
-            ax.set_xlabel(param + note, **PLAIN)
-            ax.set_ylabel(o, **PLAIN)
+            # plain text: a field name or a unit is never parsed as mathtext
+            ax.set_xlabel(axis_label(param) + note, **PLAIN)
+            ax.set_ylabel(axis_label(o), **PLAIN)
             title = f"{sweep.spec.name or sweep.path.stem}: {o} against {param}"
             sub = []
+            together = [p for p in varied if p != param] if sweep.spec.sweep.mode == "zip" else []
+            if together:
+                sub.append(f"zipped with {', '.join(together)}")
             if any(r["status"] != "converged" for r in rows if isinstance(r.get(o), (int, float))):
                 sub.append("hollow = did not converge")
             if n_missing:
@@ -1071,6 +1114,63 @@ def _on_terminate(signum, frame):
     raise Terminated(signal.Signals(signum).name)
 
 
+#: seconds to wait for a Dask scheduler to answer (--dask ADDRESS) before the sweep is refused: a
+#: port that accepts connections and never answers (not a scheduler) used to hang the sweep
+DASK_CONNECT_TIMEOUT_S = 15.0
+#: the address schemes a remote Dask scheduler listens on
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+
+
+def check_dask_address(address: str | None) -> None:
+    """Refuse (SweepError naming --dask) an address that is neither ``local`` nor
+    ``[SCHEME://]HOST:PORT`` with a scheme of DASK_SCHEMES and a port from 1 to 65535, before
+    anything runs (``nonsense``, ``http://...``, ``tcp://[::1`` gave tracebacks)."""
+    if address is None or address == "local":
+        return
+    hint = "give 'local' or a scheduler address tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786)"
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port
+
+        scheme, loc = parse_address(str(address), strict=False)
+        host, port = parse_host_port(loc)
+    except ImportError:
+        raise SweepError("--dask: Dask is not installed (pip install 'dask[distributed]')") from None
+    except (ValueError, TypeError) as exc:
+        raise SweepError(f"--dask {address}: not a scheduler address ({exc}); {hint}") from None
+    if scheme not in DASK_SCHEMES:
+        raise SweepError(f"--dask {address}: unknown scheme '{scheme}' (a Dask scheduler speaks "
+                         f"{', '.join(DASK_SCHEMES)}); {hint}")
+    if not host or not isinstance(port, int) or not 1 <= port <= 65535:
+        raise SweepError(f"--dask {address}: needs a host and a port from 1 to 65535; {hint}")
+
+
+def _reach_scheduler(address: str, timeout: float = None) -> None:
+    """Open (and close) a Dask connection to ``address`` within ``timeout`` seconds
+    (DASK_CONNECT_TIMEOUT_S), handshake included: a port that accepts and never answers is
+    refused with SweepError instead of hanging the sweep."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    timeout = DASK_CONNECT_TIMEOUT_S if timeout is None else timeout
+
+    async def probe():
+        # Dask's own timeout (it retries a refused connection) ends first and says why; the outer
+        # one ends a connection accepted but never answered, where Dask's handshake waits on
+        comm = await connect(address, timeout=0.8 * timeout)
+        await comm.close()
+
+    try:
+        asyncio.run(asyncio.wait_for(probe(), timeout))
+    except (asyncio.TimeoutError, TimeoutError):
+        raise SweepError(f"--dask {address}: no Dask scheduler answered within {timeout:g} s (is it one? "
+                         f"start it with dask scheduler, or use --dask local)") from None
+    except Exception as exc:  # refused, unknown host, a handshake that failed, ...
+        why = str(exc) if isinstance(exc, OSError) and str(exc) else f"{type(exc).__name__}: {exc}"
+        raise SweepError(f"--dask {address}: cannot reach the Dask scheduler ({why}); "
+                         f"start it (dask scheduler) or use --dask local") from None
+
+
 def _run_dask(todo, sweep, out, workers, address, on_done, on_warm):
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -1080,9 +1180,10 @@ def _run_dask(todo, sweep, out, workers, address, on_done, on_warm):
                                dashboard_address=None, silence_logs=50)
         client = Client(cluster)
     else:
+        _reach_scheduler(address)
         try:
-            client = Client(address, timeout="30s")
-        except (OSError, TimeoutError) as exc:  # not a write failure: name the scheduler
+            client = Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S:g}s")
+        except (OSError, TimeoutError, ValueError) as exc:  # not a write failure: name the scheduler
             raise SweepError(f"--dask {address}: cannot reach the Dask scheduler ({exc}); start it "
                              f"(dask scheduler) or use --dask local") from None
     try:
@@ -1127,6 +1228,7 @@ def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, 
     written or a full disk (the message says which; finished runs are kept)."""
     from .fileio import OutputError, check_free_space, check_out_dir, describe_write_error
 
+    check_dask_address(dask)
     sweep = load_sweep(path)
     errors = validate_runs(sweep)
     if errors:

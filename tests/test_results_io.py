@@ -70,6 +70,11 @@ def test_full_disk_during_the_write_exits_2_and_leaves_no_temp_file(tmp_path, ca
     assert f"--out {out}: the disk is full (No space left on device)" in err
     names = sorted(p.name for p in out.iterdir())
     assert "summary.json" not in names and not [n for n in names if ".tmp" in n], names
+    # it said "nothing partial was left behind" while result.npz and history.csv stayed: it now
+    # names exactly what was written (issue 28.11)
+    assert "nothing partial" not in err
+    assert "written before it failed: result.npz, history.csv; no summary.json" in err, err
+    assert [n for n in names if not n.startswith(".")] == ["history.csv", "result.npz"]
 
 
 def test_free_space_checked_before_writing(tmp_path, capsys, monkeypatch):
@@ -110,6 +115,13 @@ def test_run_on_a_really_full_disk(tmp_path, capsys, monkeypatch, tiny_tmpfs, sp
     assert ("not enough free space" if space_check else "the disk is full") in err, err
     names = sorted(p.name for p in out.iterdir())
     assert "summary.json" not in names and not [n for n in names if ".tmp" in n], names
+    # the message names exactly the files that stayed (issue 28.11)
+    left = [n for n in names if not n.startswith(".")]
+    assert "nothing partial" not in err
+    if left:
+        assert f"written before it failed: {', '.join(sorted(left, key=err.index))}; no summary.json" in err, err
+    else:
+        assert "nothing was written" in err, err
 
 
 def test_summary_written_last_and_strict(tmp_path):

@@ -168,7 +168,7 @@ def test_second_sweep_into_the_same_out_is_refused_naming_the_holder(tmp_path, c
          "import fcntl, os, sys, time\n"
          f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
          "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
-         "f.truncate(0); f.write(str(os.getpid())); f.flush()\n"
+         "f.truncate(0); f.write(f'{os.getpid()} sweep'); f.flush()\n"
          "print('locked', flush=True)\n"
          "time.sleep(60)\n"], stdout=subprocess.PIPE, text=True)
     try:

@@ -54,6 +54,16 @@ class FitError(ValueError):
         self.tries = list(tries or [])
 
 
+class FitInterrupted(Exception):
+    """A signal (``name``: SIGINT, SIGTERM) stopped the fit: ``tries`` are the solves that
+    finished before it (a solve the signal cut short is not among them)."""
+
+    def __init__(self, name: str, tries: list):
+        super().__init__(f"interrupted ({name}) after {len(tries)} finished solve{'s' if len(tries) != 1 else ''}")
+        self.name = name
+        self.tries = list(tries)
+
+
 @dataclass
 class Vary:
     """A field to vary: its ``--set`` path and bounds (None: the start value +-30 %)."""
@@ -123,7 +133,8 @@ def parse_target(text: str) -> Target:
 
 
 def parse_vary(text: str) -> Vary:
-    """'fabric.size.0' or 'fabric.size.0=0.2:0.3' -> Vary."""
+    """'fabric.size.0' or 'fabric.size.0=0.2:0.3' -> Vary (bounds the scene cannot take are
+    refused before the first solve, see :func:`_check_bounds`)."""
     if "=" not in text:
         return Vary(text.strip())
     path, rng = text.split("=", 1)
@@ -247,8 +258,10 @@ def warm_start(model, state, positions: np.ndarray, rounds: int = 8) -> None:
 class _Solver:
     """Solves the scene at given field values, warm-starting from the previous equilibrium."""
 
-    def __init__(self, data: dict, source: Path | None, varies: list[Vary], targets: list[Target], log=None):
+    def __init__(self, data: dict, source: Path | None, varies: list[Vary], targets: list[Target], log=None,
+                 stop: list | None = None):
         self.data, self.source, self.varies, self.targets = data, source, varies, targets
+        self.stop = stop if stop is not None else []  # a signal's name once one asked the fit to stop
         self.prev = None
         self.warm = False
         self.fresh = False  # True: every solve from the scene's own start (no warm start)
@@ -265,9 +278,14 @@ class _Solver:
         from ..config import scene_from_dict
         from ..simulation import Simulation, warm_up
 
+        if self.stop:
+            raise FitInterrupted(self.stop[0], self.tries)
         t0 = time.perf_counter()
-        scene = scene_from_dict(self.scene_dict(x), self.source)
-        sim = Simulation(scene)
+        # a value the scene refuses names the --vary that set it, not the scene file
+        blame = {v.path: f"--vary {v.path} (at {float(xi):.8g})" for v, xi in zip(self.varies, x)}
+        scene = scene_from_dict(self.scene_dict(x), self.source, None, blame)
+        # a signal stops the solve at its next iteration; that try is dropped (not an equilibrium)
+        sim = Simulation(scene, callback=lambda prog: bool(self.stop))
         warm = self.prev is not None and not self.fresh
         if warm:
             if self.prev.positions.shape != sim.state.positions.shape:
@@ -277,6 +295,8 @@ class _Solver:
             warm_up(sim.model, sim.state, sim.settings)
             self.warm = True
         sim.run()
+        if self.stop:
+            raise FitInterrupted(self.stop[0], self.tries)
         res = sim.result()
         readings = {r["name"]: r["pressure_mmhg"] for r in res.compression().get("probes", [])}
         p = [readings[t.probe] for t in self.targets]
@@ -292,21 +312,25 @@ class _Solver:
 
 
 def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, overrides: list[str] | None = None,
-        tol_mmhg: float = 0.1, max_solves: int = 12, log=None) -> FitResult:
+        tol_mmhg: float = 0.1, max_solves: int = 12, log=None, stop: list | None = None) -> FitResult:
     """Find field values whose probe readings meet the targets within ``tol_mmhg`` (see the module
-    docstring). Raises FitError on bad input or an unreachable target (with the reachable range)."""
+    docstring). Raises FitError on bad input or an unreachable target (with the reachable range),
+    FitInterrupted (with the finished tries) once ``stop`` (a list a signal handler appends to)
+    is not empty."""
     from ..config import apply_overrides, read_yaml
 
     scene_path = Path(scene_path)
     data, _ = read_yaml(scene_path)
     data = apply_overrides(data, overrides or [])
-    return fit_data(data, scene_path, varies, targets, tol_mmhg=tol_mmhg, max_solves=max_solves, log=log)
+    return fit_data(data, scene_path, varies, targets, tol_mmhg=tol_mmhg, max_solves=max_solves, log=log, stop=stop)
 
 
 def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list[Target]) -> list[float]:
     """Check a fit before any solve: the scene validates, every target names one of its probes
     (once), every varied path (given once) is a continuous number of the scene or of its schema
-    (see :func:`start_value`). Returns the start values; raises FitError (or SceneError)."""
+    (see :func:`start_value`) and the scene takes both its bounds (:func:`_check_bounds`; a sweep
+    checks every run's fit so before anything runs). Returns the start values; raises FitError
+    (or SceneError)."""
     from ..config import scene_from_dict
 
     if not varies or not targets:
@@ -321,11 +345,24 @@ def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list
         if t.probe not in names:
             raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
                            f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
-    return [start_value(data, v.path, scene) for v in varies]
+    x0 = [start_value(data, v.path, scene) for v in varies]
+    lo, hi = _bounds(varies, x0)
+    _check_bounds(data, source, varies, [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)], lo, hi)
+    return x0
+
+
+def _bounds(varies: list[Vary], x0: list[float]) -> tuple[list[float], list[float]]:
+    """(LO, HI) of each varied field: the --vary bounds, else the start value +-30 %."""
+    lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
+    hi = [v.hi if v.hi is not None else x + 0.3 * abs(x) for v, x in zip(varies, x0)]
+    for v, x, a, b in zip(varies, x0, lo, hi):
+        if not a < b:
+            raise FitError(f"--vary {v.path}: give bounds (FIELD=LO:HI): the start value is {x}")
+    return lo, hi
 
 
 def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[Target], *,
-             tol_mmhg: float = 0.1, max_solves: int = 12, log=None) -> FitResult:
+             tol_mmhg: float = 0.1, max_solves: int = 12, log=None, stop: list | None = None) -> FitResult:
     """:func:`fit` on a raw scene dict (as in the YAML; ``source``: the file its relative paths
     resolve against). The sweep runner calls this for each run of a sweep with a ``fit:`` block."""
     if isinstance(tol_mmhg, bool) or not (isinstance(tol_mmhg, (int, float)) and math.isfinite(tol_mmhg)
@@ -335,13 +372,9 @@ def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[
         raise FitError(f"max_solves: must be an integer, at least 1 (got {max_solves!r})")
     x0 = check_fit(data, source, varies, targets)
     scene_path = source
-    lo = [v.lo if v.lo is not None else x - 0.3 * abs(x) for v, x in zip(varies, x0)]
-    hi = [v.hi if v.hi is not None else x + 0.3 * abs(x) for v, x in zip(varies, x0)]
-    for v, x, a, b in zip(varies, x0, lo, hi):
-        if not a < b:
-            raise FitError(f"--vary {v.path}: give bounds (FIELD=LO:HI): the start value is {x}")
+    lo, hi = _bounds(varies, x0)
     x0 = [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)]
-    f = _Solver(data, scene_path, varies, targets, log)
+    f = _Solver(data, scene_path, varies, targets, log, stop)
 
     def search(x, budget):
         if len(varies) == 1 and len(targets) == 1:
@@ -387,6 +420,28 @@ def fit_data(data: dict, source: Path | None, varies: list[Vary], targets: list[
         out.result = f.results[k]
         out.scene_dict = f.scene_dict(out.values)
     return out
+
+
+def _check_bounds(data: dict, source: Path | None, varies: list[Vary], x0, lo, hi) -> None:
+    """Refuse, before any solve, a bound the scene cannot take (a negative width, a width over
+    the 1e6 m bound), naming the --vary that gave it: each bound is validated with the other
+    fields at their start values."""
+    from ..config import SceneError, apply_overrides, scene_from_dict
+
+    for n, v in enumerate(varies):
+        for which, b in (("lower", lo[n]), ("upper", hi[n])):
+            x = list(x0)
+            x[n] = b
+            given = f"{v.path}={v.lo:.8g}:{v.hi:.8g}" if v.lo is not None else f"{v.path} (default bounds +-30 %)"
+            label = f"--vary {given}: its {which} bound {b:.8g}"
+            try:
+                scene_from_dict(apply_overrides(data, {u.path: float(xi) for u, xi in zip(varies, x)}), source,
+                                None, {v.path: label})
+            except SceneError as exc:
+                msg = str(exc)
+                if label not in msg:  # the bound broke another field (a derived check): say which bound
+                    msg = f"{label}: {msg}"
+                raise FitError(msg) from None
 
 
 def _secant(f: _Solver, x0: float, lo: float, hi: float, tol: float, max_solves: int, vary: Vary,

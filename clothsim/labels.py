@@ -1,0 +1,104 @@
+"""Readable names and units of sweep outputs and scene fields, for plot axes.
+
+``axis_label("max_contact_pressure_mmhg")`` is "peak node pressure [mmHg]",
+``axis_label("mold.cylinder.radius")`` "mold cylinder radius [m]",
+``axis_label("fit:fabric.size.0")`` "fitted fabric size (warp) [m]". A dimensionless value shows
+``[-]``, a count no unit; a field whose unit is not known shows its path alone.
+"""
+
+from __future__ import annotations
+
+#: summary.json keys (and the sweep worker's extras): (readable name, unit)
+OUTPUTS = {
+    "iterations": ("iterations", ""),
+    "residual": ("residual ||V||inf", "N"),
+    "relative_residual": ("relative residual", "-"),
+    "best_residual": ("best residual", "N"),
+    "energy": ("energy", "J"),
+    "wall_time_s": ("relaxation time", "s"),
+    "startup_s": ("start-up time", "s"),
+    "run_time_s": ("run time", "s"),
+    "C": ("step divisor C", "-"),
+    "e": ("convergence limit e", "N"),
+    "contact_count": ("contact nodes", ""),
+    "node_count": ("nodes", ""),
+    "slack_springs": ("slack springs", ""),
+    "spring_count": ("springs", ""),
+    "undetermined_nodes": ("undetermined nodes", ""),
+    "min_weft_extent_ratio": ("narrowest weft extent / rest width", "-"),
+    "max_strain_warp": ("peak warp strain", "-"),
+    "max_strain_weft": ("peak weft strain", "-"),
+    "max_contact_pressure_pa": ("peak node pressure", "Pa"),
+    "max_contact_pressure_mmhg": ("peak node pressure", "mmHg"),
+    "max_sensor_pressure_pa": ("peak sensor pressure", "Pa"),
+    "max_sensor_pressure_mmhg": ("peak sensor pressure", "mmHg"),
+    "gathered_contact_nodes": ("gathered contact nodes", ""),
+    "max_seam_gap_m": ("largest seam gap", "m"),
+    "max_penetration_m": ("deepest penetration", "m"),
+    "max_z_m": ("highest node z", "m"),
+    "min_z_m": ("lowest node z", "m"),
+    "fit_solves": ("fit solves", ""),
+    "fit_converged": ("fit converged", ""),
+}
+
+#: a probe output's suffix: (what it reads, unit)
+PROBE = {"mmhg": ("pressure", "mmHg"), "pa": ("pressure", "Pa"), "contact_fraction": ("contact fraction", "-")}
+
+#: a scene field's unit by its name (the last non-index part of its path; see clothsim.config)
+FIELD_UNITS = {
+    "size": "m", "radius": "m", "length": "m", "lift": "m", "perturb": "m", "thickness": "m",
+    "spacing": "m", "clearance": "m", "smoothing": "m", "tolerance": "m", "displacement": "m",
+    "center": "m", "origin": "m", "translate": "m", "point": "m", "min": "m", "max": "m",
+    "heights": "m", "from": "m", "to": "m", "step": "m",
+    "start_angle": "deg", "rotate": "deg",
+    "stretch": "-", "scale": "-", "C": "-", "newton_kink": "-",
+    "e": "N", "stiffness": "N/m", "tension": "N/m", "stress": "Pa",
+    "areal_density": "kg/m^2", "g": "m/s^2", "time_limit_s": "s",
+    "divisions": "", "max_iterations": "", "max_retries": "", "stall_iterations": "", "seed": "",
+}
+#: the unit of a field under a given parent: a seam's stiffness is per length of seam
+PARENT_UNITS = {("seams", "stiffness"): "N/m^2"}
+#: how the index after a field reads: fabric.size.0 is the warp size, center.2 the z coordinate
+INDEX_NAMES = {"size": ("warp", "weft"), "divisions": ("warp", "weft"), "stretch": ("warp", "weft"),
+               **{k: ("x", "y", "z") for k in ("center", "origin", "translate", "point", "min", "max",
+                                                 "displacement", "axis", "rotate")}}
+
+
+def _unit(unit: str) -> str:
+    return f" [{unit}]" if unit else ""
+
+
+def field_label(path: str) -> str:
+    """A scene field path as an axis label: its words and unit (``fabric.warp.scale`` ->
+    "fabric warp scale [-]"); the path itself when its unit is not known."""
+    parts = path.split(".")
+    words: list[str] = []
+    name = None  # the last named (non-index) part
+    for k, part in enumerate(parts):
+        if part.isdigit() and name in INDEX_NAMES and int(part) < len(INDEX_NAMES[name]):
+            words.append(f"({INDEX_NAMES[name][int(part)]})")
+        elif part.isdigit():
+            words.append(part)
+        else:
+            name = part
+            words.append(part.replace("_", " "))
+    if name is None or (name not in FIELD_UNITS and not any(n == name for _, n in PARENT_UNITS)):
+        return path
+    unit = next((u for (parent, n), u in PARENT_UNITS.items() if n == name and parts[0] == parent),
+                FIELD_UNITS.get(name, ""))
+    return " ".join(words) + _unit(unit)
+
+
+def axis_label(name: str) -> str:
+    """An output (summary key, probe:NAME_key, fit:PATH) or a scene field as an axis label."""
+    if name in OUTPUTS:
+        text, unit = OUTPUTS[name]
+        return text + _unit(unit)
+    if name.startswith("probe:"):
+        for key in sorted(PROBE, key=len, reverse=True):
+            if name.endswith("_" + key):
+                text, unit = PROBE[key]
+                return f"probe {name[len('probe:'):-len(key) - 1]} {text}" + _unit(unit)
+    if name.startswith("fit:"):
+        return "fitted " + field_label(name[4:])
+    return field_label(name)
