@@ -150,3 +150,13 @@ def test_browser_shows_compiling_note_until_kernels_ready(browser):
         gate.set()
         page.close()
         a.close()
+
+
+def test_startup_note_says_compiling_only_on_a_cold_cache():
+    """Issue 28 item 20: the page said "Compiling kernels (first run only)" on every start; it
+    says compiling only when numba's cache holds no kernels of this version, loading otherwise."""
+    from clothsim.viewer.server import _startup_html
+
+    cold, warm = _startup_html(3.0, cached=False), _startup_html(3.0, cached=True)
+    assert STARTUP_NOTE in cold and STARTUP_NOTE in warm
+    assert "compiling" in cold and "compiling" not in warm and "cache" in warm

@@ -53,6 +53,7 @@ import viser
 from ..config import Scene, SceneError
 from ..material import MaterialError
 from ..mold import MoldError
+from .. import kernels_cached
 from ..simulation import Simulation
 from .draft import SceneDraft
 from .guard import GuiValueGuard, HandshakeCheck, UploadGuard, guarded_server, is_loopback, new_token
@@ -69,16 +70,20 @@ from .plot import PLOT_POINTS, ResidualPlot
 from .render import Frame, SceneRenderer, camera_box, frame_camera, needs_reframe
 
 
-STARTUP_NOTE = "Compiling kernels (first run only)"
+STARTUP_NOTE = "Starting up"
 # how long start/pause/step/reset/apply(wait=True) wait for the update loop to run the request
 CONTROL_WAIT_S = 600.0
 
 
-def _startup_html(elapsed: float) -> str:
-    """The note a background start shows until the model and kernels are ready."""
+def _startup_html(elapsed: float, cached: bool) -> str:
+    """The note a background start shows until the model and kernels are ready; cached: numba's
+    cache holds this version's kernels (``clothsim.kernels_cached``), so they are loaded, not
+    compiled."""
+    what = ("loading the solver's compiled kernels from numba's cache (a few seconds)" if cached else
+            "compiling the solver's kernels (the first start after an install or an update: a minute "
+            "or two on two cores; numba caches them, so later starts take a few seconds)")
     return (f'<div style="padding:0.5em 0"><b>{STARTUP_NOTE}...</b> {elapsed:.0f} s<br>'
-            f'<span style="font-size:0.85em">Building the scene and compiling the solver\'s kernels '
-            f'(about 30 s on a fresh install; numba caches them, so later starts take a few seconds). '
+            f'<span style="font-size:0.85em">Building the scene and {what}. '
             f'The relaxation starts when they are ready.</span></div>')
 
 
@@ -187,7 +192,8 @@ class ViewerApp:
                                         idle_timeout=upload_idle_s)
 
         if background:
-            self._startup_note = self.server.gui.add_html(_startup_html(0.0))
+            self._kernels_cached = kernels_cached()
+            self._startup_note = self.server.gui.add_html(_startup_html(0.0, self._kernels_cached))
             threading.Thread(target=self._start_up, args=(scene, warm or warm_kernels, autostart),
                              name="clothsim-startup", daemon=True).start()
         else:
@@ -231,7 +237,7 @@ class ViewerApp:
             while not ticking.wait(1.0):
                 note = self._startup_note
                 if note is not None:
-                    note.content = _startup_html(time.perf_counter() - self._t_created)
+                    note.content = _startup_html(time.perf_counter() - self._t_created, self._kernels_cached)
 
         threading.Thread(target=tick, name="clothsim-startup-note", daemon=True).start()
         try:
