@@ -32,7 +32,9 @@ import numpy as np
 
 from .kernels import spring_strains_tensions
 from .fileio import atomic_write_bytes  # noqa: F401  (re-exported: sweeps and the viewer use it)
-from .grid import FAMILY_SEAM
+from .model import SpringFamily
+
+FAMILY_SEAM = SpringFamily.SEAM  # (the name Result.summary reads)
 
 MMHG = 133.322387415  # Pa per mmHg
 
@@ -129,10 +131,8 @@ def _sliver_pressure(model, in_contact, force, area, pressure) -> None:
     sliver = in_contact & (model.node_area < SLIVER_FRACTION * share)
     if not sliver.any():
         return
-    from .grid import FAMILY_SEAM, FAMILY_WARP, FAMILY_WEFT
-
     fam = model.spring_family
-    pairs = model.spring_nodes[(fam == FAMILY_WARP) | (fam == FAMILY_WEFT) | (fam == FAMILY_SEAM)]
+    pairs = model.spring_nodes[(fam == SpringFamily.WARP) | (fam == SpringFamily.WEFT) | (fam == SpringFamily.SEAM)]
     a, b = pairs[:, 0], pairs[:, 1]
     # the neighbours in contact only (a neighbour off the mold carries no reaction, and its area
     # is not pressed)
