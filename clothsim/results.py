@@ -27,12 +27,17 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .kernels import spring_strains_tensions
 from .fileio import atomic_write_bytes  # noqa: F401  (re-exported: sweeps and the viewer use it)
-from .model import SpringFamily
+from .model import Model, SpringFamily, State
+
+if TYPE_CHECKING:
+    from .config import Scene
+    from .solvers import SolveResult
 
 FAMILY_SEAM = SpringFamily.SEAM  # (the name Result.summary reads)
 
@@ -471,10 +476,10 @@ def surface_report(mold) -> dict:
 class Result:
     """A finished (or stopped) run: the scene, its model, the final state and the solve record."""
 
-    scene: object
-    model: object
-    state: object
-    solve: object  # SolveResult
+    scene: Scene
+    model: Model
+    state: State
+    solve: SolveResult
     startup_s: float = 0.0
     _fields: tuple | None = field(default=None, repr=False)
     _compression: dict | None = field(default=None, repr=False)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import SpringFamily
+from ..model import Model, SpringFamily
 from .fields import FIELDS, node_field
 from .glb import GlbMeshWriter, colormap, vertex_normals
 
@@ -32,7 +32,7 @@ class Frame:
     positions: np.ndarray
     in_contact: np.ndarray
     iteration: int
-    model: object
+    model: Model
 
 
 @dataclass(frozen=True)
