@@ -17,8 +17,9 @@ import numpy as np
 
 from .config import Scene
 from .errors import SceneError
-from .grid import Model, PanelBuild, Placement, State, build_model, rotation_matrix
+from .grid import build_model, rotation_matrix
 from .initial import initial_state
+from .model import Model, PanelBuild, Placement, State
 from .panels import PanelError, panel_geometry, rectangle_geometry
 from .selection import SelectionError
 

@@ -30,10 +30,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import SceneError
+
+if TYPE_CHECKING:
+    from .config import WrapHull
 
 
 def axis_frame(axis) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -104,7 +108,7 @@ class HullWrap:
     dh [m]: half the thickness of the slab each row's hull is taken over; where: the config path
     for messages (``initial.wrap_hull`` or ``panels.N.placement.wrap_hull``)."""
 
-    spec: object
+    spec: WrapHull
     vertices: np.ndarray
     edges: np.ndarray
     outline_uv: np.ndarray

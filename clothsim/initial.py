@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SceneError
-from .grid import Model, State
+from .model import Model, SpringFamily, State
 
 
 def initial_state(model: Model, initial, file: Path | None = None) -> State:
@@ -203,10 +203,8 @@ def _closed_seam_rows(model: Model):
     sides are far apart in the panel's plane."""
     import scipy.sparse as sp
 
-    from .grid import FAMILY_SEAM
-
     n = model.node_count
-    sel = model.spring_family == FAMILY_SEAM
+    sel = model.spring_family == SpringFamily.SEAM
     if not sel.any() and not model.seam_count:
         return None
     rest = model.rest_positions

@@ -299,7 +299,7 @@ def seam_gaps(pos, nodes, weight, out):
 def seam_node_force(k, pos, ptr, elem, nodes, weight, stiff, out):
     """Adds the seam elements' force on node k into out (3,) [N] (the paper's per-node resultant);
     ptr (N+1,), elem: the elements touching node k are elem[ptr[k]:ptr[k+1]] (see
-    ``clothsim.grid.seam_adjacency``). Returns the sum of |weight_k| |g| over them [m] (the
+    ``clothsim.lattice.seam_adjacency``). Returns the sum of |weight_k| |g| over them [m] (the
     node's 'elongation' in the paper's step, eq. 4)."""
     d = 0.0
     for p in range(ptr[k], ptr[k + 1]):

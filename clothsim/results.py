@@ -27,12 +27,19 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .kernels import spring_strains_tensions
 from .fileio import atomic_write_bytes  # noqa: F401  (re-exported: sweeps and the viewer use it)
-from .grid import FAMILY_SEAM
+from .model import Model, SpringFamily, State
+
+if TYPE_CHECKING:
+    from .config import Scene
+    from .solvers import SolveResult
+
+FAMILY_SEAM = SpringFamily.SEAM  # (the name Result.summary reads)
 
 MMHG = 133.322387415  # Pa per mmHg
 
@@ -129,10 +136,8 @@ def _sliver_pressure(model, in_contact, force, area, pressure) -> None:
     sliver = in_contact & (model.node_area < SLIVER_FRACTION * share)
     if not sliver.any():
         return
-    from .grid import FAMILY_SEAM, FAMILY_WARP, FAMILY_WEFT
-
     fam = model.spring_family
-    pairs = model.spring_nodes[(fam == FAMILY_WARP) | (fam == FAMILY_WEFT) | (fam == FAMILY_SEAM)]
+    pairs = model.spring_nodes[(fam == SpringFamily.WARP) | (fam == SpringFamily.WEFT) | (fam == SpringFamily.SEAM)]
     a, b = pairs[:, 0], pairs[:, 1]
     # the neighbours in contact only (a neighbour off the mold carries no reaction, and its area
     # is not pressed)
@@ -471,10 +476,10 @@ def surface_report(mold) -> dict:
 class Result:
     """A finished (or stopped) run: the scene, its model, the final state and the solve record."""
 
-    scene: object
-    model: object
-    state: object
-    solve: object  # SolveResult
+    scene: Scene
+    model: Model
+    state: State
+    solve: SolveResult
     startup_s: float = 0.0
     _fields: tuple | None = field(default=None, repr=False)
     _compression: dict | None = field(default=None, repr=False)

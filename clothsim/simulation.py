@@ -21,7 +21,7 @@ import numpy as np
 
 from .config import Scene, SceneError
 from .compile import compile_model, compile_state
-from .grid import Model, State
+from .model import Model, SpringFamily, State
 from .results import Result
 from .solvers import History, SolveResult, pick_method
 from .solvers import solve as run_solver
@@ -83,10 +83,10 @@ def _tiny_scene(model: Model):
                    "weft": {"strain": t[1].strain.tolist(), "tension": t[1].tension.tolist()}},
         "constraints": [{"nodes": "perimeter", "axes": "xyz", "stretch": 1.05}],
     }
-    fam = set(model.spring_family.tolist())
-    if 2 in fam:
+    fam = model.families()
+    if SpringFamily.SHEAR in fam:
         d["shear"] = {"stiffness": 1.0}
-    if fam & {3, 4}:
+    if fam & {SpringFamily.BEND_WARP, SpringFamily.BEND_WEFT}:
         d["bending"] = {"stiffness": 1.0}
     if model.external_force.any():
         d["gravity"] = {"areal_density": 0.1}

@@ -1,5 +1,5 @@
 """Grid sequencing on cut and multi-panel lattices: the stride-2 prolongation, the coarse model
-(Topology.coarsen + clothsim.grid._coarsen_lattice), and the same equilibrium with sequencing as
+(Topology.coarsen + clothsim.lattice._coarsen_lattice), and the same equilibrium with sequencing as
 without it on the circle and on the four-panel garment of the benchmark."""
 
 from pathlib import Path

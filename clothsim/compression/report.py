@@ -96,7 +96,7 @@ def _fields(out: Path):
     direction (topology.spread), engineering strain [-]."""
     from ..config import load_scene
     from ..compile import compile_model
-    from ..grid import State
+    from ..model import State
     from ..results import node_fields
 
     scene = load_scene(out / "scene.yaml")

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..contact import residual_from_forces
 from ..kernels import forces_and_energy
+from ..model import State
 
 from .base import Status
 
@@ -34,7 +35,7 @@ class Progress:
     elapsed_s: float
     iterations_per_s: float
     contact_count: int
-    state: object  # the live State (read only, between batches)
+    state: State  # the live State (read only, between batches)
     method: str = ""
 
 

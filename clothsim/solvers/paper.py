@@ -41,6 +41,7 @@ from numba import njit
 
 from ..contact import MAX_FEATURE_NORMALS, node_residual, residual_from_forces, stop_at_surface
 from ..kernels import forces_and_energy, node_force, seam_forces_and_energy, seam_node_force
+from ..lattice import seam_adjacency
 from ..mold import mold_query
 from .base import Solver, StepReport, StepStatus
 from .common import blowup_limit, model_mold_args
@@ -55,7 +56,7 @@ def _relax_node(k, pos, fixed, in_contact, adj_ptr, adj_node, adj_spring, rest, 
                 x, y, cum, start, comp, ext, C, max_retries, has_mold, margs, R, Rn, qbuf, nbuf, trial,
                 sptr, selem, snodes, sweight, sk):
     """Relax node k (paper 3.2). Returns 1 if it moved. sptr, selem: the seam elements at each
-    node (clothsim.grid.seam_adjacency); snodes, sweight, sk: the seam element arrays (empty
+    node (clothsim.lattice.seam_adjacency); snodes, sweight, sk: the seam element arrays (empty
     when the scene has none)."""
     dpos, dabs = node_force(k, pos, adj_ptr, adj_node, adj_spring, rest, width, table, x, y, cum,
                             start, comp, ext, R)
@@ -220,8 +221,6 @@ class PaperSolver(Solver):
         self.has_mold, self.margs = model_mold_args(model)
         self.order = paper_order(model)
         self.adj = model.adjacency_args()
-        from ..grid import seam_adjacency
-
         self.seam = (*seam_adjacency(model.node_count, model.seam_nodes), *model.seam_args())
         self.limit = blowup_limit(model)
         self._prev = np.empty((model.node_count, 3))

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..grid import FAMILY_SEAM
+from ..model import Model, SpringFamily
 from .fields import FIELDS, node_field
 from .glb import GlbMeshWriter, colormap, vertex_normals
 
@@ -32,7 +32,7 @@ class Frame:
     positions: np.ndarray
     in_contact: np.ndarray
     iteration: int
-    model: object
+    model: Model
 
 
 @dataclass(frozen=True)
@@ -223,7 +223,7 @@ class SceneRenderer:
         if self.h_seams is not None:
             self.h_seams.remove()
             self.h_seams = None
-        self.seam_ab = model.spring_nodes[model.spring_family == FAMILY_SEAM]
+        self.seam_ab = model.spring_nodes[model.spring_family == SpringFamily.SEAM]
         self.seam_model = model
         if len(self.seam_ab) or model.seam_count:
             self.h_seams = self.scene.add_line_segments(
@@ -241,7 +241,7 @@ class SceneRenderer:
         self.model = model
 
     def seam_points(self, pos: np.ndarray) -> np.ndarray:
-        """(P, 2, 3) float32 end points of the seam threads (clothsim.grid.Model.seam_points)."""
+        """(P, 2, 3) float32 end points of the seam threads (clothsim.model.Model.seam_points)."""
         return self.seam_model.seam_points(pos).astype(np.float32)
 
     def show_mold(self, mold, pending: bool, model, view: ViewSettings) -> None:

@@ -17,6 +17,7 @@ from numba import njit
 from ...contact import friction_assemble
 from ...contact import residual_from_forces as _residual_from_forces
 from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
+from ...model import SpringFamily
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import blowup_limit, model_mold_args
 from ..options import NewtonOptions
@@ -813,9 +814,7 @@ def _forcing(v, e, v_prev=None):
 
 def _seam_pairs(model):
     """(m,2) int64: the model's sewn node pairs (its zero-length seam springs), or None."""
-    from ...grid import FAMILY_SEAM
-
-    sel = model.spring_family == FAMILY_SEAM
+    sel = model.spring_family == SpringFamily.SEAM
     if not sel.any():
         return None
     return np.ascontiguousarray(model.spring_nodes[sel], np.int64)

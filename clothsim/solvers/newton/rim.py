@@ -2,7 +2,7 @@
 
 On a lattice cut by an outline, the coarse grids of the sequencing represent the outline only
 roughly: a coarse node beside a held fine node is held at a guessed position (see
-``grid.coarsen_model``), and the interpolation loses corners at the fringe. The fine start then
+``lattice.coarsen_model``), and the interpolation loses corners at the fringe. The fine start then
 carries a force error concentrated in the few node rows next to the outline (on the 225-across
 circular blank: 2e-2 N there against 6e-4 N inside), high-frequency along the outline and decaying
 within a few rows. Node-wise nonlinear Gauss-Seidel (each node moved by the 3x3 Newton step of its
@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from ...model import SpringFamily
 from .settle import node_spring_block, spring_kinks
 
 # rows of nodes from a held node or a node with a missing lattice neighbour that are settled
@@ -34,17 +35,15 @@ def outline_band(model, depth: int | None = None) -> np.ndarray:
     their seam, in the other panel. Empty on a model without such nodes. (Grid sequencing
     settles no band where every panel is a full rectangle: its coarse lattices hold those
     outlines exactly, ``Topology.panels_full``.)"""
-    from ...grid import FAMILY_SEAM
-
     depth = RIM_BAND if depth is None else int(depth)
     n = model.node_count
     fam = model.spring_family
-    lat = fam <= 1
+    lat = (fam == SpringFamily.WARP) | (fam == SpringFamily.WEFT)
     a, b = model.spring_nodes[lat, 0], model.spring_nodes[lat, 1]
     deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
     held = model.fixed_axes.any(axis=1)
     sewn = np.zeros(n, bool)
-    sewn[model.spring_nodes[fam == FAMILY_SEAM].ravel()] = True
+    sewn[model.spring_nodes[fam == SpringFamily.SEAM].ravel()] = True
     if model.seam_count:
         sewn[model.seam_nodes.ravel()] = True
     # a sewn node's missing lattice neighbours are across its seam: not an outline

@@ -1,7 +1,7 @@
 """Grid sequencing: the scene on coarser grids (every second node, recursively), each solved by
 Newton from the previous one's interpolated solution, gives the fine grid's starting state.
 
-The coarse models come from the lattice builder at stride 2 (clothsim.grid.coarsen_model) and
+The coarse models come from the lattice builder at stride 2 (clothsim.lattice.coarsen_model) and
 the interpolation from the Topology (``grid_prolongation``); positions (n, 3) [m].
 """
 
@@ -23,7 +23,8 @@ from .rim import outline_band, settle_outline
 from .settle import settle_start
 
 
-from ...grid import FAMILY_SEAM, coarsen_model  # noqa: E402  (the lattice builder at stride 2)
+from ...lattice import coarsen_model  # noqa: E402  (the spring builder at stride 2)
+from ...model import SpringFamily, State  # noqa: E402
 
 
 RIM_SWEEPS = 4
@@ -162,7 +163,7 @@ def _rim_operator(model):
     neighbours; d (m,) how many), or None when there are none."""
     n = model.node_count
     fam = model.spring_family
-    lat = fam <= 1  # warp and weft springs
+    lat = (fam == SpringFamily.WARP) | (fam == SpringFamily.WEFT)
     a, b = model.spring_nodes[lat, 0], model.spring_nodes[lat, 1]
     deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
     free = ~model.fixed_axes.any(axis=1)
@@ -173,7 +174,7 @@ def _rim_operator(model):
     # a sewn node's missing neighbours are across its seam (its partner's panel): it is not on
     # the fringe, and the mean of its own panel's neighbours would open the seam
     sewn = np.zeros(n, bool)
-    sewn[model.spring_nodes[fam == FAMILY_SEAM].ravel()] = True
+    sewn[model.spring_nodes[fam == SpringFamily.SEAM].ravel()] = True
     rim = np.nonzero(free & ((deg < 4) | held_nb) & ~sewn)[0]
     if rim.size == 0:
         return None
@@ -430,8 +431,6 @@ def grid_sequence(model, state, e, kink, deadline):
     grid cannot be coarsened or the interpolation fails). e [N]: the run's convergence limit (no
     level is solved tighter); kink: NewtonOptions.kink; deadline: a ``time.perf_counter`` value.
     The coarse models, transfers and levels are built once per model (``_hierarchy``)."""
-    from ...grid import State
-
     hier = _hierarchy(model, kink)
     chain = hier.chain
     if len(chain) < 2:
