@@ -104,13 +104,13 @@ def test_torso_band_on_the_smooth_scan_converges_in_60_iterations():
 @pytest.mark.parametrize("height, energy", [(1.24, 0.3315099495), (1.06, 0.9820114560)])
 def test_torso_band_ends_at_the_minimum_not_the_saddle(height, energy):
     """smpl_man's smooth surface at y = 1.24 m (75 iterations with the positive part of the
-    contact's curvature term alone, ``iteration.CURVATURE`` 1: a linear tail, the residual
+    contact's curvature term alone, ``Curvature.POSITIVE``: a linear tail, the residual
     x0.42 per full step): with all of the term while the system stays positive definite
-    (``CURVATURE`` 3) it converges within 60 iterations to the same minimum (0.33151 J), not to
+    (``Curvature.FULL_WHILE_DEFINITE``) it converges within 60 iterations to the same minimum (0.33151 J), not to
     the saddle all of the term everywhere (2) converges to (0.468 J). At y = 1.06 m the path
     passes a saddle (3.9e-3 N at 1.458 J by its 9th iteration); without the step along the
-    negative curvature (``NEG_CURV_MOVE`` 0) it crept away from it for 62 iterations, with it
-    48 (52 with the line search's records, ``LINE_SEARCH_RECORDS``; on an Intel Xeon)."""
+    negative curvature (``NewtonTuning.neg_curv_move`` 0) it crept away from it for 62 iterations, with it
+    48 (52 with the line search's records, ``NewtonTuning.line_search_records``; on an Intel Xeon)."""
     from clothsim.solvers.newton import iteration
 
     assert NewtonTuning().curvature == Curvature.FULL_WHILE_DEFINITE
@@ -177,7 +177,7 @@ def test_negative_curvature_direction_is_the_smallest_eigenvector(monkeypatch):
 
 
 def test_lu_positive_definite_known_answers():
-    """The sparse LU's test of positive definiteness (``CURVATURE`` 3 on systems without the
+    """The sparse LU's test of positive definiteness (``Curvature.FULL_WHILE_DEFINITE`` on systems without the
     banded Cholesky): a diagonally dominant matrix is; the same with one diagonal entry lowered
     below the others' pull, or a symmetric matrix with a zero diagonal, is not."""
     import scipy.sparse as sp
@@ -203,11 +203,11 @@ def test_lu_positive_definite_known_answers():
 
 @pytest.mark.parametrize("height, energy, before", [(1.24, 0.3315099495, 68), (1.06, 0.9820114560, 64)])
 def test_torso_band_on_cg_levels_ends_at_the_minimum(height, energy, before):
-    """The bands at 1.06 and 1.24 m solved by CG (``DIRECT_DOFS`` 0) instead of a direct
+    """The bands at 1.06 and 1.24 m solved by CG (``NewtonTuning.direct_dofs`` 0) instead of a direct
     factorisation: CG is no test of positive definiteness (with all of the curvature term it
     reached its tolerance on the indefinite system and Newton converged to the saddle, 0.468 J at
     1.24 m), so CG's levels take all of the term only when LOBPCG's estimate of the smallest
-    eigenvalue says the system with it is positive definite (``CURVATURE_CG_TEST``), else its
+    eigenvalue says the system with it is positive definite (``NewtonTuning.curvature_cg_test``), else its
     positive part: they end at the minima (0.33151 and 0.98201 J), and in fewer iterations than
     with the positive part alone (68 and 64; 52 and 58 measured)."""
     from clothsim.solvers.newton import iteration
@@ -225,7 +225,7 @@ def test_torso_band_on_cg_levels_ends_at_the_minimum(height, energy, before):
 
 
 def test_smallest_eigenpair_known_answers():
-    """LOBPCG's estimate (``iteration._smallest_eigenpair``, the test of ``CURVATURE_CG_TEST``) on
+    """LOBPCG's estimate (``iteration._smallest_eigenpair``, the test of ``NewtonTuning.curvature_cg_test``) on
     the 1-d Laplacian tridiag(-1, 2, -1) of m = 600 unknowns plus s I, whose smallest eigenvalue is
     2 - 2 cos(pi / (m + 1)) + s (2.7e-5 + s), 5 iterations from a random start. Preconditioned by
     the inverse of the Laplacian plus 1e-4 I (a good preconditioner, like the V-cycle): theta is

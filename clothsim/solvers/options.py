@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .base import settings_default
 from .tuning import NewtonTuning
 
 
@@ -32,8 +33,8 @@ class PaperOptions:
     (> 1; also the factor a rejected step is divided by); max_retries (>= 1), the retries per
     node before it stays where it is."""
 
-    C: float = 2.0
-    max_retries: int = 60
+    C: float = settings_default("C")
+    max_retries: int = settings_default("max_retries")
 
     def __post_init__(self):
         if not (_real(self.C) and self.C > 1.0):
@@ -52,8 +53,8 @@ class NewtonOptions:
     solve coarser grids first (grid sequencing; default True); tuning, the solver's switches and
     constants (``tuning.NewtonTuning``; its defaults are the solver's behaviour)."""
 
-    kink: float = 1e-3
-    sequencing: bool = True
+    kink: float = settings_default("newton_kink")
+    sequencing: bool = settings_default("newton_sequencing")
     tuning: NewtonTuning = NewtonTuning()
 
     def __post_init__(self):

@@ -369,7 +369,7 @@ def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share)
     ``share`` of the step's predicted energy decrease (rhs (3n,) [N]: the projected forces the
     step was solved for; the decrease is rhs . dx). With share = 1: only when the rest of the
     step, the part the line search can realise, does not lower the energy at first order; with
-    share = 0 (the solver's setting, ``iteration.HOLD_SHARE``): every entering node, the projected
+    share = 0 (the solver's setting, ``NewtonTuning.hold_share``): every entering node, the projected
     Newton rule (otherwise a node whose multiplier is about 0 at the solution churns in and out of
     contact, each entry cutting the step to a sliver).
     Returns how many nodes were put back."""
