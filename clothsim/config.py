@@ -19,6 +19,7 @@ import yaml
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, StrictBool, Tag,
                       ValidationError, field_validator, model_validator)
 
+from .defaults import SOLVER_DEFAULTS
 from .compression.spec import Classes, Probe, Profile, check_compression
 from .material import (TENSION_MAX, MaterialError, Table, check_table, read_table_csv,
                        warn_implausible_strain)
@@ -601,22 +602,22 @@ class SolverSettings(_Strict):
     ||V||_inf [N] (eq. 6); max_iterations; time_limit_s: wall-clock bound [s], positive and
     finite (omitted = none)."""
 
-    method: Literal[SOLVER_METHODS] = "auto"  # type: ignore[valid-type]
-    C: float = 2.0
-    e: float = 1e-6
-    max_iterations: Int = 200_000
-    time_limit_s: float | None = None
-    max_retries: Int = 60
-    stall_iterations: Int = 2000
+    method: Literal[SOLVER_METHODS] = SOLVER_DEFAULTS["method"]  # type: ignore[valid-type]
+    C: float = SOLVER_DEFAULTS["C"]
+    e: float = SOLVER_DEFAULTS["e"]
+    max_iterations: Int = SOLVER_DEFAULTS["max_iterations"]
+    time_limit_s: float | None = SOLVER_DEFAULTS["time_limit_s"]
+    max_retries: Int = SOLVER_DEFAULTS["max_retries"]
+    stall_iterations: Int = SOLVER_DEFAULTS["stall_iterations"]
     # newton only: stiffness used at and below strain 0 on tension-only springs, as a fraction of
     # the table's first slope (regularises the singular Hessian of slack springs; shapes the
     # search direction only, never the forces); and whether to solve coarser grids first
-    newton_kink: float = Field(default=1e-3, ge=0.0, le=1e3)
-    newton_sequencing: bool = True
+    newton_kink: float = Field(default=SOLVER_DEFAULTS["newton_kink"], ge=0.0, le=1e3)
+    newton_sequencing: bool = SOLVER_DEFAULTS["newton_sequencing"]
     # load steps: the constraints' displacements (and stretches) are applied in this many equal
     # steps from the placed sheet, each solved to equilibrium from the one before (a path: with
     # friction the answer depends on it; without, only the last step's equilibrium counts)
-    load_steps: Int = 1
+    load_steps: Int = SOLVER_DEFAULTS["load_steps"]
 
     @field_validator("C")
     @classmethod

@@ -28,8 +28,8 @@ def main(argv=None):
     ap.add_argument("-e", type=float, default=None)
     ap.add_argument("--max", type=int, default=400)
     ap.add_argument("--quiet", action="store_true")
-    ap.add_argument("--param", action="append", default=[], help="module.NAME=value under clothsim.solvers.newton, "
-                    "e.g. iteration.HOLD_SHARE=0")
+    ap.add_argument("--param", action="append", default=[], help="field=value of clothsim.solvers.tuning.NewtonTuning, "
+                    "e.g. hold_share=1")
     a = ap.parse_args(argv)
 
     from clothsim import bench
@@ -49,11 +49,12 @@ def main(argv=None):
         from clothsim.config import load_scene
         e = load_scene(ROOT / case.config, list(case.overrides)).solver.e
 
-    import importlib
-    for kv in a.param:
-        k, v = kv.split("=", 1)
-        mod, name = k.rsplit(".", 1)
-        setattr(importlib.import_module("clothsim.solvers.newton." + mod), name, eval(v))
+    import ast
+    from dataclasses import replace
+
+    from clothsim.solvers.tuning import NewtonTuning
+
+    tuning = NewtonTuning(**{k: ast.literal_eval(v) for k, v in (kv.split("=", 1) for kv in a.param)})
 
     rec = {}
     orig_ls = iteration.NewtonLevel._line_search
@@ -87,7 +88,7 @@ def main(argv=None):
     iteration._block_infeasible_q = bi
     iteration._trial_positions_sd = tp
 
-    solver = NewtonSolver(model, newton_options(settings))
+    solver = NewtonSolver(model, replace(newton_options(settings), tuning=tuning))
     fine = solver.fine
     print(f"nodes {model.node_count}  e {e:g}")
     print(" it   residual N      energy J   alpha  trials clip   lm        |dx|max   in  out contact held blk  ms")

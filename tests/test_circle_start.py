@@ -3,6 +3,7 @@ band settled by node-wise Newton, rim.py), the sequencing hierarchy kept per mod
 warm-started re-solve after blocking constraints, and the hold rule on analytic molds."""
 
 import gc
+from dataclasses import replace
 
 import numpy as np
 
@@ -14,6 +15,7 @@ from clothsim.solvers.newton.linalg import _bsr_matvec, _pcg
 from clothsim.solvers.newton.rim import node_gauss_seidel, outline_band
 from clothsim.solvers.newton.settle import spring_kinks
 from clothsim.solvers.options import newton_options
+from clothsim.solvers.tuning import NewtonTuning
 
 
 def _circle(div):
@@ -104,17 +106,15 @@ def test_settle_outline_removes_the_outline_error_of_the_interpolated_start():
     assert np.array_equal(trial.positions[held], plain.positions[held])
 
 
-def test_settle_outline_halves_the_newton_iterations_on_the_circle(monkeypatch):
-    # measured from the flat guessed holds (with the placed ones, sequencing.HOLD_FIT, the settling
+def test_settle_outline_halves_the_newton_iterations_on_the_circle():
+    # measured from the flat guessed holds (with the placed ones, NewtonTuning.hold_fit, the settling
     # still saves an iteration: 3 against 4)
-    monkeypatch.setattr(S, "HOLD_FIT", False)
     model, state, settings = _circle(112)
 
     def iterations(settle):
-        monkeypatch.setattr(S, "SETTLE_RIM", settle)
-        S._HIERARCHIES.clear()
         st = state.copy()
-        solver = NewtonSolver(model, newton_options(settings))
+        tuning = NewtonTuning(hold_fit=False, settle_rim=settle)
+        solver = NewtonSolver(model, replace(newton_options(settings), tuning=tuning))
         res = solver.solve(st, settings.model_copy(update={"e": 1e-7}))
         assert res.status == "converged"
         return res.iterations
@@ -123,20 +123,18 @@ def test_settle_outline_halves_the_newton_iterations_on_the_circle(monkeypatch):
     assert with_settle <= 4 < without, (with_settle, without)
 
 
-def test_hold_rule_on_the_sphere_settles_the_contact_rim_of_the_bench_circle(monkeypatch):
-    # the benchmark's circle (225 across): with the hold rule of HOLD_SHARE on the analytic sphere
+def test_hold_rule_on_the_sphere_settles_the_contact_rim_of_the_bench_circle():
+    # the benchmark's circle (225 across): with the hold rule of hold_share on the analytic sphere
     # the fine grid needs 3 Newton iterations after the sequencing; without it nodes at the contact
     # rim are released and stopped on the surface again, and the residual stalls for two. (Measured
-    # from the flat guessed holds: with the placed holds, sequencing.HOLD_FIT, the fine start is
+    # from the flat guessed holds: with the placed holds, NewtonTuning.hold_fit, the fine start is
     # close enough that both take the same iterations.)
-    monkeypatch.setattr(S, "HOLD_FIT", False)
-    S._HIERARCHIES.clear()
     model, state, settings = _circle(224)
 
     def iterations(everywhere):
-        monkeypatch.setattr(I, "HOLD_SHARE_EVERYWHERE", everywhere)
         st = state.copy()
-        res = NewtonSolver(model, newton_options(settings)).solve(st, settings.model_copy(update={"e": 1e-7}))
+        tuning = NewtonTuning(hold_fit=False, hold_share_everywhere=everywhere)
+        res = NewtonSolver(model, replace(newton_options(settings), tuning=tuning)).solve(st, settings.model_copy(update={"e": 1e-7}))
         assert res.status == "converged"
         return res.iterations
 
@@ -219,7 +217,7 @@ def test_a_start_that_meets_the_tolerance_needs_no_multigrid_set_up(monkeypatch)
     assert np.linalg.norm(rhs - r) <= 1e-6 * np.linalg.norm(rhs)
 
 
-def test_padded_multigrid_lines_without_their_padding_give_the_same_v_cycle(monkeypatch):
+def test_padded_multigrid_lines_without_their_padding_give_the_same_v_cycle():
     from clothsim.solvers.newton import linalg as L
 
     model, state, settings = _circle(64)
@@ -229,8 +227,7 @@ def test_padded_multigrid_lines_without_their_padding_give_the_same_v_cycle(monk
     lvl.iterate(st, v)
     out = {}
     for trim in (False, True):
-        monkeypatch.setattr(L, "TRIM_PADDING", trim)
-        mg = L.PaddedMultigrid(model.topology)
+        mg = L.PaddedMultigrid(model.topology, tuning=NewtonTuning(trim_padding=trim))
         mg.setup(lvl.indptr, lvl.indices, lvl.A.copy(), lvl.Pi.copy())
         b = np.random.default_rng(3).standard_normal(3 * model.node_count)
         out[trim] = (mg.vcycle(b), mg.mg.spans)

@@ -2,6 +2,7 @@
 (Topology.coarsen + clothsim.lattice._coarsen_lattice), and the same equilibrium with sequencing as
 without it on the circle and on the four-panel garment of the benchmark."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +11,15 @@ import scipy.sparse as sp
 from clothsim.bench import Case, _load, four_panel_cap_overrides
 from clothsim.grid import FAMILY_WARP, FAMILY_WEFT, coarsen_model
 from clothsim.solvers import solve
-from clothsim.solvers.newton import sequencing_chain
+from clothsim.solvers.newton import NewtonSolver, sequencing_chain
+from clothsim.solvers.options import newton_options
+from clothsim.solvers.tuning import NewtonTuning
 from clothsim.topology import Topology
+
+
+def _newton(model, state, settings, tuning):
+    """``solve`` with Newton under ``tuning`` (the scene's other options as they are)."""
+    return NewtonSolver(model, replace(newton_options(settings), tuning=tuning)).solve(state, settings)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -119,42 +127,40 @@ def test_no_outline_band_where_every_panel_is_a_full_rectangle(monkeypatch):
     # the four panels with the band and the rim relaxation forced back: the same Newton
     # iterations and equilibrium (the fine steps take what the settling would have done)
     four, fstate, settings = _load(_case("four"), "newton", 1e-9, 60.0)
-    monkeypatch.setattr(S, "CUT_COARSEST_NODES", 400)  # (the same chain both ways)
+    same = NewtonTuning(cut_coarsest_nodes=400)  # (the same chain both ways)
     runs = []
     for forced in (False, True):
         if forced:
             # the lattice taken for a cut one: the hierarchy gets its bands and rim operators
             monkeypatch.setattr(Topology, "panels_full", property(lambda self: False))
         S._HIERARCHIES.clear()
-        h = S._hierarchy(four, settings.newton_kink)
+        h = S._hierarchy(four, settings.newton_kink, same)
         assert (h.bands[-1] is not None and h.bands[-1].size > 0) == forced
         st = fstate.copy()
-        res = solve(four, st, settings)
+        res = _newton(four, st, settings, same)
         runs.append((res.iterations, st.positions))
     S._HIERARCHIES.clear()
     assert runs[0][0] == runs[1][0]
     assert 0 < np.abs(runs[0][1] - runs[1][1]).max() < 1e-9  # (not the same path: the band did run)
 
 
-def test_cut_lattice_sequences_down_to_a_smaller_coarsest_grid(monkeypatch):
-    """A cut lattice's sequencing goes down to CUT_COARSEST_NODES (its coarsest grid carries the
+def test_cut_lattice_sequences_down_to_a_smaller_coarsest_grid():
+    """A cut lattice's sequencing goes down to NewtonTuning.cut_coarsest_nodes (its coarsest grid carries the
     guessed holds' refit), a full one's stops at 400 nodes: the 161-across circle then reaches
     1e-7 N in two fine Newton steps instead of three, at the same equilibrium."""
     from clothsim.solvers.newton import sequencing as S
 
     circle, _, _ = _load(_case("circle"), "newton", 1e-7, None)
     chain = S._Hierarchy(circle, 1e-3).chain
-    assert S.CUT_COARSEST_NODES <= chain[0][0].node_count < 400
+    assert NewtonTuning().cut_coarsest_nodes <= chain[0][0].node_count < 400
     square, _, _ = _load(Case("sq", "configs/sphere_cap.yaml", ["fabric.divisions=[40,40]"]), "newton", 1e-7, None)
     assert S._Hierarchy(square, 1e-3).chain[0][0].node_count >= 400
 
     case = Case("c161", "configs/garments/circle_cap.yaml", ["panels.0.divisions=[160,160]"])
     runs = []
-    for nodes in (400, S.CUT_COARSEST_NODES):
-        monkeypatch.setattr(S, "CUT_COARSEST_NODES", nodes)
-        S._HIERARCHIES.clear()
+    for nodes in (400, NewtonTuning().cut_coarsest_nodes):
         model, state, settings = _load(case, "newton", 1e-7, 60.0)
-        res = solve(model, state, settings)
+        res = _newton(model, state, settings, NewtonTuning(cut_coarsest_nodes=nodes))
         assert res.status == "converged"
         runs.append((res.iterations, state.positions))
     S._HIERARCHIES.clear()
@@ -163,7 +169,7 @@ def test_cut_lattice_sequences_down_to_a_smaller_coarsest_grid(monkeypatch):
 
 
 def test_middle_levels_take_one_newton_iteration(monkeypatch):
-    """The levels between the coarsest and the last coarse one take MID_LEVEL_ITERATIONS (1)
+    """The levels between the coarsest and the last coarse one take NewtonTuning.mid_level_iterations (1)
     Newton iteration: on the 113-across circle its 625-node level took 2 uncapped; capped, the
     fine lattice starts as well (the same fine iterations) and reaches the same equilibrium."""
     from clothsim.solvers.newton import iteration as I
@@ -180,13 +186,11 @@ def test_middle_levels_take_one_newton_iteration(monkeypatch):
     case = Case("c113", "configs/garments/circle_cap.yaml", ["panels.0.divisions=[112,112]"])
     runs = []
     for cap in (None, 1):
-        monkeypatch.setattr(S, "MID_LEVEL_ITERATIONS", cap)
-        S._HIERARCHIES.clear()
         model, state, settings = _load(case, "newton", 1e-7, 600.0)
         chain = S._Hierarchy(model, 1e-3).chain
         assert len(chain) >= 4
         counts.clear()
-        res = solve(model, state, settings)
+        res = _newton(model, state, settings, NewtonTuning(mid_level_iterations=cap))
         assert res.status == "converged"
         mids = [counts.get(m.node_count, 0) for m, _ in chain[1:-2]]
         runs.append((mids, res.iterations, state.positions))

@@ -1,11 +1,12 @@
 """The line smoother's i lines swept on the renumbered rows (``linalg._Transposed``) give the
 same iterate, bit for bit, as the sweep over the original rows; the multigrid uses them on the
-levels of at least ``TRANSPOSE_NODES`` nodes and its V-cycle is unchanged."""
+levels of at least ``NewtonTuning.transpose_nodes`` nodes and its V-cycle is unchanged."""
 
 import numpy as np
 import pytest
 
 from clothsim.solvers.newton import linalg as L
+from clothsim.solvers.tuning import NewtonTuning
 from clothsim.topology import Topology
 
 
@@ -70,15 +71,14 @@ def test_renumbered_i_lines_equal_the_plain_sweep(nine_point, reverse):
     assert not np.array_equal(other, renum)
 
 
-def test_multigrid_uses_renumbered_lines_with_the_same_vcycle(monkeypatch):
+def test_multigrid_uses_renumbered_lines_with_the_same_vcycle():
     nx1, ny1 = 33, 29
     indptr, indices, data = _grid_system(nx1, ny1, 2)
     Pi = np.tile(np.eye(3), (nx1 * ny1, 1, 1))
     b = np.random.default_rng(3).normal(size=3 * nx1 * ny1)
     out = []
     for limit in (10 ** 9, 100):
-        monkeypatch.setattr(L, "TRANSPOSE_NODES", limit)
-        mg = L.Multigrid(Topology.rectangle(nx1 - 1, ny1 - 1))
+        mg = L.Multigrid(Topology.rectangle(nx1 - 1, ny1 - 1), NewtonTuning(transpose_nodes=limit))
         mg.setup(indptr, indices, data, Pi)
         used = [lv.T is not None for lv in mg.levels[:-1]]
         assert used[0] == (limit == 100)
@@ -90,22 +90,22 @@ def test_multigrid_uses_renumbered_lines_with_the_same_vcycle(monkeypatch):
     assert np.allclose(out[1], 0.5 * out[0])
 
 
-def test_multigrids_of_one_topology_share_their_patterns_not_their_values(monkeypatch):
+def test_multigrids_of_one_topology_share_their_patterns_not_their_values():
     """``Multigrid.for_topology``: a second multigrid of the same grid (a Newton level of the next
     solve of the same model) takes the first one's levels and coarse patterns when its fine
     pattern is equal (new arrays with the same content), keeps its own values, and gives the
     V-cycle of a multigrid built afresh, bit for bit."""
-    monkeypatch.setattr(L, "TRANSPOSE_NODES", 100)
+    tu = NewtonTuning(transpose_nodes=100)
     nx1, ny1 = 33, 29
     indptr, indices, data = _grid_system(nx1, ny1, 2)
     topo = Topology.rectangle(nx1 - 1, ny1 - 1)
     Pi = np.tile(np.eye(3), (nx1 * ny1, 1, 1))
     b = np.random.default_rng(3).normal(size=3 * nx1 * ny1)
-    fresh = L.Multigrid(topo)
+    fresh = L.Multigrid(topo, tu)
     fresh.setup(indptr, indices, 3.0 * data, Pi)
-    first = L.Multigrid.for_topology(topo)
+    first = L.Multigrid.for_topology(topo, tuning=tu)
     first.setup(indptr, indices, data, Pi)
-    second = L.Multigrid.for_topology(topo)
+    second = L.Multigrid.for_topology(topo, tuning=tu)
     assert all(a is b for a, b in zip(second.transfers, first.transfers))
     second.setup(indptr.copy(), indices.copy(), 3.0 * data, Pi)
     assert second._sym[2] is first._sym[2] and second._sym[5] is first._sym[5]   # patterns shared
@@ -115,10 +115,10 @@ def test_multigrids_of_one_topology_share_their_patterns_not_their_values(monkey
     assert np.allclose(first.vcycle(b), 3.0 * second.vcycle(b))
     # a different fine pattern (one coupling dropped) gets patterns of its own
     ip2, ix2, d2 = _grid_system(nx1, ny1, 2, nine_point=True)
-    third = L.Multigrid.for_topology(topo)
+    third = L.Multigrid.for_topology(topo, tuning=tu)
     third.setup(ip2, ix2, d2, Pi)
     assert third._sym[2] is not first._sym[2]
-    ref = L.Multigrid(topo)
+    ref = L.Multigrid(topo, tu)
     ref.setup(ip2, ix2, d2, Pi)
     assert np.array_equal(third.vcycle(b), ref.vcycle(b))
 

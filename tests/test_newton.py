@@ -19,6 +19,7 @@ from clothsim.kernels import forces_and_energy, spring_hessian_block
 from clothsim.simulation import prepare
 from clothsim.solvers import pick_method, solve
 from clothsim.solvers import newton as nw
+from clothsim.solvers.tuning import NewtonTuning
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
@@ -185,7 +186,7 @@ def test_grid_sequencing_and_multigrid_path():
     """A 101 x 101 sphere cap goes through grid sequencing and the multigrid-preconditioned CG
     and converges to 1e-9 N; without sequencing it reaches the same equilibrium."""
     scene, model, state, settings = _setup("sphere_cap.yaml", "fabric.divisions=[100,100]", e=1e-9)
-    assert 3 * model.node_count > nw.DIRECT_DOFS
+    assert 3 * model.node_count > NewtonTuning().direct_dofs
     s1 = state.copy()
     r1 = solve(model, s1, settings)
     s2 = state.copy()
@@ -261,9 +262,9 @@ def test_band_cholesky_solve_matches_sparse_lu():
 
 def test_trapezoid_energy_change_below_the_energys_resolution():
     """``iteration._trapezoid_change`` (-1/2 (F0 + F1) . (x1 - x0)) is the energy change of a
-    step too small for E1 - E0 to resolve (below ENERGY_RESOLUTION of E): on the stretched
+    step too small for E1 - E0 to resolve (below NewtonTuning.energy_resolution of E): on the stretched
     uniaxial strip it equals the second-order expansion -F0 . d + 1/2 d K d to 1e-6 relative."""
-    from clothsim.solvers.newton.iteration import ENERGY_RESOLUTION, _trapezoid_change
+    from clothsim.solvers.newton.iteration import _trapezoid_change
     import scipy.sparse as sp
 
     scene, model, state, settings = _setup("uniaxial_strip.yaml")
@@ -280,7 +281,7 @@ def test_trapezoid_energy_change_below_the_energys_resolution():
     K = sp.bsr_matrix((lvl.K, lvl.indices, lvl.indptr), shape=(3 * n, 3 * n))
     dv = d.reshape(-1)
     expect = -F0.reshape(-1) @ dv + 0.5 * dv @ (K @ dv)
-    assert abs(expect) < ENERGY_RESOLUTION * abs(E0)
+    assert abs(expect) < NewtonTuning().energy_resolution * abs(E0)
     assert _trapezoid_change(pos, pos + d, F0, F1) == pytest.approx(expect, rel=1e-6)
 
 

@@ -4,6 +4,7 @@ surface, no penetration after any iteration, and iteration counts the campaign's
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,7 +17,9 @@ from clothsim.mold import mold_primitive, mold_query
 from clothsim.solvers.newton import PENETRATION_TOL, NewtonSolver
 from clothsim.solvers.newton.active_set import _trial_positions_sd
 from clothsim.solvers.newton import active_set
+from clothsim.solvers.base import StepStatus
 from clothsim.solvers.options import newton_options
+from clothsim.solvers.tuning import Curvature, NewtonTuning
 
 
 def _sphere_trial(steps):
@@ -28,18 +31,12 @@ def _sphere_trial(steps):
     fixed = np.array([[False, False, True]])
     out = np.empty((1, 3))
     cout = np.empty(1, bool)
-    old = active_set.FIXED_PROJECTION_STEPS, active_set.FIXED_PROJECTION_EVERYWHERE
-    try:
-        # the rule runs on the smooth surface of meshes; on the sphere (everywhere) the answer is
-        # known in closed form. The module constants are read when the kernel compiles: call the
-        # pure Python function
-        active_set.FIXED_PROJECTION_STEPS = steps
-        active_set.FIXED_PROJECTION_EVERYWHERE = True
-        pen = _trial_positions_sd.py_func(pos, np.array([True]), np.zeros(1), step, 1.0, fixed, True, margs, False,
-                                          -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False,
-                                          np.empty((0, 10)), active_set._NO_MEMO, active_set._NO_QT)
-    finally:
-        active_set.FIXED_PROJECTION_STEPS, active_set.FIXED_PROJECTION_EVERYWHERE = old
+    # the rule runs on the smooth surface of meshes; on the sphere (everywhere) the answer is
+    # known in closed form
+    rules = active_set.contact_rules(NewtonTuning(fixed_projection_steps=steps, fixed_projection_everywhere=True))
+    pen = _trial_positions_sd(pos, np.array([True]), np.zeros(1), step, 1.0, fixed, True, margs, False,
+                              -np.ones(1, np.int64), np.zeros((1, 3)), out, cout, np.zeros(1), False,
+                              np.empty((0, 10)), active_set._NO_MEMO, active_set._NO_QT, rules)
     return pen, out[0], cout[0], rho0, z0, margs
 
 
@@ -49,7 +46,7 @@ def test_held_axis_contact_node_lands_on_a_curved_surface():
     in the direction of its trial point in the xy plane, z untouched. Moving it onto the foot
     point along x and y only (the solver before) leaves it inside, and the line search then
     rejects long steps (the smooth stocking's 420 iterations)."""
-    pen, p, c, rho0, z0, margs = _sphere_trial(active_set.FIXED_PROJECTION_STEPS)
+    pen, p, c, rho0, z0, margs = _sphere_trial(NewtonTuning().fixed_projection_steps)
     assert c and pen <= 1e-12
     assert p[2] == z0
     trial_xy = np.array([rho0 - 0.01, 0.02])
@@ -63,10 +60,10 @@ def test_held_axis_contact_node_lands_on_a_curved_surface():
     assert pen0 > 1e3 * PENETRATION_TOL
 
 
-def _run(model, state, settings, max_iterations):
-    """Newton iterations on state; returns (iterations, status, deepest penetration [m] after
-    any iteration)."""
-    s = NewtonSolver(model, newton_options(settings))
+def _run(model, state, settings, max_iterations, tuning=NewtonTuning()):
+    """Newton iterations on state (with ``tuning``); returns (iterations, status, deepest
+    penetration [m] after any iteration)."""
+    s = NewtonSolver(model, replace(newton_options(settings), tuning=tuning))
     margs = model.mold.kernel_args()
     worst = 0.0
     for it in range(max_iterations):
@@ -107,16 +104,16 @@ def test_torso_band_on_the_smooth_scan_converges_in_60_iterations():
 @pytest.mark.parametrize("height, energy", [(1.24, 0.3315099495), (1.06, 0.9820114560)])
 def test_torso_band_ends_at_the_minimum_not_the_saddle(height, energy):
     """smpl_man's smooth surface at y = 1.24 m (75 iterations with the positive part of the
-    contact's curvature term alone, ``iteration.CURVATURE`` 1: a linear tail, the residual
+    contact's curvature term alone, ``Curvature.POSITIVE``: a linear tail, the residual
     x0.42 per full step): with all of the term while the system stays positive definite
-    (``CURVATURE`` 3) it converges within 60 iterations to the same minimum (0.33151 J), not to
+    (``Curvature.FULL_WHILE_DEFINITE``) it converges within 60 iterations to the same minimum (0.33151 J), not to
     the saddle all of the term everywhere (2) converges to (0.468 J). At y = 1.06 m the path
     passes a saddle (3.9e-3 N at 1.458 J by its 9th iteration); without the step along the
-    negative curvature (``NEG_CURV_MOVE`` 0) it crept away from it for 62 iterations, with it
-    48 (52 with the line search's records, ``LINE_SEARCH_RECORDS``; on an Intel Xeon)."""
+    negative curvature (``NewtonTuning.neg_curv_move`` 0) it crept away from it for 62 iterations, with it
+    48 (52 with the line search's records, ``NewtonTuning.line_search_records``; on an Intel Xeon)."""
     from clothsim.solvers.newton import iteration
 
-    assert iteration.CURVATURE == 3
+    assert NewtonTuning().curvature == Curvature.FULL_WHILE_DEFINITE
     case = bench.Case("t", "configs/torso_band.yaml",
                       bench.scan_band_overrides(bench.scan_body_path("smpl_man"), height, "smooth"), ("newton",))
     model, state, settings = bench._load(case, "newton", 1e-9, None)
@@ -180,7 +177,7 @@ def test_negative_curvature_direction_is_the_smallest_eigenvector(monkeypatch):
 
 
 def test_lu_positive_definite_known_answers():
-    """The sparse LU's test of positive definiteness (``CURVATURE`` 3 on systems without the
+    """The sparse LU's test of positive definiteness (``Curvature.FULL_WHILE_DEFINITE`` on systems without the
     banded Cholesky): a diagonally dominant matrix is; the same with one diagonal entry lowered
     below the others' pull, or a symmetric matrix with a zero diagonal, is not."""
     import scipy.sparse as sp
@@ -205,22 +202,21 @@ def test_lu_positive_definite_known_answers():
 
 
 @pytest.mark.parametrize("height, energy, before", [(1.24, 0.3315099495, 68), (1.06, 0.9820114560, 64)])
-def test_torso_band_on_cg_levels_ends_at_the_minimum(monkeypatch, height, energy, before):
-    """The bands at 1.06 and 1.24 m solved by CG (``DIRECT_DOFS`` 0) instead of a direct
+def test_torso_band_on_cg_levels_ends_at_the_minimum(height, energy, before):
+    """The bands at 1.06 and 1.24 m solved by CG (``NewtonTuning.direct_dofs`` 0) instead of a direct
     factorisation: CG is no test of positive definiteness (with all of the curvature term it
     reached its tolerance on the indefinite system and Newton converged to the saddle, 0.468 J at
     1.24 m), so CG's levels take all of the term only when LOBPCG's estimate of the smallest
-    eigenvalue says the system with it is positive definite (``CURVATURE_CG_TEST``), else its
+    eigenvalue says the system with it is positive definite (``NewtonTuning.curvature_cg_test``), else its
     positive part: they end at the minima (0.33151 and 0.98201 J), and in fewer iterations than
     with the positive part alone (68 and 64; 52 and 58 measured)."""
     from clothsim.solvers.newton import iteration
 
-    assert iteration.CURVATURE_CG_TEST > 0
-    monkeypatch.setattr(iteration, "DIRECT_DOFS", 0)
+    assert NewtonTuning().curvature_cg_test > 0
     case = bench.Case("t", "configs/torso_band.yaml",
                       bench.scan_band_overrides(bench.scan_body_path("smpl_man"), height, "smooth"), ("newton",))
     model, state, settings = bench._load(case, "newton", 1e-9, None)
-    its, status, worst = _run(model, state, settings, 200)
+    its, status, worst = _run(model, state, settings, 200, NewtonTuning(direct_dofs=0))
     assert status == "converged", (its, status)
     assert its < before
     assert worst <= 1e-9
@@ -229,7 +225,7 @@ def test_torso_band_on_cg_levels_ends_at_the_minimum(monkeypatch, height, energy
 
 
 def test_smallest_eigenpair_known_answers():
-    """LOBPCG's estimate (``iteration._smallest_eigenpair``, the test of ``CURVATURE_CG_TEST``) on
+    """LOBPCG's estimate (``iteration._smallest_eigenpair``, the test of ``NewtonTuning.curvature_cg_test``) on
     the 1-d Laplacian tridiag(-1, 2, -1) of m = 600 unknowns plus s I, whose smallest eigenvalue is
     2 - 2 cos(pi / (m + 1)) + s (2.7e-5 + s), 5 iterations from a random start. Preconditioned by
     the inverse of the Laplacian plus 1e-4 I (a good preconditioner, like the V-cycle): theta is
@@ -277,7 +273,7 @@ def test_node_held_off_the_surface_closes_its_gap():
     _query_nodes(pos, True, margs, Q)
     sd0 = np.array([gap, 0.0])
     g = np.empty(6)
-    assert _gap_closure(contact, fixed, sd0, Q, g) == 1
+    assert _gap_closure(contact, fixed, sd0, Q, g, NewtonTuning().held_gap_min) == 1
     assert np.array_equal(g, [0, 0, -gap, 0, 0, 0])
     step = np.array([1e-9, -2e-9, 0.0, 1e-9, 1e-9, 0.0]) + g
     out = np.empty((2, 3))
@@ -285,14 +281,15 @@ def test_node_held_off_the_surface_closes_its_gap():
     for alpha in (1.0, 0.5):
         pen = _trial_positions_sd.py_func(pos, contact, sd0, step, alpha, fixed, True, margs, False,
                                           -np.ones(2, np.int64), np.zeros((2, 3)), out, cout, np.zeros(2), False,
-                                          np.empty((0, 10)), active_set._NO_MEMO, active_set._NO_QT)
+                                          np.empty((0, 10)), active_set._NO_MEMO, active_set._NO_QT,
+                                          active_set.RULES)
         assert pen == 0.0 and cout.all()
         assert out[0, 2] == pytest.approx((1 - alpha) * gap, rel=0, abs=1e-20)
         assert np.allclose(out[0, :2], pos[0, :2] + alpha * step[:2], rtol=0, atol=1e-15)
         assert abs(out[1, 2]) <= 1e-15
     # a node with a held axis is left to the held-axis projection (no gap to close)
     fixed[0, 2] = True
-    assert _gap_closure(contact, fixed, sd0, Q, g) == 0 and not g.any()
+    assert _gap_closure(contact, fixed, sd0, Q, g, NewtonTuning().held_gap_min) == 0 and not g.any()
 
 
 def test_faceted_calf_band_step_from_its_stall_makes_progress():
@@ -320,7 +317,7 @@ def test_faceted_calf_band_step_from_its_stall_makes_progress():
     v = v0
     for _ in range(2):
         v, _, flag = lev.iterate(state, v, forcing=_forcing(v, 1e-9))
-        assert flag == 0
+        assert flag == StepStatus.OK
     assert v < 1e-9
     assert max_penetration(state.positions, model.mold.kernel_args()) <= PENETRATION_TOL
 

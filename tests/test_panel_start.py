@@ -13,6 +13,7 @@ from clothsim.config import scene_from_dict
 from clothsim.grid import FAMILY_SEAM
 from clothsim.initial import SEAM_SPREAD_WEIGHT
 from clothsim.simulation import prepare
+from clothsim.solvers.tuning import NewtonTuning
 
 LIN = {"strain": [0, 1], "tension": [0, 250]}
 
@@ -105,7 +106,7 @@ def test_outline_band_of_sewn_panels_follows_the_outline_not_the_seams():
     """The outline band the sequencing settles (``rim.outline_band``) starts at held nodes and at
     unsewn nodes short of lattice neighbours: on four quarters sewn edge to edge and held on their
     outer edges it is the rows along the held edges, none along the seams (a sewn node's missing
-    neighbours are across its seam). Each band node is within RIM_BAND lattice steps of a held
+    neighbours are across its seam). Each band node is within NewtonTuning.rim_band lattice steps of a held
     node of its panel, and the band holds every free unsewn node that is."""
     from clothsim.solvers.newton import rim
 
@@ -119,6 +120,6 @@ def test_outline_band_of_sewn_panels_follows_the_outline_not_the_seams():
     near = np.zeros(model.node_count, bool)
     for k in range(model.node_count):
         same = held[topo.node_panel[held] == topo.node_panel[k]]
-        near[k] = np.abs(ij[same] - ij[k]).sum(axis=1).min() <= rim.RIM_BAND
+        near[k] = np.abs(ij[same] - ij[k]).sum(axis=1).min() <= NewtonTuning().rim_band
     want = np.nonzero(near & ~model.fixed_axes.any(axis=1) & ~sewn)[0]
     np.testing.assert_array_equal(np.sort(band), want)

@@ -11,6 +11,7 @@ from clothsim.solvers.newton.iteration import NewtonLevel
 from clothsim.solvers.newton.linalg import (PaddedMultigrid, _assemble, _bsr_matvec, _bsr_pattern, _chain_gs,
                                              _fill_empty_diagonal, _pcg, _project_system, coarse_pairs, seam_chains)
 from clothsim.solvers.newton.sequencing import prolong_state, sequencing_chain
+from clothsim.solvers.tuning import NewtonTuning
 
 
 def _chain_system(m, rng):
@@ -139,16 +140,14 @@ def test_fill_empty_diagonal_sets_only_all_zero_rows():
     assert np.array_equal(data[3], np.zeros((3, 3))) and np.array_equal(data[0], np.eye(3))
 
 
-def test_padded_coarse_operators_are_the_lattice_galerkin_products(monkeypatch):
+def test_padded_coarse_operators_are_the_lattice_galerkin_products():
     """The padded rectangle's coarse operators are (E P)^T (Pi A Pi) (E P) for the lattice alone
     (E: the lattice's rows of the rectangle, P: the rectangle's bilinear prolongation), level by
     level: the padding adds nothing to the coarse nodes next to it (the seams' edges), and a
     coarse node without a lattice child gets a decoupled scaled identity."""
-    from clothsim.solvers.newton import linalg
-
-    monkeypatch.setattr(linalg, "COARSEST_NODES", 40)  # three coarse levels on the small garment
     model, state = _small_garment(16)
-    lv = NewtonLevel(model, use_multigrid=True)
+    # three coarse levels on the small garment
+    lv = NewtonLevel(model, use_multigrid=True, tuning=NewtonTuning(coarsest_nodes=40))
     pm = lv.mg
     assert isinstance(pm, PaddedMultigrid) and len(pm.mg.transfers) >= 3
     free = _projected_system(model, lv)
@@ -236,12 +235,10 @@ def test_padded_multigrids_on_one_topology_share_its_layout_and_set_up_alike():
 
 
 def test_padded_layout_starts_panels_on_aligned_columns():
-    """Four 17 x 17 panels: each starts on a column that is a multiple of PANEL_ALIGN (4: columns
+    """Four 17 x 17 panels: each starts on a column that is a multiple of NewtonTuning.panel_align (4: columns
     0, 20, 40, 60), the rectangle ends at the last panel's last column (77 x 17); a node (i, j) of
     panel p is row (start_p + i) * 17 + j."""
-    from clothsim.solvers.newton import linalg
-
-    assert linalg.PANEL_ALIGN == 4
+    assert NewtonTuning().panel_align == 4
     model, _ = _small_garment(16)
     top = model.topology
     pm = PaddedMultigrid(top)

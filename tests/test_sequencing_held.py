@@ -3,6 +3,7 @@ positions on every coarse level; the nodes held only on a coarse grid (free fine
 held outline, the "guessed holds") are placed where the sheet puts them (sequencing._HoldFit)."""
 
 import copy
+from dataclasses import replace
 import time
 
 import numpy as np
@@ -10,6 +11,7 @@ import numpy as np
 from clothsim.bench import Case, _load
 from clothsim.solvers.newton import NewtonSolver, sequencing as S
 from clothsim.solvers.options import newton_options
+from clothsim.solvers.tuning import NewtonTuning
 
 
 def _circle(div):
@@ -99,14 +101,13 @@ def test_guessed_holds_end_near_the_fine_solution(monkeypatch):
     assert flat > 1e-4 and placed < 0.3 * flat, (placed, flat)
 
 
-def test_placed_holds_save_a_fine_newton_iteration_on_the_circle(monkeypatch):
+def test_placed_holds_save_a_fine_newton_iteration_on_the_circle():
     model, state, settings = _circle(112)
 
     def run(on):
-        monkeypatch.setattr(S, "HOLD_FIT", on)
-        S._HIERARCHIES.clear()
         st = state.copy()
-        res = NewtonSolver(model, newton_options(settings)).solve(st, settings.model_copy(update={"e": 1e-7}))
+        options = replace(newton_options(settings), tuning=NewtonTuning(hold_fit=on))
+        res = NewtonSolver(model, options).solve(st, settings.model_copy(update={"e": 1e-7}))
         assert res.status == "converged"
         return res.iterations, st
 

@@ -49,14 +49,13 @@ def test_a_ring_put_in_contact_is_released():
     assert np.array_equal(st.in_contact, c)
 
 
-def test_the_interpolated_cap_gets_the_solutions_contact_set(monkeypatch):
+def test_the_interpolated_cap_gets_the_solutions_contact_set():
     """80^2 cap: the coarse 41^2 solution interpolated marks at the rim nodes as contact that are
     free at the 81^2 solution (the rim would peel one ring per Newton iteration); settled, the
     start's contact set is within a few nodes of the solution's."""
     model, state, settings = _cap(80)
     fine = state.copy()
     solve(model, fine, settings.model_copy(update={"newton_sequencing": False, "e": 1e-9}))
-    monkeypatch.setattr(S, "SETTLE_CONTACT_RIM", False)
     chain = S.sequencing_chain(model)
     coarse, sub = chain[-2]
     cs = state.copy()

@@ -17,6 +17,14 @@ from enum import Enum
 
 import numpy as np
 
+from ..defaults import SOLVER_DEFAULTS
+
+
+def settings_default(name: str):
+    """The default of ``solver.<name>`` (``clothsim.defaults``, which ``config.SolverSettings``
+    reads too): the one place the solvers' defaults are kept (RunLimits and the options read it)."""
+    return SOLVER_DEFAULTS[name]
+
 
 class _StrEnum(str, Enum):
     """A str-valued enum whose members compare, hash, format and serialise (json) as their value."""
@@ -71,10 +79,10 @@ class RunLimits:
     fields): e [N] convergence limit on ||V||_inf; max_iterations; time_limit_s [s] (None = none);
     stall_iterations (iterations without a 1 % gain in the best residual before the run stalls)."""
 
-    e: float = 1e-6
-    max_iterations: int = 200_000
-    time_limit_s: float | None = None
-    stall_iterations: int = 2000
+    e: float = settings_default("e")
+    max_iterations: int = settings_default("max_iterations")
+    time_limit_s: float | None = settings_default("time_limit_s")
+    stall_iterations: int = settings_default("stall_iterations")
 
     def __post_init__(self):
         if not (math.isfinite(self.e) and self.e > 0):

@@ -15,6 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .base import settings_default
+from .tuning import NewtonTuning
+
 
 def _real(v) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
@@ -30,8 +33,8 @@ class PaperOptions:
     (> 1; also the factor a rejected step is divided by); max_retries (>= 1), the retries per
     node before it stays where it is."""
 
-    C: float = 2.0
-    max_retries: int = 60
+    C: float = settings_default("C")
+    max_retries: int = settings_default("max_retries")
 
     def __post_init__(self):
         if not (_real(self.C) and self.C > 1.0):
@@ -47,16 +50,20 @@ class NewtonOptions:
     """Active-set Newton: kink, the stiffness used at and below strain 0 on tension-only springs as a
     fraction of the table's first slope (0 to 1000; default 1e-3: regularises the singular Hessian
     of slack springs, shapes the search direction only, never the forces); sequencing, whether to
-    solve coarser grids first (grid sequencing; default True)."""
+    solve coarser grids first (grid sequencing; default True); tuning, the solver's switches and
+    constants (``tuning.NewtonTuning``; its defaults are the solver's behaviour)."""
 
-    kink: float = 1e-3
-    sequencing: bool = True
+    kink: float = settings_default("newton_kink")
+    sequencing: bool = settings_default("newton_sequencing")
+    tuning: NewtonTuning = NewtonTuning()
 
     def __post_init__(self):
         if not (_real(self.kink) and 0.0 <= self.kink <= 1e3):
             raise ValueError(f"NewtonOptions.kink must be a number in [0, 1000] (got {self.kink!r})")
         if not isinstance(self.sequencing, (bool, np.bool_)):
             raise ValueError(f"NewtonOptions.sequencing must be true or false (got {self.sequencing!r})")
+        if not isinstance(self.tuning, NewtonTuning):
+            raise ValueError(f"NewtonOptions.tuning must be a NewtonTuning (got {self.tuning!r})")
         object.__setattr__(self, "kink", float(self.kink))
         object.__setattr__(self, "sequencing", bool(self.sequencing))
 
@@ -111,5 +118,5 @@ def live_options(settings):
     return sync
 
 
-__all__ = ["PaperOptions", "NewtonOptions", "AutoOptions", "options_from_settings", "paper_options",
+__all__ = ["PaperOptions", "NewtonOptions", "NewtonTuning", "AutoOptions", "options_from_settings", "paper_options",
            "newton_options", "live_options"]

@@ -21,11 +21,11 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    the energy (the stall on the torso mesh). Likewise a released node still on the surface whose
    coupled step moves it into the mold is held on it (``_block_entering``) when, without its
    move, the step would not lower the energy at first order (the stalls on scanned bodies); on
-   the smooth surface of a mesh always (``iteration.HOLD_SHARE``: otherwise nodes whose
+   the smooth surface of a mesh always (``NewtonTuning.hold_share``: otherwise nodes whose
    multiplier is about 0 churn in and out of contact), where the slack springs' kink also decays
-   after full steps (``iteration.KINK_DECAY``) and held-axis contact nodes are projected onto the
-   curved surface along their free axes (``active_set.FIXED_PROJECTION_STEPS``). A node held while
-   still a little off the surface closes its gap in the step (``active_set.HELD_KEEP_GAP``). The mold's
+   after full steps (``NewtonTuning.kink_decay``) and held-axis contact nodes are projected onto the
+   curved surface along their free axes (``NewtonTuning.fixed_projection_steps``). A node held while
+   still a little off the surface closes its gap in the step (``NewtonTuning.held_keep_gap``). The mold's
    answers at the nodes are queried once per set of positions (``active_set._query_nodes``).
 2. Linear system: (Pi K Pi + mu Pi + (I - Pi)) dx = Pi f, where K = d^2E/dx^2 is assembled from
    ``kernels.spring_hessian_block`` (transverse term clamped >= 0 so K is positive semi-definite;
@@ -35,13 +35,13 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    Solved by conjugate gradients preconditioned with a geometric multigrid V-cycle: bilinear
    prolongation on the structured node grid (projected by Pi on the finest level), Galerkin
    coarse operators, symmetric 3x3-block Gauss-Seidel smoothing, a sparse LU (scipy ``splu``) on
-   the coarsest grid. Small problems (<= ``DIRECT_DOFS`` unknowns) are factorised directly (on a
+   the coarsest grid. Small problems (<= ``NewtonTuning.direct_dofs`` unknowns) are factorised directly (on a
    triangle-mesh mold a narrow band by a banded Cholesky in reverse Cuthill-McKee order,
    ``linalg._band_cholesky_solve``; otherwise, or when a pivot is not positive, the sparse LU).
    On the smooth surface of a mesh K also holds the contact's curvature term -lam S, all of it
    while the system stays positive definite and its positive part otherwise
-   (``iteration.CURVATURE``); where it is indefinite on a direct level the step also moves along
-   its direction of negative curvature (LOBPCG's smallest eigenvector, ``iteration.NEG_CURV_MOVE``),
+   (``NewtonTuning.curvature``, a ``Curvature`` mode); where it is indefinite on a direct level the step also moves along
+   its direction of negative curvature (LOBPCG's smallest eigenvector, ``NewtonTuning.neg_curv_move``),
    so that Newton leaves a saddle at once instead of creeping away from it.
 3. Line search on the energy along x + a dx with the paper's contact rules applied to every
    trial: a free node's move is clipped where it would enter the mold (``contact.stop_at_surface``) and
@@ -53,10 +53,10 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    stopped at their face's border (so a node whose equilibrium is on an edge lands on it) is
    tried too. On the smooth surface a free node's segment is traced once per line search (the
    shorter steps' segments are its prefixes) and the accepted step's mold answers come from its
-   trial pass (``iteration.LINE_SEARCH_RECORDS``). Backtracking (Armijo, halving). When the energy
+   trial pass (``NewtonTuning.line_search_records``). Backtracking (Armijo, halving). When the energy
    difference is below float64 resolution (close to the solution) the step is accepted if it
    lowers the residual instead, or if the trapezoid rule's energy change -1/2 (F0 + F1).(x1 - x0)
-   meets the Armijo rule (``iteration.TRAPEZOID_ENERGY``); when none holds even with a large Levenberg shift,
+   meets the Armijo rule (``NewtonTuning.trapezoid_energy``); when none holds even with a large Levenberg shift,
    the step reports ``StepStatus.NO_PROGRESS`` (run status ``stalled``), keeping the best state.
 4. Grid sequencing (``NewtonOptions.sequencing``): when the grid's divisions are even and large, the
    scene is first solved on the grid with every second node (recursively), and the result is
@@ -91,6 +91,9 @@ Limitations:
   lattices it also skips models with shear or bending springs or seam elements (unequal node
   counts), which the coarse model does not carry.
 
+Every switch and constant of the method is a field of ``clothsim.solvers.tuning.NewtonTuning``,
+carried by ``NewtonOptions.tuning`` (defaults: the behaviour described here).
+
 Layout (one module per job): ``linalg`` (BSR pattern and assembly, multigrid, PCG),
 ``active_set`` (projectors, ridge faces, blocking constraints, trial positions at the surface),
 ``iteration`` (``NewtonLevel``: the step, line search, acceptance), ``sequencing`` (coarse grids,
@@ -101,10 +104,11 @@ of an interpolated start settled node by node), ``solver`` (``NewtonSolver`` and
 
 # the private kernels are re-exported for the tests that drive one step by hand
 from .active_set import PENETRATION_TOL, _apply_pi, _block_entering, _block_infeasible, _projectors, _trial_positions  # noqa: F401
-from .iteration import DIRECT_DOFS, NewtonLevel
-from .linalg import COARSEST_NODES, Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system  # noqa: F401
+from .iteration import NewtonLevel
+from .linalg import Multigrid, _assemble, _bsr_matvec, _bsr_pattern, _pcg, _project_system  # noqa: F401
 from .sequencing import coarsen_model, grid_sequence, prolong_state, sequencing_chain
 from .solver import STALL_NEWTON, NewtonSolver, solve
+from ..tuning import Curvature, NewtonTuning
 
 __all__ = ["NewtonSolver", "solve", "STALL_NEWTON", "NewtonLevel", "Multigrid", "coarsen_model",
-           "prolong_state", "sequencing_chain", "grid_sequence", "DIRECT_DOFS", "COARSEST_NODES", "PENETRATION_TOL"]
+           "prolong_state", "sequencing_chain", "grid_sequence", "PENETRATION_TOL", "NewtonTuning", "Curvature"]

@@ -19,35 +19,27 @@ from ...mold import MOLD_MESH, MOLD_SMOOTH, mold_query, smooth_shape_operator
 from ...mold.queries import contact_normals_at, is_primitive, primitive_query, query_at
 from ...mold.segment import primitive_segment_hit, smooth_segment_hit_from
 from ...mold.smooth import _smooth_query_flag
+from ..tuning import NewtonTuning
 
 # after a projection onto the mold, a node may be inside by at most this [m]
 PENETRATION_TOL = 1e-10
-# a contact node moved farther than this [m] off the surface may leave it (see _trial_positions)
-RELEASE_GAP = 1e-12
-# a node projected onto a converged foot point of the smooth surface is not queried again
-SMOOTH_FOOT_TRUSTED = True
-# Newton steps along the free part of the normal that bring a contact node with constrained axes
-# out of the mold after its projection (``_trial_positions``); 0: none (the solver before them)
-FIXED_PROJECTION_STEPS = 6
-# ... on the smooth surface of a mesh, and on the other molds too when True (False only to compare
-# with the solver before it). Turning it on moved the faceted stocking by up to 3 mm along its
-# degenerate courses (to another equilibrium, see SCAN_RULES_ON_FACETS) and the cylinder sleeves
-# by 3e-8 m (within their solve's tolerance), measured
-FIXED_PROJECTION_EVERYWHERE = True
-# ... until it is within this [m] of the surface
-FIXED_PROJECTION_TOL = 1e-14
-# a contact node farther than HELD_GAP_MIN [m] from the surface (``_block_entering`` held it while
-# it was still a little off it) closes its gap in the step instead of being projected onto the
-# surface by the line search: the gap is a prescribed normal move in the Newton system
-# (``_gap_closure``), so the step of its neighbours answers it (a seam's stiff zero-length spring),
-# and the trial at step length alpha keeps (1 - alpha) of the gap (``_trial_positions_sd``). The
-# projection was a move along the normal that was in no step: next to a seam's spring a 2e-11 m
-# move cost 5e-5 N of residual at every step length (the faceted calf band's stall at 6e-7 N).
-# Not below HELD_GAP_MIN: nodes released a rounding error (~1e-17 m) off the surface and held
-# again, and the smooth surface's foot points (1e-13 m), are projected onto it as before. False
-# only to compare with the solver before it
-HELD_KEEP_GAP = True
-HELD_GAP_MIN = 1e-12
+# The contact rules' switches (release_gap, smooth_foot_trusted, fixed_projection_*, held_keep_gap,
+# held_gap_min) are fields of ``tuning.NewtonTuning``; the kernels read them as plain values from
+# the array ``contact_rules(tuning)`` makes.
+
+
+def contact_rules(tuning: NewtonTuning = NewtonTuning()) -> np.ndarray:
+    """(7,) float64: the tuning's contact-rule values as the kernels read them: held_keep_gap (1/0),
+    held_gap_min [m], release_gap [m], smooth_foot_trusted (1/0), fixed_projection_steps,
+    fixed_projection_everywhere (1/0), fixed_projection_tol [m]."""
+    t = tuning
+    return np.array([1.0 if t.held_keep_gap else 0.0, t.held_gap_min, t.release_gap,
+                     1.0 if t.smooth_foot_trusted else 0.0, float(t.fixed_projection_steps),
+                     1.0 if t.fixed_projection_everywhere else 0.0, t.fixed_projection_tol])
+
+
+# the default tuning's rules (tests and tools that call a kernel by hand)
+RULES = contact_rules()
 
 
 @njit(cache=True)
@@ -377,7 +369,7 @@ def _block_entering(pos, dx, contact, sd0, has_mold, margs, Pi, tol, rhs, share)
     ``share`` of the step's predicted energy decrease (rhs (3n,) [N]: the projected forces the
     step was solved for; the decrease is rhs . dx). With share = 1: only when the rest of the
     step, the part the line search can realise, does not lower the energy at first order; with
-    share = 0 (the solver's setting, ``iteration.HOLD_SHARE``): every entering node, the projected
+    share = 0 (the solver's setting, ``NewtonTuning.hold_share``): every entering node, the projected
     Newton rule (otherwise a node whose multiplier is about 0 at the solution churns in and out of
     contact, each entry cutting the step to a sliver).
     Returns how many nodes were put back."""
@@ -448,17 +440,20 @@ def _mold_distances(pos, has_mold, margs, out):
 
 
 @njit(cache=True)
-def _free_distances_q(contact, has_mold, Q, fixed, out):
+def _free_distances_q(contact, has_mold, Q, fixed, out, rules):
     """out (n,) [m]: the signed distance to the mold of each node not in contact (the only ones
     whose distance the step reads: ``_trial_positions``, ``_block_entering``), from the mold's
     answers at the nodes in Q (``_query_nodes``); contact nodes get 0 (they are on the surface),
-    except a contact node without held axes still farther than HELD_GAP_MIN off it (a gap kept
-    by a step cut short, ``HELD_KEEP_GAP``): its distance, which the next step closes."""
+    except a contact node without held axes still farther than held_gap_min off it (a gap kept
+    by a step cut short, held_keep_gap; rules: ``contact_rules``): its distance, which the next
+    step closes."""
+    keep_gap = rules[0] != 0.0
+    gap_min = rules[1]
     for k in range(contact.shape[0]):
         if not has_mold:
             out[k] = np.inf
         elif contact[k]:
-            if HELD_KEEP_GAP and Q[k, 8] > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
+            if keep_gap and Q[k, 8] > gap_min and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
                 out[k] = Q[k, 8]
             else:
                 out[k] = 0.0
@@ -467,15 +462,15 @@ def _free_distances_q(contact, has_mold, Q, fixed, out):
 
 
 @njit(cache=True)
-def _gap_closure(contact, fixed, sd0, Q, g):
-    """The prescribed part g (3n,) [m] of the Newton step (``HELD_KEEP_GAP``): -sd0 n for every
-    contact node without held axes whose signed distance sd0 (n,) [m] exceeds HELD_GAP_MIN (n
+def _gap_closure(contact, fixed, sd0, Q, g, gap_min):
+    """The prescribed part g (3n,) [m] of the Newton step (``NewtonTuning.held_keep_gap``): -sd0 n for
+    every contact node without held axes whose signed distance sd0 (n,) [m] exceeds gap_min [m] (n
     the mold's outward normal at the node, Q from ``_query_nodes``), 0 elsewhere. Returns how
     many nodes have a gap to close."""
     count = 0
     for k in range(contact.shape[0]):
         d = sd0[k]
-        if contact[k] and d > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
+        if contact[k] and d > gap_min and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
             for a in range(3):
                 g[3 * k + a] = -d * Q[k, 3 + a]
             count += 1
@@ -540,16 +535,16 @@ _NO_QT = np.zeros((0, 11))
 
 @njit(cache=True)
 def _trial_positions(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
-                     contact_out):
+                     contact_out, rules):
     """``_trial_positions_sd`` without the per-node distances and the reuse of an earlier pass."""
     sd_out = np.empty(pos0.shape[0])
     return _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0,
-                               out, contact_out, sd_out, False, np.empty((0, 10)), _NO_MEMO, _NO_QT)
+                               out, contact_out, sd_out, False, np.empty((0, 10)), _NO_MEMO, _NO_QT, rules)
 
 
 @njit(cache=True)
 def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs, clip_faces, face0, F0, out,
-                        contact_out, sd_out, reuse, Q0, memo, Qt):
+                        contact_out, sd_out, reuse, Q0, memo, Qt, rules):
     """Positions after the step alpha*step with the contact rules (paper 3.2.2): a free node's
     move is clipped where it would enter the mold and it becomes a contact node; contact nodes
     are projected onto the surface. sd0 (N,) [m]: the signed distances of the nodes not in
@@ -580,7 +575,15 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
     knows it (Qt[k, 0:10] as ``_query_nodes``' Q row, Qt[k, 10] = 1; 0 where it does not): the
     query of a point left where it was queried, and for a node put on the surface its foot
     point's answer (the foot, the normal there, distance 0: a converged foot point is on the
-    surface to 1e-13 m); ``NewtonLevel._accept`` reads it instead of querying them again."""
+    surface to 1e-13 m); ``NewtonLevel._accept`` reads it instead of querying them again.
+    rules (7,): the tuning's contact rules (``contact_rules``)."""
+    keep_gap = rules[0] != 0.0
+    gap_min = rules[1]
+    release_gap = rules[2]
+    foot_trusted = rules[3] != 0.0
+    proj_steps = int(rules[4])
+    proj_everywhere = rules[5] != 0.0
+    proj_tol = rules[6]
     q = np.empty(8)
     q0_known = Q0.shape[0] == pos0.shape[0] and Q0.shape[1] > 9 and margs[0][0] == MOLD_SMOOTH
     use_memo = q0_known and memo.shape[0] == pos0.shape[0]
@@ -607,10 +610,10 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 v += d
             p[a] = v
         c = contact0[k]
-        # a contact node off the surface by a gap to close (``HELD_KEEP_GAP``): its step closes it
+        # a contact node off the surface by a gap to close (held_keep_gap): its step closes it
         # (``_gap_closure``), the trial keeps the part (1 - alpha) not yet closed
         gap = 0.0
-        if c and HELD_KEEP_GAP and sd0[k] > HELD_GAP_MIN and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
+        if c and keep_gap and sd0[k] > gap_min and not (fixed[k, 0] or fixed[k, 1] or fixed[k, 2]):
             gap = sd0[k]
         frac = alpha
         sdk = 0.0
@@ -679,7 +682,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                 sd = query_at(prim, kind, prm, margs, p, q)
             if gap > 0.0:
                 gap = (1.0 - frac) * gap if frac < 1.0 else 0.0
-            if c and sd > gap + RELEASE_GAP and q[6] != 0.0:
+            if c and sd > gap + release_gap and q[6] != 0.0:
                 # a contact node whose move took it off the surface past a convex edge or vertex
                 # (the closest point is on that edge or vertex): it is put back there only if its
                 # resultant pulls it there (R . (p - q) < 0); otherwise it has slid off the
@@ -697,7 +700,7 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                     if not fixed[k, a]:
                         p[a] = q[a] + gap * q[3 + a]
                 c = True
-                if (margs[0][0] == MOLD_MESH or (on_foot and SMOOTH_FOOT_TRUSTED)) and not fixed[k, 0] and \
+                if (margs[0][0] == MOLD_MESH or (on_foot and foot_trusted)) and not fixed[k, 0] and \
                         not fixed[k, 1] and not fixed[k, 2]:
                     # the closest point of a triangle mesh is on the mesh, and a converged foot
                     # point of the smooth surface is on it to its 1e-13 m tolerance (far below
@@ -720,9 +723,8 @@ def _trial_positions_sd(pos0, contact0, sd0, step, alpha, fixed, has_mold, margs
                     # the smooth leg: alpha = 0.25 for 400 iterations). Newton along the normal's
                     # free part n_f: p -= sd n_f / |n_f|^2 puts it on the surface to first order;
                     # started only for a node inside, repeated while it is off the surface
-                    for t in range(FIXED_PROJECTION_STEPS if (FIXED_PROJECTION_EVERYWHERE or
-                                                               margs[0][0] == MOLD_SMOOTH) else 0):
-                        if not (sd < 0.0 or (t > 0 and sd > FIXED_PROJECTION_TOL)):
+                    for t in range(proj_steps if (proj_everywhere or margs[0][0] == MOLD_SMOOTH) else 0):
+                        if not (sd < 0.0 or (t > 0 and sd > proj_tol)):
                             break
                         nf2 = 0.0
                         for a in range(3):

@@ -20,135 +20,32 @@ from ...kernels import first_slope, forces_and_energy, seam_assemble, seam_slots
 from ...model import SpringFamily
 from ...mold import MOLD_MESH, MOLD_SMOOTH
 from ..common import blowup_limit, model_mold_args
+from ..base import StepStatus
 from ..options import NewtonOptions
-from .active_set import (HELD_KEEP_GAP, PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
+from ..tuning import Curvature, NewtonTuning
+from .active_set import (PENETRATION_TOL, _add_curvature, _apply_pi, _block_entering,
                          _block_infeasible_q, _curvature_blocks, _curvature_terms, _gap_closure, _contact_faces_q, _free_distances_q, _projectors_q, _query_nodes, _residual_q,
-                         _trial_positions_sd, _complete_queries, _NO_MEMO, _NO_QT)
-from .linalg import (BAND_WORK, AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve, _band_factored_solve,
+                         _trial_positions_sd, _complete_queries, _NO_MEMO, _NO_QT, contact_rules)
+from .linalg import (AlgebraicMultigrid, Multigrid, PaddedMultigrid, _assemble, _band_cholesky_solve, _band_factored_solve,
                      _bsr_matvec, _bsr_pattern, _dot, _pcg, _project_system, band_order)
 
-# systems with at most this many unknowns are factorised directly (no multigrid)
-DIRECT_DOFS = 6000
-# relative energy change below which the energy cannot tell two states apart
-ENERGY_RESOLUTION = 1e-13
-# conjugate-gradient iterations after which an iteration stops retrying with larger Levenberg
-# shifts (flag 3). A work budget, not a time budget: the same scene takes the same path on a
-# quiet machine and a loaded one (a 1 s wall-clock budget made results depend on the load)
-ITERATE_BUDGET_CG = 400
-# a trial whose energy change is below the energy's resolution and whose residual is not below the
-# start's is judged by the trapezoid rule's energy change -1/2 (F0 + F1) . (x1 - x0) (exact for
-# a quadratic energy, no cancellation) against the Armijo rule
-TRAPEZOID_ENERGY = True
-
-
-# released nodes on the surface whose step enters the mold are held on it (_block_entering);
-# False only to compare with the solver before it (tests, benchmarks)
-HOLD_ENTERING = True
-# ... when their moves carry more than this share of the step's predicted energy decrease (1: all
-# of it, i.e. without them the step would not lower the energy at first order; 0: always, the
-# projected Newton rule). 0 since the scan campaign's traces: with 1, a node whose multiplier is
-# about 0 at the solution churns (released as its resultant points out, its coupled step then
-# enters the mold, the line search stops it at the surface and cuts alpha to 1/128, it is back in
-# contact, and again): the stocking on the smooth leg took ~420 iterations (60 with 0, together with
-# the projection of held-axis nodes, FIXED_PROJECTION_STEPS), the torso band 36-90 (29-59 with 0)
-HOLD_SHARE = 0.0
-# HOLD_SHARE and KINK_DECAY apply on the smooth surface of a mesh, and on a faceted mesh too when
-# True: the faceted torso-band campaign then takes 29-59 iterations (36-115 with False, which
-# applies HOLD_SHARE = 1 and no kink decay there). Turning it on moved two degenerate faceted
-# scenes to other equilibria (measured): the stocking by up to 3.9 mm along its slack courses
-# (energy +1.9e-4 relative; probes 19.6 -> 19.5 and 13.4 -> 13.4 mmHg) and torso_band_held by
-# 0.3 mm (energy +4.9e-6); their references were recorded again
-SCAN_RULES_ON_FACETS = True
-# HOLD_SHARE on the analytic molds too (sphere, cylinder, ...; True since issue 11's circular
-# blank: with share 1 on the sphere cap, contact nodes at the contact rim whose resultant points
-# out of the mold were released, the coupled step moved them back in, the line search stopped
-# them on the surface and the residual stayed at 5e-3 N for two iterations: the 225-across circle
-# took 5-6 fine iterations, 3 with 0; the square and the four panels are unchanged)
-HOLD_SHARE_EVERYWHERE = True
-
-# after blocking constraints were added, the system is solved again from the previous step
-# projected onto the new active set (a local correction: issue 11's circular blank, whose second fine
-# iteration holds 8 nodes, took 2 + 2 CG iterations and two multigrid set-ups)...
-BLOCKED_WARM_START = True
-# ... with the multigrid hierarchy built for the previous active set when that start does not
-# already meet the forcing term (rebuilt if CG then misses; False: rebuilt for the new set)
-BLOCKED_REUSE_MG = False
-
-LM_ALPHA_LOW = 0.1
-# ... and lowered after a step of at least this length (measured on the stocking: 0.5 or 0.6
-# instead of 0.1 and 1 take more iterations, see docs/benchmarks_scans_smooth.md)
-LM_ALPHA_HIGH = 1.0
-# the banded Cholesky also on the smooth surface of a mesh (no example's equilibrium uses it)
-BAND_ON_SMOOTH = True
-# the contact's curvature term on a smooth surface (_curvature_blocks): 0 off, 1 its positive
-# semi-definite part, 2 all of it, 3 all of it while the projected system with it is positive
-# definite (the banded Cholesky's or the sparse LU's pivots all positive), else its positive
-# part (the system is solved again; _curvature_fallback); levels solved by CG (above
-# DIRECT_DOFS) have no factorisation to test with: CURVATURE_CG_TEST estimates the smallest
-# eigenvalue instead (CG itself is no test, see iterate). With 1
-# the convex part (-lam S < 0) is missing from the model, which is then too stiff along the
-# surface: where a gathered rope's soft directions (along the body axis) meet the torso's strong
-# curvature round it, the step falls short by a fixed share and the residual only shrinks by
-# 0.2-0.4 per full step (the last 10-18 iterations of the torso band on smpl_man at y = 1.06 and
-# 1.24; the smooth stocking's slow end game). With 2 the Hessian can be indefinite near a saddle,
-# and Newton converges to it (those two bands: to 1.46 and 0.47 J, where the descent reaches
-# 0.98 and 0.33 J). 3 is exact Newton where the model has a minimum, the descent elsewhere
-# (on the direct levels; on CG's levels with CURVATURE_CG_TEST)
-CURVATURE = 3
-# CURVATURE 3 on the levels solved by CG: all of the term when LOBPCG's estimate theta of the
-# smallest eigenvalue of the projected system with it (CURVATURE_CG_TEST iterations of block size
-# 1 from the last estimate's eigenvector, preconditioned by the level's V-cycle: _smallest_eigenpair)
-# is positive by more than its residual's norm |A x - theta x| (|x| = 1), else its positive part;
-# 0: the positive part always. The 28 x 60 stocking (its fine level on CG) took 209 iterations
-# with the positive part (a linear tail), 50 with the test; the torso bands at 1.06 and 1.24 m
-# forced onto CG end at their minima (see docs/benchmarks_scans_smooth.md)
-CURVATURE_CG_TEST = 5
-LM_MAX = 1e4
-# on the smooth surface of a mesh (and on facets with SCAN_RULES_ON_FACETS), the kink stiffness of slack springs is divided by
-# KINK_DECAY after every full step (alpha = 1) that left the contact set as it was, down to
-# KINK_FLOOR times its value, and restored after a step the line search cut below LM_ALPHA_LOW.
-# Far from the solution the kink shapes the step through slack regions; close to it, it is a
-# stiffness the energy does not have: in a gathered band (a rope: its weft springs slack) the
-# rows' moves along the body axis are held by little else, the step falls short by the ratio
-# kink / (kink + true stiffness) and the residual only halves per iteration (the last ~15
-# iterations of the torso band on smpl_man at y = 1.08). Not on the analytic molds (their recorded
-# equilibria stay)
-KINK_DECAY = 10.0
-KINK_FLOOR = 1e-4
-# on the smooth surface, the line search traces each free node's segment once (its shorter steps
-# read the trace) and the accepted step's mold answers come from its trial pass
-# (``_trial_positions_sd``'s memo and Qt): see docs/benchmarks_scans_smooth.md
-LINE_SEARCH_RECORDS = True
-# near a saddle (CURVATURE 3 on a direct level, where the system with all of the curvature term
-# is indefinite and its positive part is solved instead), the step also moves along the
-# direction of negative curvature v: the unit eigenvector of the smallest eigenvalue theta of the
-# projected system with all of the term (``_negative_curvature``: NEG_CURV_ITERS iterations of
-# LOBPCG, preconditioned by the positive part's factor), taken when theta < -|A v - theta v|, its
-# sign making it a descent direction, scaled so that its largest coordinate move is NEG_CURV_MOVE
-# lattice spacings (0: off); the line search then cuts the combined step as any other (v does
-# not pass the blocking rules: a free node it takes into the mold is stopped at the surface by
-# the trial positions). The positive part alone leaves a saddle's escape direction nearly flat,
-# so Newton crept away from it: smpl_man's band at 1.06 m on the smooth surface sat at 3.9e-3 N
-# by its 9th iteration and needed 62 in all. With the step the 24-band smooth campaign's
-# iterations went 19-62 (744 in all) -> 18-48 (718), every band at the same minimum (energies
-# within 4e-15 J, positions within 7e-10 m). Measured moves: 0.4 -> at most 47 iterations,
-# 0.8 -> 46, 1.6 -> 56; 5 LOBPCG iterations (0.8): 48, 10: 46, at about 3 ms a test. Not on CG's
-# levels (their test is _curvature_cg_test's) and not on facets or analytic molds (no curvature
-# term there)
-NEG_CURV_MOVE = 0.8
-NEG_CURV_ITERS = 5
+# The switches and constants this module reads are the fields of ``tuning.NewtonTuning``
+# (``NewtonLevel.tuning``); their measurements are documented there.
 
 
 class NewtonLevel:
     """Newton iterations for one Model (the fine grid, or a coarse grid of the sequencing)."""
 
     def __init__(self, model, *, kink: float = NewtonOptions.kink, use_multigrid: bool | None = None,
-                 preconditioner: str = "geometric"):
-        """kink: NewtonOptions.kink; use_multigrid: None = by size (``DIRECT_DOFS``);
+                 preconditioner: str = "geometric", tuning: NewtonTuning = NewtonTuning()):
+        """kink: NewtonOptions.kink; tuning: NewtonOptions.tuning; use_multigrid: None = by size
+        (``tuning.direct_dofs``);
         preconditioner on lattices other than one full rectangle: "geometric" (the line-smoothed
         multigrid on the panels' padded rectangle, PaddedMultigrid) or "amg" (PyAMG's smoothed
         aggregation, AlgebraicMultigrid; slower here, kept for comparison in the benchmark)."""
         self.model = model
+        self.tuning = tu = tuning
+        self.rules = contact_rules(tu)  # the contact rules' values for the kernels
         self.has_mold, self.margs = model_mold_args(model)
         self.sargs = model.spring_args()
         n = model.node_count
@@ -179,7 +76,7 @@ class NewtonLevel:
         self.V = np.zeros(n)
         self.trial = np.zeros((n, 3))
         self.trial_contact = np.zeros(n, bool)
-        self.direct = (use_multigrid is False) or (use_multigrid is None and 3 * n <= DIRECT_DOFS)
+        self.direct = (use_multigrid is False) or (use_multigrid is None and 3 * n <= tu.direct_dofs)
         # line-smoothed geometric multigrid on one full rectangle, algebraic multigrid elsewhere
         self._band = None
         if self.direct:
@@ -189,22 +86,22 @@ class NewtonLevel:
             # the sparse LU's time on the torso band. Elsewhere the sparse LU stays: its rounding
             # is what the recorded equilibria of the analytic molds were computed with
             kind = self.margs[0][0] if self.has_mold else -1
-            if kind == MOLD_MESH or (kind == MOLD_SMOOTH and BAND_ON_SMOOTH):
+            if kind == MOLD_MESH or (kind == MOLD_SMOOTH and tu.band_on_smooth):
                 _, inv, bw = band_order(n, model.spring_nodes)
                 w = 3 * bw + 3
-                if 3 * n * w * w <= BAND_WORK:
+                if 3 * n * w * w <= tu.band_work:
                     self._band = (inv, bw, np.empty((3 * n, w)))
         elif model.topology.is_grid:
-            self.mg = Multigrid.for_topology(model.topology, _seam_pairs(model))
+            self.mg = Multigrid.for_topology(model.topology, _seam_pairs(model), tu)
         elif preconditioner == "amg":
             self.mg = AlgebraicMultigrid()
         else:
-            self.mg = PaddedMultigrid(model.topology, _seam_pairs(model))
+            self.mg = PaddedMultigrid(model.topology, _seam_pairs(model), tu)
         self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
         kind = self.margs[0][0] if self.has_mold else -1
-        rules = kind == MOLD_SMOOTH or (kind == MOLD_MESH and SCAN_RULES_ON_FACETS)
-        self._kink_decay = KINK_DECAY if rules else 1.0
-        self._hold_share = HOLD_SHARE if (rules or HOLD_SHARE_EVERYWHERE) else 1.0
+        rules = kind == MOLD_SMOOTH or (kind == MOLD_MESH and tu.scan_rules_on_facets)
+        self._kink_decay = tu.kink_decay if rules else 1.0
+        self._hold_share = tu.hold_share if (rules or tu.hold_share_everywhere) else 1.0
         self.blowup = blowup_limit(model)
         # step probed for leaving an edge's or vertex's tangent cone [m] (_block_infeasible)
         self.probe = 1e-6 * float(min(model.spacing))
@@ -213,7 +110,7 @@ class NewtonLevel:
         self.spacing = float(min(model.spacing))
         self._refactor = None  # the last direct solve's factor: rhs (3n,) -> A^-1 rhs
         self._cache = None
-        self._curv_full = False  # the Hessian holds all of the curvature term (CURVATURE 3)
+        self._curv_full = False  # the Hessian holds all of the curvature term (Curvature.FULL_WHILE_DEFINITE)
         self._curv_test = False  # CG's level: test the system with all of the term at the next solve
         self._eig_x = None  # the last test's eigenvector estimate (3n,), the next test's start
         self._eig_rng = np.random.default_rng(0)  # the first test's start
@@ -228,7 +125,7 @@ class NewtonLevel:
         self._sd_trial = np.zeros(n)  # the trial positions' signed distances [m] (_trial_positions_sd)
         # on the smooth surface: the line search's segment traces, and the mold's answers at the
         # trial positions (_trial_positions_sd's memo and Qt; _accept completes Q from them)
-        smooth = self.has_mold and self.margs[0][0] == MOLD_SMOOTH and LINE_SEARCH_RECORDS
+        smooth = self.has_mold and self.margs[0][0] == MOLD_SMOOTH and tu.line_search_records
         self._memo = np.zeros((n, 6)) if smooth else _NO_MEMO
         self._Qt = np.zeros((n, 11)) if smooth else _NO_QT
         self._qt_for = None  # the trial positions Qt is for (None: none)
@@ -296,7 +193,7 @@ class NewtonLevel:
 
     def _solve_linear(self, rhs, mu_abs, tol, x0=None, reuse=False):
         """The projected system's solution for ``rhs`` (3n,) [N] with the shift mu_abs [N/m], to
-        the relative residual tol (multigrid-preconditioned CG; direct below ``DIRECT_DOFS``):
+        the relative residual tol (multigrid-preconditioned CG; direct below ``tuning.direct_dofs``):
         (x (3n,) [m], CG iterations). x0: CG's start (None: 0); reuse: keep the multigrid
         hierarchy even if the projectors changed since it was built (it is rebuilt when CG then
         does not reach tol)."""
@@ -378,7 +275,7 @@ class NewtonLevel:
         Af = self.A.copy()
         Af[self.diag] += np.einsum("kab,kbc,kcd->kad", Pi, N, Pi)
         # (preconditioned by the V-cycle on the free dofs; a held dof's row of A is the identity's)
-        est = self._free_eigenpair(Af, self.mg.vcycle, CURVATURE_CG_TEST)
+        est = self._free_eigenpair(Af, self.mg.vcycle, self.tuning.curvature_cg_test)
         if est is None:
             return False
         theta, r, _ = est
@@ -400,7 +297,7 @@ class NewtonLevel:
         Kf[self.diag] = self._Kd + self._curv_M
         Af = np.empty_like(Kf)
         _project_system(self.indptr, self.indices, Kf, self.diag, self.Pi, mu_abs, Af)
-        est = self._free_eigenpair(Af, self._refactor, NEG_CURV_ITERS)
+        est = self._free_eigenpair(Af, self._refactor, self.tuning.neg_curv_iters)
         if est is None:
             return None
         theta, r, x = est
@@ -448,7 +345,7 @@ class NewtonLevel:
         return x
 
     def _curvature_fallback(self):
-        """The Hessian K with the positive part of the curvature term (``CURVATURE`` 1) instead of
+        """The Hessian K with the positive part of the curvature term (``Curvature.POSITIVE``) instead of
         all of it, for the rest of the iteration."""
         self.K[self.diag] = self._Kd
         _add_curvature(self._curv_M, 1, self.diag, self.K)
@@ -467,8 +364,9 @@ class NewtonLevel:
 
     # -- one iteration -----------------------------------------------------------------------
     def iterate(self, state, vinf_now, forcing=1e-3):
-        """One Newton iteration on state (in place). Returns (residual, energy, flag) with flag
-        0 ok, 2 diverged (state unchanged), 3 no progress possible (state unchanged)."""
+        """One Newton iteration on state (in place). Returns (residual, energy, status), status a
+        StepStatus: OK, DIVERGED (a non-finite residual) or NO_PROGRESS (no step lowers the energy
+        or the residual; state unchanged)."""
         m = self.model
         pos = state.positions
         F = self.F
@@ -484,8 +382,8 @@ class NewtonLevel:
         Q = self.queries(pos)
         _projectors_q(pos, F, m.fixed_axes, contact, self.has_mold, self.margs, self.Pi, self.probe, Q)
         # distances of the nodes not in contact (after the releases; contact nodes are on the surface,
-        # but for a gap the step is to close, HELD_KEEP_GAP)
-        _free_distances_q(contact, self.has_mold, Q, m.fixed_axes, self.sd0)
+        # but for a gap the step is to close, tuning.held_keep_gap)
+        _free_distances_q(contact, self.has_mold, Q, m.fixed_axes, self.sd0, self.rules)
         v_base = self.residual(pos, contact, F) if not _same(contact, contact_before) else vinf_now
         f = F.reshape(-1)
         rhs = np.empty(3 * self.n)
@@ -499,8 +397,10 @@ class NewtonLevel:
         self._curv_full = False
         self._curv_test = False
         curv_had = False  # a direct level with the curvature term (and so its definiteness test)
-        if CURVATURE and self.has_mold:
-            if CURVATURE == 3 and self.margs[0][0] == MOLD_SMOOTH and (self.direct or CURVATURE_CG_TEST):
+        tu = self.tuning
+        if tu.curvature != Curvature.OFF and self.has_mold:
+            if tu.curvature == Curvature.FULL_WHILE_DEFINITE and self.margs[0][0] == MOLD_SMOOTH \
+                    and (self.direct or tu.curvature_cg_test):
                 # direct levels: all of -lam S while the direct solve finds the system positive
                 # definite (the banded Cholesky's pivots, the sparse LU's), else its positive part
                 # (_solve_linear, _curvature_fallback). CG's levels: its positive part, and all of
@@ -517,7 +417,7 @@ class NewtonLevel:
                     curv_had = self.direct
             else:
                 _curvature_blocks(pos, F, contact, self.has_mold, self.margs, self.fd_step,
-                                  1 if CURVATURE == 3 else CURVATURE, self.diag, self.K)
+                                  1 if tu.curvature == Curvature.FULL_WHILE_DEFINITE else int(tu.curvature), self.diag, self.K)
         tr = _diag_traces(self.K, self.diag)
         free = ~m.fixed_axes.all(axis=1)
         dsum = tr[free].sum()
@@ -527,12 +427,12 @@ class NewtonLevel:
             dmean = 1.0
         cg_spent = 0
         for attempt in range(8):
-            if attempt and cg_spent > ITERATE_BUDGET_CG:
+            if attempt and cg_spent > tu.iterate_budget_cg:
                 # failed attempts near float64's floor can each cost hundreds of CG iterations:
                 # keep one iteration (and so the driver's batches) short
                 break
             mu_abs = self.lm * dmean
-            tol = min(FORCING_MAX, max(forcing, 1e-12))
+            tol = min(tu.forcing_max, max(forcing, 1e-12))
             dx, cg_it = self._solve_linear(rhs, mu_abs, tol)
             cg_spent += cg_it
             for _ in range(3):
@@ -540,25 +440,26 @@ class NewtonLevel:
                     break
                 blocked = _block_infeasible_q(pos, dx, contact, self.has_mold, self.margs, self.probe, self.Pi,
                                               self.queries(pos))
-                if HOLD_ENTERING:
+                if tu.hold_entering:
                     blocked += _block_entering(pos, dx, contact, self.sd0, self.has_mold, self.margs, self.Pi,
                                                PENETRATION_TOL, rhs, self._hold_share)
                 if blocked == 0:
                     break
                 _apply_pi(self.Pi, f, rhs)
-                if BLOCKED_WARM_START and not self.direct:
+                if tu.blocked_warm_start and not self.direct:
                     # the step solved before, projected onto the new active set: it differs from
                     # the new solution only about the few nodes just held (a local correction)
                     x0 = np.empty_like(dx)
                     _apply_pi(self.Pi, dx, x0)
-                    dx, _ = self._solve_linear(rhs, mu_abs, tol, x0, BLOCKED_REUSE_MG)
+                    dx, _ = self._solve_linear(rhs, mu_abs, tol, x0, tu.blocked_reuse_mg)
                 else:
                     dx, _ = self._solve_linear(rhs, mu_abs, tol)
             if not _all_finite(dx):
                 self.lm = max(self.lm * 100.0, 1e-8)
                 continue
             slope = -_dot(rhs, dx)  # directional derivative of E (negative for a descent direction)
-            if HELD_KEEP_GAP and self.has_mold and _gap_closure(contact, m.fixed_axes, self.sd0, Q, self.gap):
+            if tu.held_keep_gap and self.has_mold and _gap_closure(contact, m.fixed_axes, self.sd0, Q, self.gap,
+                                                                     tu.held_gap_min):
                 # contact nodes still off the surface (held by _block_entering a little off it, or
                 # left there by a step cut short): the step closes their gaps g, a prescribed move
                 # the others' step answers (A y = Pi (f - K g), the step y + g)
@@ -580,9 +481,9 @@ class NewtonLevel:
                     continue
                 dx = dy + self.gap
                 slope = -_dot(rhs, dy) - _dot(f, self.gap)
-            if NEG_CURV_MOVE > 0.0 and curv_had and not self._curv_full and slope < 0.0:
+            if tu.neg_curv_move > 0.0 and curv_had and not self._curv_full and slope < 0.0:
                 # indefinite with all of the curvature term: a step along its negative
-                # curvature too (NEG_CURV_MOVE)
+                # curvature too (tuning.neg_curv_move)
                 v = self._negative_curvature(mu_abs)
                 big = np.abs(v).max() if v is not None else 0.0
                 if big > 0.0:
@@ -590,7 +491,7 @@ class NewtonLevel:
                     if gv < 0.0:
                         v = -v
                         gv = -gv
-                    tau = NEG_CURV_MOVE * self.spacing / big
+                    tau = tu.neg_curv_move * self.spacing / big
                     dx = dx + tau * v
                     slope -= tau * gv
             if not (slope < 0.0):
@@ -601,16 +502,16 @@ class NewtonLevel:
                 # Levenberg-Marquardt shift as a trust region: a step the line search had to cut
                 # hard means the quadratic model is poor at that length (slack springs leave
                 # directions nearly free; contact nodes leave their faces), so shift more
-                if self.ls_alpha < LM_ALPHA_LOW:
-                    self.lm = min(max(self.lm * 10.0, 1e-8), LM_MAX)
+                if self.ls_alpha < tu.lm_alpha_low:
+                    self.lm = min(max(self.lm * 10.0, 1e-8), tu.lm_max)
                     self._set_kink(1.0)
-                elif self.ls_alpha >= LM_ALPHA_HIGH:
+                elif self.ls_alpha >= tu.lm_alpha_high:
                     self.lm = max(self.lm / 10.0, 1e-12)
                     if self._kink_decay > 1.0 and _same(contact_before, state.in_contact):
-                        self._set_kink(max(self._kink_scale / self._kink_decay, KINK_FLOOR))
+                        self._set_kink(max(self._kink_scale / self._kink_decay, tu.kink_floor))
                 return accepted
             self.lm = max(self.lm * 100.0, 1e-6)
-        return v_base, E0, 3
+        return v_base, E0, StepStatus.NO_PROGRESS
 
     def _line_search(self, state, dx, E0, slope, v_base):
         pos = state.positions
@@ -642,14 +543,14 @@ class NewtonLevel:
                 # from the pass just before, at the same alpha, stand)
                 pen = _trial_positions_sd(pos, contact, self.sd0, dx, alpha, m.fixed_axes, self.has_mold, self.margs,
                                           clip, face0, self.F, self.trial, self.trial_contact, self._sd_trial, clip,
-                                          self.queries(pos) if smooth else _NO_Q, self._memo, self._Qt)
+                                          self.queries(pos) if smooth else _NO_Q, self._memo, self._Qt, self.rules)
                 self._qt_for = self.trial if self._Qt.shape[0] else None
                 if not (pen <= PENETRATION_TOL):
                     continue
                 E1 = self.energy_forces(self.trial, Ft)
                 if not math.isfinite(E1):
                     continue
-                resolution = ENERGY_RESOLUTION * max(abs(E0), abs(E1), 1e-300) + 1e-300
+                resolution = self.tuning.energy_resolution * max(abs(E0), abs(E1), 1e-300) + 1e-300
                 if E1 <= E0 + 1e-4 * alpha * slope and E1 < E0 - resolution:
                     return self._accept(state, E1, F=Ft)
                 if abs(E1 - E0) <= 10 * resolution:
@@ -657,7 +558,7 @@ class NewtonLevel:
                     v1 = self.residual(self.trial, self.trial_contact, Ft)
                     if v1 < v_base:
                         return self._accept(state, E1, v1, Ft)
-                    if TRAPEZOID_ENERGY:
+                    if self.tuning.trapezoid_energy:
                         # the energy change by the trapezoid rule, which does not cancel: the
                         # Armijo rule decides below the energy's resolution
                         dE = _trapezoid_change(pos, self.trial, self.F, Ft)
@@ -683,8 +584,8 @@ class NewtonLevel:
             # forces and energy at the accepted state: the next iteration starts from them
             self._cache = (state.positions, state.positions.copy(), E1, F)
         if not math.isfinite(v1):
-            return v1, E1, 2
-        return v1, E1, 0
+            return v1, E1, StepStatus.DIVERGED
+        return v1, E1, StepStatus.OK
 
 
 # no answers at the step's start for _trial_positions_sd (other molds than the smooth surface)
@@ -791,25 +692,23 @@ def _coupled_pairs(model):
     return np.ascontiguousarray(np.concatenate([model.spring_nodes, pairs]))
 
 
-# largest forcing term (relative residual of the linear solve) of the inexact Newton iteration
-FORCING_MAX = 1e-1
 
 
-def _forcing(v, e, v_prev=None):
+def _forcing(v, e, v_prev=None, forcing_max=NewtonTuning.forcing_max):
     """Inexact-Newton forcing term (relative linear residual) at residual v [N] for the limit e
     [N]: Eisenstat and Walker's choice 2, 0.9 (v / v_prev)^2 (v_prev: the residual one
-    iteration before, None: unknown), capped at FORCING_MAX, and at least 0.5 e / v (Kelley's
+    iteration before, None: unknown), capped at forcing_max (``NewtonTuning.forcing_max``), and at least 0.5 e / v (Kelley's
     safeguard: the last iteration does not solve beyond what reaching e needs).
 
     References: Eisenstat S. C., Walker H. F., Choosing the forcing terms in an inexact Newton
     method, SIAM J. Sci. Comput. 17 (1996); Kelley C. T., Iterative Methods for Linear and
     Nonlinear Equations, SIAM 1995, section 6.3."""
     if not math.isfinite(v) or v <= 0:
-        return FORCING_MAX
-    eta = FORCING_MAX
+        return forcing_max
+    eta = forcing_max
     if v_prev is not None and math.isfinite(v_prev) and v_prev > 0:
         eta = min(eta, 0.9 * (v / v_prev) ** 2)
-    return float(min(FORCING_MAX, max(eta, 0.5 * max(e, 0.0) / v, 1e-10)))
+    return float(min(forcing_max, max(eta, 0.5 * max(e, 0.0) / v, 1e-10)))
 
 
 def _seam_pairs(model):

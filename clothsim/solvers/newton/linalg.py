@@ -20,8 +20,10 @@ from numba import njit
 from ...kernels import LENGTH_EPS, spring_vector
 from .objcache import per_object
 
-# multigrid: stop coarsening at this many nodes
-COARSEST_NODES = 400
+from ..tuning import NewtonTuning
+
+# The switches read here (coarsest_nodes, band_work, transpose_nodes, galerkin_terms,
+# trim_padding, panel_align, pad_identity, pair_smoothing) are fields of ``tuning.NewtonTuning``.
 
 
 @njit(cache=True)
@@ -560,9 +562,6 @@ def _solve6(D, R):
             R[c, t] = v / D[c, c]
 
 
-# the banded Cholesky solve is used for a direct system when (3n) x b^2 (b: half-bandwidth in
-# unknowns after the node reordering) is at most this; wider systems go to the sparse LU
-BAND_WORK = 1.2e7
 
 
 def band_order(n, spring_nodes):
@@ -1039,11 +1038,6 @@ class _Level:
     __slots__ = ("indptr", "indices", "data", "lu", "n", "shape", "ds", "ps", "ns", "T", "tdata")
 
 
-# the i lines (direction 0) of levels with at least this many nodes are swept on a copy of the
-# matrix with its rows renumbered line by line (``_Transposed``): read ny1 rows apart, their
-# blocks cost the sweep twice the j lines' time (201^2: 9.8 against 5.2 ms; 225^2 padded circle:
-# 17.5 against 8.2 ms); the copy of the values costs less than one sweep's difference
-TRANSPOSE_NODES = 8000
 
 
 class _Transposed:
@@ -1211,43 +1205,34 @@ def _trimmed_spans(pad, nx1, ny1):
     return out[0], out[1]
 
 
-# Multigrid.setup sums the Galerkin products from their terms grouped by coarse block
-# (_galerkin_terms, made once per pattern, and _galerkin_sum: the same blocks, bit for bit, in
-# about a third of _galerkin_values' time); False: _galerkin_values. The terms are kept with the
-# topology's layout (LAYOUT_CACHE of them, for grids and for panels each): about 27 MB for all
-# the levels of a 201^2 grid with a 5-point fine pattern, 68 MB with a 13-point one
-GALERKIN_TERMS = True
-
-# PaddedMultigrid's smoother lines leave out the padding at their ends (same V-cycle, fewer nodes
-# swept: 225^2 padded nodes for the 39,877 of issue 11's circle); False: whole lines
-TRIM_PADDING = True
 
 
 class Multigrid:
     """Galerkin geometric multigrid on the node grid, used as the CG preconditioner.
 
     Levels: the fine grid, then every second node (bilinear interpolation), down to at most
-    ``COARSEST_NODES`` nodes, factorised with a sparse LU. The fine level's prolongation is
+    ``tuning.coarsest_nodes`` nodes, factorised with a sparse LU. The fine level's prolongation is
     projected by the active-set projectors Pi, so the coarse spaces only move nodes where they
     may move. Galerkin products, restriction and prolongation are numba loops over the
     structured grid's parent/child lists."""
 
-    def __init__(self, topology):
+    def __init__(self, topology, tuning: NewtonTuning = NewtonTuning()):
         """topology: a full-rectangle Topology (``is_grid``): the lines the smoother relaxes
-        and the stride-2 levels come from it."""
+        and the stride-2 levels come from it; tuning: NewtonOptions.tuning."""
         shapes = [topology.grid_shape]
         transfers: list[_Transfer] = []
         nx1, ny1 = topology.grid_shape
-        while nx1 * ny1 > COARSEST_NODES and nx1 > 3 and ny1 > 3:
+        while nx1 * ny1 > tuning.coarsest_nodes and nx1 > 3 and ny1 > 3:
             tr = _Transfer(topology)
             transfers.append(tr)
             topology = tr.coarse
             nx1, ny1 = topology.grid_shape
             shapes.append((nx1, ny1))
-        self._init_levels(shapes, transfers, [_full_spans(nx, ny) for nx, ny in shapes], [None] * len(shapes))
+        self._init_levels(shapes, transfers, [_full_spans(nx, ny) for nx, ny in shapes], [None] * len(shapes), None,
+                          tuning)
 
     @classmethod
-    def for_topology(cls, topology, seam_pairs=None):
+    def for_topology(cls, topology, seam_pairs=None, tuning: NewtonTuning = NewtonTuning()):
         """A multigrid on the full-rectangle ``topology`` whose levels, and the coarse patterns of
         its set-ups, are shared with every other one made here for the same topology
         (``_grid_layout``): a Newton level made for each solve of the same model then builds its
@@ -1257,23 +1242,24 @@ class Multigrid:
         as ``PaddedMultigrid`` relaxes its seams (without it the line sweeps reduce a seam's
         gap by about 1/1000 per sweep: CG made no progress in 200 iterations on a 160 x 32
         tube, and Newton stalled at 2 N)."""
-        lay = _grid_layout(topology)
+        lay = _grid_layout(topology, tuning)
         pairs = None
-        if seam_pairs is not None and len(seam_pairs) and PAIR_SMOOTHING:
+        if seam_pairs is not None and len(seam_pairs) and tuning.pair_smoothing:
             pairs = coarse_pairs(seam_pairs, lay.transfers)
-        mg = cls.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, pairs)
+        mg = cls.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, pairs, tuning)
         mg._layout = lay
         return mg
 
     @classmethod
-    def from_levels(cls, shapes, transfers, spans, pad, pairs=None):
+    def from_levels(cls, shapes, transfers, spans, pad, pairs=None, tuning: NewtonTuning = NewtonTuning()):
         """A multigrid on levels already built (shapes, transfers, smoother spans, padding masks
         and seam pairs of another instance's __init__; read, never changed), without a set-up."""
         mg = cls.__new__(cls)
-        mg._init_levels(shapes, transfers, spans, pad, pairs)
+        mg._init_levels(shapes, transfers, spans, pad, pairs, tuning)
         return mg
 
-    def _init_levels(self, shapes, transfers, spans, pad, pairs=None):
+    def _init_levels(self, shapes, transfers, spans, pad, pairs=None, tuning: NewtonTuning = NewtonTuning()):
+        self.tuning = tuning
         self.shapes = list(shapes)
         self.transfers: list[_Transfer] = list(transfers)
         self.levels: list[_Level] = []
@@ -1330,7 +1316,7 @@ class Multigrid:
             if lv == len(pats):
                 pats.append(_galerkin_pattern(F.indptr, F.indices, tr.pidx, tr.cptr, tr.cchild, tr.nc))
             cip, cidx = pats[lv]
-            if GALERKIN_TERMS:
+            if self.tuning.galerkin_terms:
                 if lv == len(terms):
                     terms.append(_galerkin_terms(F.indptr, F.indices, tr.pidx, tr.pw, tr.cptr, tr.cchild, tr.cw,
                                                  tr.nc, cip, cidx))
@@ -1353,7 +1339,7 @@ class Multigrid:
             L.ds, L.ps, L.ns = slots[lv]
             if lv == len(trans):
                 trans.append(_Transposed(L.indptr, L.indices, nx1, ny1, L.ds, L.ps, L.ns)
-                             if nx1 * ny1 >= TRANSPOSE_NODES else None)
+                             if nx1 * ny1 >= self.tuning.transpose_nodes else None)
             L.T = trans[lv]
             if L.T is not None:
                 # the renumbered values, in a buffer of this multigrid's kept between set-ups
@@ -1474,17 +1460,6 @@ def _fill_empty_diagonal(indptr, indices, data, value):
     return cnt
 
 
-# PaddedMultigrid's panels start on columns that are multiples of this (1: one empty column
-# between two panels, the first round's layout; 4: a panel's first column is a grid node on the
-# two first coarse levels)
-PANEL_ALIGN = 4
-
-# the padding of PaddedMultigrid's rectangle given identity blocks (exact Galerkin products; False:
-# a scaled identity, which adds (scale - 1) I to the coarse nodes next to the padding)
-PAD_IDENTITY = True
-
-# sewn pairs relaxed jointly in PaddedMultigrid's smoother (False: the line smoother alone)
-PAIR_SMOOTHING = True
 
 
 def _seam_smooth(L, pr, starts, b, x, reverse):
@@ -1533,8 +1508,8 @@ class _GridLayout:
     shapes, transfers, spans and padding masks (none), and, once set up, the coarse patterns of
     its fine BSR pattern (``sym``: Multigrid._sym with copies of the fine indptr and indices)."""
 
-    def __init__(self, topology):
-        mg = Multigrid(topology)
+    def __init__(self, topology, tuning):
+        mg = Multigrid(topology, tuning)
         self.shapes, self.transfers, self.spans, self.pad = mg.shapes, mg.transfers, mg.spans, mg.pad
         self.sym = None
 
@@ -1543,10 +1518,12 @@ class _GridLayout:
 _GRID_LAYOUTS: OrderedDict = OrderedDict()
 
 
-def _grid_layout(topology) -> _GridLayout:
+def _grid_layout(topology, tuning: NewtonTuning = NewtonTuning()) -> _GridLayout:
     """The full-rectangle topology's _GridLayout, built on first use and kept while the topology
     lives; the LAYOUT_CACHE most recently used are kept."""
-    return per_object(_GRID_LAYOUTS, topology, (TRANSPOSE_NODES,), lambda: _GridLayout(topology), LAYOUT_CACHE)
+    # (the switches the layout reads are part of its key)
+    key = (tuning.transpose_nodes, tuning.coarsest_nodes, tuning.galerkin_terms)
+    return per_object(_GRID_LAYOUTS, topology, key, lambda: _GridLayout(topology, tuning), LAYOUT_CACHE)
 
 
 class _PaddedLayout:
@@ -1555,23 +1532,23 @@ class _PaddedLayout:
     masks and seam pairs, and, once known, the BSR pattern (``pattern``: (lattice indptr, lattice
     indices, (fptr, fidx, src))) and the coarse patterns of a set-up on it (``sym``, Multigrid._sym)."""
 
-    def __init__(self, topology, seam_pairs):
+    def __init__(self, topology, seam_pairs, tuning):
         from ...topology import Topology
 
         shapes = [topology.panel_shape(p) for p in range(topology.panel_count)]
         height = max(s[1] for s in shapes)
-        # each panel starts on a column that is a multiple of PANEL_ALIGN (at least one empty
+        # each panel starts on a column that is a multiple of tuning.panel_align (at least one empty
         # column before it): its first column then stays a grid node on the first coarse levels
         # instead of being interpolated from the previous panel's last column
-        al = PANEL_ALIGN
+        al = tuning.panel_align
         offs = np.cumsum([0] + [-(-(s[0] + 1) // al) * al for s in shapes])
         width = int(offs[-2]) + shapes[-1][0]
         self.full = Topology.rectangle(width - 1, height - 1)
         I = offs[topology.node_panel] + topology.node_ij[:, 0]
         self.emb = (I * height + topology.node_ij[:, 1]).astype(np.int64)
         self.N = width * height
-        mg = Multigrid(self.full)
-        if TRIM_PADDING:
+        mg = Multigrid(self.full, tuning)
+        if tuning.trim_padding:
             # the padding on every level: a coarse node all of whose children are padding
             pad = np.ones(self.N, bool)
             pad[self.emb] = False
@@ -1584,7 +1561,7 @@ class _PaddedLayout:
                     ch = np.repeat(np.arange(tr.nc), np.diff(tr.cptr))
                     np.logical_or.at(live, ch, (~pad[tr.cchild]) & (tr.cw != 0.0))
                     pad = ~live
-        if seam_pairs is not None and len(seam_pairs) and PAIR_SMOOTHING:
+        if seam_pairs is not None and len(seam_pairs) and tuning.pair_smoothing:
             mg.pairs = coarse_pairs(self.emb[np.asarray(seam_pairs, np.int64)], mg.transfers)
         self.shapes, self.transfers, self.spans, self.pad, self.pairs = mg.shapes, mg.transfers, mg.spans, mg.pad, mg.pairs
         self.pattern = None
@@ -1597,13 +1574,14 @@ _LAYOUTS: OrderedDict = OrderedDict()
 LAYOUT_CACHE = 4
 
 
-def _padded_layout(topology, seam_pairs=None) -> _PaddedLayout:
+def _padded_layout(topology, seam_pairs=None, tuning: NewtonTuning = NewtonTuning()) -> _PaddedLayout:
     """The topology's _PaddedLayout, built on first use and kept while the topology lives (a
     Topology is not changed in place); the LAYOUT_CACHE most recently used are kept."""
     # (the switches the layout reads are part of its key)
-    sp_key = (None if seam_pairs is None else np.asarray(seam_pairs, np.int64).tobytes(), TRIM_PADDING,
-              PAIR_SMOOTHING, PANEL_ALIGN)
-    return per_object(_LAYOUTS, topology, sp_key, lambda: _PaddedLayout(topology, seam_pairs), LAYOUT_CACHE)
+    sp_key = (None if seam_pairs is None else np.asarray(seam_pairs, np.int64).tobytes(), tuning.trim_padding,
+              tuning.pair_smoothing, tuning.panel_align, tuning.coarsest_nodes, tuning.transpose_nodes,
+              tuning.galerkin_terms)
+    return per_object(_LAYOUTS, topology, sp_key, lambda: _PaddedLayout(topology, seam_pairs, tuning), LAYOUT_CACHE)
 
 
 class PaddedMultigrid:
@@ -1621,15 +1599,16 @@ class PaddedMultigrid:
     # setup copies the lattice's blocks into the rectangle's and keeps no reference to them
     copies_matrix = True
 
-    def __init__(self, topology, seam_pairs=None):
-        """seam_pairs (m,2): the lattice's sewn node pairs (zero-length seam springs), relaxed
+    def __init__(self, topology, seam_pairs=None, tuning: NewtonTuning = NewtonTuning()):
+        """tuning: NewtonOptions.tuning; seam_pairs (m,2): the lattice's sewn node pairs (zero-length seam springs), relaxed
         jointly on every level where both nodes are grid nodes (:func:`coarse_pairs`). The
         layout (rectangle, embedding, levels, spans, pairs, BSR pattern) depends on the topology
         alone and is built once per topology (:func:`_padded_layout`)."""
-        lay = _padded_layout(topology, seam_pairs)
+        lay = _padded_layout(topology, seam_pairs, tuning)
         self._layout = lay
+        self.tuning = tuning
         self.full, self.emb, self.N = lay.full, lay.emb, lay.N
-        self.mg = Multigrid.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, lay.pairs)
+        self.mg = Multigrid.from_levels(lay.shapes, lay.transfers, lay.spans, lay.pad, lay.pairs, tuning)
         self._pattern = None
         self._fdat = self._fpi = self._pad_value = None  # the rectangle's matrix, projectors, padding value
 
@@ -1672,7 +1651,7 @@ class PaddedMultigrid:
         # The rectangle's matrix and projectors are kept from one set-up to the next (the
         # last hierarchy is not used after a new set-up): the padding is written once, and the
         # 33 MB of a 225^2 rectangle are not allocated (and page-faulted) again each time
-        value = 1.0 if PAD_IDENTITY else max(scale, 1e-300)
+        value = 1.0 if self.tuning.pad_identity else max(scale, 1e-300)
         keep = self._fdat is not None and self._pad_value == value
         if not keep:
             self._fdat = np.empty((fidx.shape[0], 3, 3))
@@ -1683,7 +1662,7 @@ class PaddedMultigrid:
         fpi[self.emb] = Pi
         if self.mg._sym is None:
             self.mg._sym = self._layout.sym  # the coarse patterns of an earlier multigrid, if any
-        self.mg.setup(fptr, fidx, fdat, fpi, pad_scale=max(scale, 1e-300) if PAD_IDENTITY else None)
+        self.mg.setup(fptr, fidx, fdat, fpi, pad_scale=max(scale, 1e-300) if self.tuning.pad_identity else None)
         self._layout.sym = self.mg._sym
 
     def vcycle(self, b):

@@ -21,21 +21,20 @@ from numba import njit
 from ...model import SpringFamily
 from .settle import node_spring_block, spring_kinks
 
-# rows of nodes from a held node or a node with a missing lattice neighbour that are settled
-RIM_BAND = 6
-# symmetric Gauss-Seidel sweeps (each one forward and one backward over the band)
-RIM_GS_SWEEPS = 6
+from ..tuning import NewtonTuning
+
+# the band's depth and sweeps: NewtonTuning.rim_band, NewtonTuning.rim_gs_sweeps
 
 
 def outline_band(model, depth: int | None = None) -> np.ndarray:
-    """(m,) int64: the free nodes of ``model`` within ``depth`` (None: ``RIM_BAND``) lattice steps
+    """(m,) int64: the free nodes of ``model`` within ``depth`` (None: ``NewtonTuning.rim_band``) lattice steps
     (warp/weft springs) of a held node or of an unsewn node with fewer than four lattice
     neighbours (the outline), ordered by that distance (nearest first). Nodes of seam springs or
     seam elements are left out and do not start a band: their missing neighbours are across
     their seam, in the other panel. Empty on a model without such nodes. (Grid sequencing
     settles no band where every panel is a full rectangle: its coarse lattices hold those
     outlines exactly, ``Topology.panels_full``.)"""
-    depth = RIM_BAND if depth is None else int(depth)
+    depth = NewtonTuning.rim_band if depth is None else int(depth)
     n = model.node_count
     fam = model.spring_family
     lat = (fam == SpringFamily.WARP) | (fam == SpringFamily.WEFT)
@@ -129,7 +128,7 @@ def node_gauss_seidel(pos, nodes, skip, ptr, nbr, sid, rest, width, table, x, y,
 
 def settle_outline(model, pos, cont, kink: float, band: np.ndarray | None = None, sweeps: int | None = None):
     """Settle the outline band (``outline_band``) of the cut lattice ``model`` at pos (n,3) [m] in
-    place by ``node_gauss_seidel`` (``sweeps``; None: ``RIM_GS_SWEEPS``); contact nodes (cont (n,)
+    place by ``node_gauss_seidel`` (``sweeps``, symmetric sweeps; None: ``NewtonTuning.rim_gs_sweeps``); contact nodes (cont (n,)
     bool) stay. kink: NewtonOptions.kink.
     Returns the largest resultant [N] of the band in the last pass."""
     if band is None:
@@ -140,4 +139,4 @@ def settle_outline(model, pos, cont, kink: float, band: np.ndarray | None = None
     return node_gauss_seidel(pos, band, np.ascontiguousarray(cont), model.adj_ptr, model.adj_node,
                              model.adj_spring, model.spring_rest_length, model.spring_width, model.spring_table,
                              t.x, t.y, t.cum, t.start, t.compression, model.external_force,
-                             spring_kinks(model, kink), int(RIM_GS_SWEEPS if sweeps is None else sweeps))
+                             spring_kinks(model, kink), int(NewtonTuning.rim_gs_sweeps if sweeps is None else sweeps))

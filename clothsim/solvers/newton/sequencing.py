@@ -16,6 +16,8 @@ import scipy.sparse as sp
 from numba import njit
 
 from .active_set import PENETRATION_TOL
+from ..base import StepStatus
+from ..tuning import NewtonTuning
 from .iteration import NewtonLevel, _forcing
 from .linalg import _grid_transfer
 from .objcache import per_object
@@ -27,17 +29,6 @@ from ...lattice import coarsen_model  # noqa: E402  (the spring builder at strid
 from ...model import SpringFamily, State  # noqa: E402
 
 
-RIM_SWEEPS = 4
-# on a cut lattice, the outline band of an interpolated start is settled by node-wise Newton
-# (rim.settle_outline) after _relax_rim's sweeps; False only to compare with the solver before it
-SETTLE_RIM = True
-# every interpolated start (the sequencing's levels and the fine grid's) has its contact rim
-# settled node by node before its Newton iterations (settle.settle_start); False: as before
-SETTLE_CONTACT_RIM = True
-# the coarsest grid is solved to 1e-8 of its start residual, or to COARSEST_REL once an iteration
-# leaves its contact set as it was (the contact set is what it gives the finer levels; the 26^2
-# level of the 201^2 cap: 3 iterations instead of 5, the same fine start)
-COARSEST_REL = 1e-2
 
 # A cut lattice's coarse grids hold the free fine nodes beside the held outline (the "guessed
 # holds", grid._coarsen_lattice) at a flat guess: the held fine node's place plus their rest
@@ -45,24 +36,13 @@ COARSEST_REL = 1e-2
 # (0.1-0.3 mm on the benchmark's circle), and a boundary offset moves the whole free sheet: the
 # fine start then needed a third Newton iteration. The guesses are therefore placed where the
 # sheet puts them (``_HoldFit``): on each level from the sheet interpolated from the coarser one,
-# on the coarsest again after a first solve (HOLD_REFIT_COARSEST times), and on the last coarse
+# on the coarsest again after a first solve (hold_refit_coarsest times), and on the last coarse
 # level, once solved, at their fine nodes' places when its solution is interpolated onto the fine
 # lattice and the outline band settled there against the true held outline; that level is then
-# solved again (HOLD_BAND). On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
-# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). HOLD_FIT False: the flat guesses, as before
-# (read when a model's hierarchy is built: clear _HIERARCHIES after changing it). A placed hold
+# solved again (hold_band). On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
+# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). hold_fit False: the flat guesses, as before.
+# The switches read here are fields of ``tuning.NewtonTuning`` (``_Hierarchy.tuning``). A placed hold
 # that would be inside the mold falls back to its flat guess (``_HoldFit.outside``).
-HOLD_FIT = True
-HOLD_FIT_NEIGHBOURS = 4
-# the anchor and the neighbours of a fit lie within this many of the level's spacings
-HOLD_FIT_REACH = 3.0
-HOLD_REFIT_COARSEST = 1
-# the coarsest grid's first solve (before its refit) and its solve after the refit go to these
-# shares of their start residuals (on the 225-across circle 6 coarsest iterations instead of 8
-# with the same fine start; a first solve to 2e-1 cost 3 more iterations on the finer levels)
-HOLD_FIRST_REL = 1e-2
-HOLD_REFIT_REL = 1e-1
-HOLD_BAND = True
 
 
 class _HoldFit:
@@ -71,19 +51,19 @@ class _HoldFit:
     g (m,): the level's nodes held there but free on the fine model; axes (m, 3) bool: their held
     axes; fine (m,): their indices in the fine model; xo (m, 3) [m]: the prescribed position of
     each one's anchor o (m,) (the nearest node of the same panel held on the fine model, by rest
-    position); nb (m, K): its K (``HOLD_FIT_NEIGHBOURS``) nearest free nodes on the level (same
+    position); nb (m, K): its K (``tuning.hold_fit_neighbours``) nearest free nodes on the level (same
     panel) and w (m, K) the weights of the affine extrapolation through them,
     x_g = x_o + sum_k w_k (x_nb_k - x_o): the least-squares linear map of the rest offsets from the
     anchor, evaluated at g's rest offset; ok (m,) where it is defined."""
 
-    def __init__(self, level_model, fine_model, fine_idx):
+    def __init__(self, level_model, fine_model, fine_idx, tuning: NewtonTuning = NewtonTuning()):
         from scipy.spatial import cKDTree
 
         fine_held = fine_model.fixed_axes.any(axis=1)
         held = level_model.fixed_axes.any(axis=1)
         g = np.nonzero(held & ~fine_held[fine_idx])[0]
         m = g.size
-        K = HOLD_FIT_NEIGHBOURS
+        K = tuning.hold_fit_neighbours
         self.g, self.axes, self.fine = g, level_model.fixed_axes[g], fine_idx[g]
         self.o = np.zeros(m, np.int64)
         self.xo = np.zeros((m, 3))
@@ -95,9 +75,9 @@ class _HoldFit:
         free = np.nonzero(~held)[0]
         o = self.o
         # the anchor is held on (at least) g's axes and the neighbours are near: within
-        # HOLD_FIT_REACH level spacings (a notch or slit wider than that is not reached across)
+        # tuning.hold_fit_reach level spacings (a notch or slit wider than that is not reached across)
         h = float(max(level_model.spacing))
-        reach = HOLD_FIT_REACH * h
+        reach = tuning.hold_fit_reach * h
         for p in np.unique(pan[g]):
             fp = free[pan[free] == p]
             if fp.size < K:
@@ -184,9 +164,9 @@ def _rim_operator(model):
     return rim, A, d
 
 
-def _relax_rim(model, pos, cont, op=None):
+def _relax_rim(model, pos, cont, op=None, sweeps: int = NewtonTuning.rim_sweeps):
     """On a cut lattice, the free nodes beside a held or missing lattice node (the outline's
-    fringe, where the interpolation lost corners) are moved, in ``RIM_SWEEPS`` Jacobi sweeps, to
+    fringe, where the interpolation lost corners) are moved, in ``sweeps`` Jacobi sweeps, to
     the mean of their warp and weft neighbours: the membrane's equilibrium there to first order.
     Sewn nodes (ends of seam springs) are left alone. op: ``_rim_operator(model)`` when known.
     pos (N, 3) [m] is changed in place; contact nodes stay."""
@@ -199,7 +179,7 @@ def _relax_rim(model, pos, cont, op=None):
     if not keep.any():
         return
     rk = rim[keep]
-    for _ in range(RIM_SWEEPS):
+    for _ in range(sweeps):
         pos[rk] = ((A @ pos) / d[:, None])[keep]
 
 
@@ -237,7 +217,8 @@ def _interpolate(pidx, pw, xc, cc, out, cout):
         cout[k] = c
 
 
-def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None):
+def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None,
+                  tuning: NewtonTuning = NewtonTuning()):
     """The interpolation of ``prolong_state`` without its mold query: (pos (n, 3) [m], cont (n,)
     bool: interpolated contact) with the fine held coordinates kept and, on a cut lattice (or on
     full panels given a ``band``), the outline's fringe relaxed and its band settled (nodes may be
@@ -262,13 +243,14 @@ def _interpolated(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
         # outlines exactly, as the square's do, and neither step saves a Newton step, so the
         # sequencing passes no band; four 101^2 panels: the same Newton residuals to 5 digits,
         # 44 ms of settling saved)
-        _relax_rim(fine_model, pos, cont, rim_op)
-        if kink is not None and SETTLE_RIM:
-            settle_outline(fine_model, pos, cont, kink, band)
+        _relax_rim(fine_model, pos, cont, rim_op, tuning.rim_sweeps)
+        if kink is not None and tuning.settle_rim:
+            settle_outline(fine_model, pos, cont, kink, band, tuning.rim_gs_sweeps)
     return pos, cont
 
 
-def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None):
+def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, kink=None, band=None, rim_op=None,
+                  tuning: NewtonTuning = NewtonTuning()):
     """Interpolate a coarse solution onto the fine grid (bilinear in the node indices), keep
     the fine constrained coordinates, and put nodes that would be inside the mold (or between
     two contact nodes) onto its surface as contact nodes. On a cut lattice (some panel not a full
@@ -276,10 +258,10 @@ def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
     (``_relax_rim``) and, when ``kink`` (NewtonOptions.kink) is given, its band of nodes settled by
     nonlinear Gauss-Seidel (``rim.settle_outline``; ``band``: ``rim.outline_band(fine_model)`` when
     known). P: the interpolation (``_prolongation``) and rim_op:
-    ``_rim_operator(fine_model)``, when known."""
+    ``_rim_operator(fine_model)``, when known; tuning: NewtonOptions.tuning."""
     from ...mold import mold_query_many
 
-    pos, cont = _interpolated(coarse_model, coarse_state, fine_model, fine_state, P, kink, band, rim_op)
+    pos, cont = _interpolated(coarse_model, coarse_state, fine_model, fine_state, P, kink, band, rim_op, tuning)
     fixed = fine_model.fixed_axes
     if fine_model.mold is not None:
         margs = fine_model.mold.kernel_args()
@@ -317,9 +299,9 @@ def _solve_level(level: NewtonLevel, state, e, max_iter, deadline, e_settled=Non
         if v <= e or (settled and e_settled is not None and v <= e_settled) or time.perf_counter() > deadline:
             break
         before = state.in_contact.copy()
-        v, E, flag = level.iterate(state, v, forcing=_forcing(v, e, level.v_prev))
+        v, E, flag = level.iterate(state, v, forcing=_forcing(v, e, level.v_prev, level.tuning.forcing_max))
         settled = np.array_equal(before, state.in_contact)
-        if flag:
+        if flag != StepStatus.OK:
             break
     return v
 
@@ -339,26 +321,6 @@ def sequencing_chain(model, min_nodes: int = 400):
     return chain[::-1]
 
 
-# the levels between the coarsest and the given one are solved to this share of their start residual
-# (with the contact rim and the outline band of every start settled, one Newton iteration each:
-# 1e-2 -> 3e-2 for issue 11's circle, then 1e-1, measured best of 3 in CPU s on the 201^2 cap
-# 0.453 -> 0.440, the circle 0.80 -> 0.76, the four panels 0.69 -> 0.65, the thermoform 0.43 -> 0.35;
-# each fine grid's iterations unchanged)
-LEVEL_REL = 1e-1
-# ... and take at most this many Newton iterations (None: no cap; the last coarse level, which
-# gives the fine start, is not capped): their solution only seeds the next level's start. On the
-# 225-across circle its 621- and 2477-node levels took 2 iterations each; with one, the same fine
-# start (1.02e-3 N) and the same fine steps (113 and 161 across likewise)
-MID_LEVEL_ITERATIONS = 1
-
-# the sequencing of a cut lattice (some panel not a full rectangle) goes down to grids of this
-# many nodes (a full lattice's to ``sequencing_chain``'s 400): its coarsest grid carries the
-# guessed holds' refit (six Newton iterations), cheaper on a smaller grid, and a fine start from
-# one more level is as good or better (225-across circle: 621-node coarsest, 6 + 1 + 2 coarse
-# iterations -> 149-node coarsest, 5 + 2 + 2 + 2, fine start 1.19e-3 -> 1.02e-3 N, about 30 ms
-# less; 161 across: 3 fine steps -> 2; 113 across the same fine steps; 65 across 8 iterations of
-# its 845-node level -> 5 + 2)
-CUT_COARSEST_NODES = 100
 
 # the sequencing hierarchies of the last few models (``_hierarchy``), by id(model)
 _HIERARCHIES: OrderedDict = OrderedDict()
@@ -373,65 +335,68 @@ class _Hierarchy:
     (``rim.outline_band``) and rim operator (None where every panel is a full rectangle,
     ``Topology.panels_full``, and no level has guessed holds)."""
 
-    def __init__(self, model, kink):
+    def __init__(self, model, kink, tuning: NewtonTuning = NewtonTuning()):
         self.kink = kink
-        chain = sequencing_chain(model) if model.topology.panels_full else sequencing_chain(model, CUT_COARSEST_NODES)
+        self.tuning = tu = tuning
+        chain = sequencing_chain(model) if model.topology.panels_full else sequencing_chain(model, tu.cut_coarsest_nodes)
         self.P = [None] + [_prolongation(chain[i][0].topology, chain[i - 1][0].topology)
                            for i in range(1, len(chain))]
-        self.levels = [NewtonLevel(m, kink=kink) for m, _ in chain[:-1]]
+        self.levels = [NewtonLevel(m, kink=kink, tuning=tu) for m, _ in chain[:-1]]
         # each coarse level's guessed holds (None: a full grid, or none)
         self.fits = []
         for li, (m, _) in enumerate(chain[:-1]):
             fit = None
-            if HOLD_FIT and not m.topology.is_grid:
+            if tu.hold_fit and not m.topology.is_grid:
                 idx = np.arange(m.node_count)
                 for lj in range(li, len(chain) - 1):
                     idx = chain[lj][1][idx]
-                fit = _HoldFit(m, model, idx)
+                fit = _HoldFit(m, model, idx, tu)
                 fit = fit if fit.g.size else None
             self.fits.append(fit)
         # the outline band and rim relaxation where the coarse lattices hold the outline or the
         # holds only roughly: a panel cut by its outline, or guessed holds (held fine nodes that
         # no coarse node keeps); none on full rectangular panels held on their coarse nodes
         rough = not model.topology.panels_full or any(f is not None for f in self.fits)
-        self.bands = [outline_band(m) if rough and not m.topology.is_grid else None for m, _ in chain]
+        self.bands = [outline_band(m, tu.rim_band) if rough and not m.topology.is_grid else None for m, _ in chain]
         self.rim_ops = [_rim_operator(m) if rough and not m.topology.is_grid else None for m, _ in chain]
         # the given model itself is not kept (the cache must not keep it alive)
         self.chain = chain[:-1] + [(None, None)]
 
 
-def _hierarchy(model, kink):
+def _hierarchy(model, kink, tuning: NewtonTuning = NewtonTuning()):
     """The model's ``_Hierarchy``, built on its first solve and kept while the model lives (the
     model and its arrays are not changed in place: a Control makes a new Model). The
     ``HIERARCHY_CACHE`` most recently used models' are kept."""
-    return per_object(_HIERARCHIES, model, kink, lambda: _Hierarchy(model, kink), HIERARCHY_CACHE)
+    return per_object(_HIERARCHIES, model, (kink, tuning), lambda: _Hierarchy(model, kink, tuning), HIERARCHY_CACHE)
 
 
 def _solve_coarse(level: NewtonLevel, state, coarsest: bool, e, deadline, rel=None, reset=True, max_iter=60):
     """Solve one level of the sequencing: the coarsest grid until its contact set is settled, the
-    others only as far as their discretisation error matters for the next grid's start (LEVEL_REL:
+    others only as far as their discretisation error matters for the next grid's start (level_rel:
     the fine start's residual is set by the interpolation, not by a tighter coarse solve); rel:
     to this share of the start residual instead; at most max_iter Newton iterations. reset: start
     the level afresh (False: keep its multigrid hierarchy, Levenberg shift and forcing history from
     the last solve)."""
+    tu = level.tuning
     if reset:
         level.reset()
     v0 = level.residual(state.positions, state.in_contact)
     if rel is not None:
         _solve_level(level, state, max(e, rel * v0), max_iter, deadline)
     elif coarsest:
-        _solve_level(level, state, max(e, 1e-8 * v0), max_iter, deadline, max(e, COARSEST_REL * v0))
+        _solve_level(level, state, max(e, 1e-8 * v0), max_iter, deadline, max(e, tu.coarsest_rel * v0))
     else:
-        _solve_level(level, state, max(e, LEVEL_REL * v0), max_iter, deadline)
+        _solve_level(level, state, max(e, tu.level_rel * v0), max_iter, deadline)
 
 
-def grid_sequence(model, state, e, kink, deadline):
+def grid_sequence(model, state, e, kink, deadline, tuning: NewtonTuning = NewtonTuning()):
     """Solve the scene on the coarser grids (coarsest first), each started from the previous
     one's solution, and return the interpolated starting state for ``model`` (or None when the
     grid cannot be coarsened or the interpolation fails). e [N]: the run's convergence limit (no
-    level is solved tighter); kink: NewtonOptions.kink; deadline: a ``time.perf_counter`` value.
+    level is solved tighter); kink: NewtonOptions.kink; tuning: NewtonOptions.tuning; deadline: a ``time.perf_counter`` value.
     The coarse models, transfers and levels are built once per model (``_hierarchy``)."""
-    hier = _hierarchy(model, kink)
+    tu = tuning
+    hier = _hierarchy(model, kink, tu)
     chain = hier.chain
     if len(chain) < 2:
         return None
@@ -460,31 +425,31 @@ def grid_sequence(model, state, e, kink, deadline):
                 fit.outside(mdl, cst.positions)
             # the previous level's solution; when it cannot be interpolated (prolong_state then
             # leaves cst alone) this level starts from the restricted state
-            if (prolong_state(prev_model, prev_state, mdl, cst, hier.P[li], kink, hier.bands[li], hier.rim_ops[li])
-                    and SETTLE_CONTACT_RIM):
-                settle_start(mdl, cst, kink)
+            if (prolong_state(prev_model, prev_state, mdl, cst, hier.P[li], kink, hier.bands[li], hier.rim_ops[li],
+                              tu) and tu.settle_contact_rim):
+                settle_start(mdl, cst, kink, tu.settle_width, tu.settle_sweeps)
         lvl = hier.levels[li]
-        refits = HOLD_REFIT_COARSEST if li == 0 and fit is not None else 0
-        mid = 0 < li < len(chain) - 2 and MID_LEVEL_ITERATIONS is not None
-        _solve_coarse(lvl, cst, li == 0, e, deadline, HOLD_FIRST_REL if refits else None,
-                      max_iter=MID_LEVEL_ITERATIONS if mid else 60)
+        refits = tu.hold_refit_coarsest if li == 0 and fit is not None else 0
+        mid = 0 < li < len(chain) - 2 and tu.mid_level_iterations is not None
+        _solve_coarse(lvl, cst, li == 0, e, deadline, tu.hold_first_rel if refits else None,
+                      max_iter=tu.mid_level_iterations if mid else 60)
         for _ in range(refits):
             # the guessed holds where the solved sheet puts them, and the level solved again
             fit.place(cst.positions, cst.positions)
             fit.outside(mdl, cst.positions)
-            _solve_coarse(lvl, cst, True, e, deadline, HOLD_REFIT_REL)
-        if HOLD_BAND and li == len(chain) - 2 and fit is not None:
+            _solve_coarse(lvl, cst, True, e, deadline, tu.hold_refit_rel)
+        if tu.hold_band and li == len(chain) - 2 and fit is not None:
             # the last coarse level's solution on the fine lattice, its outline band settled there
             # against the true held outline: the guessed holds take their fine nodes' places, and
             # the level is solved again (its multigrid kept while its active set is the same)
-            fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1])
+            fpos, _ = _interpolated(mdl, cst, model, state, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1], tu)
             fit.take(fpos, cst.positions)
             fit.outside(mdl, cst.positions)
             _solve_coarse(lvl, cst, li == 0, e, deadline, reset=False)
         prev_model, prev_state = mdl, cst
     trial = state.copy()
-    if not prolong_state(prev_model, prev_state, model, trial, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1]):
+    if not prolong_state(prev_model, prev_state, model, trial, hier.P[-1], kink, hier.bands[-1], hier.rim_ops[-1], tu):
         return None
-    if SETTLE_CONTACT_RIM:
-        settle_start(model, trial, kink)
+    if tu.settle_contact_rim:
+        settle_start(model, trial, kink, tu.settle_width, tu.settle_sweeps)
     return trial

@@ -29,9 +29,9 @@ from ...mold.queries import contact_normals_at, is_primitive, query_at
 from ...mold.segment import primitive_segment_hit
 from .active_set import held_axis_rows, orthonormal_rows
 
-# band half-width around the rim [lattice hops] and the number of sweeps over it
-SETTLE_WIDTH = 3
-SETTLE_SWEEPS = 8
+from ..tuning import NewtonTuning
+
+# band half-width around the rim and the sweeps over it: NewtonTuning.settle_width, .settle_sweeps
 
 
 @njit(cache=True)
@@ -291,8 +291,8 @@ def settle_contact_rim(pos, contact, fixed, ext, band, ptr, sp, oth, rest, width
 
 
 def settle_start(model, state, kink, width=None, sweeps=None):
-    """``settle_contact_rim`` on the nodes within ``width`` (default SETTLE_WIDTH) spring hops of
-    ``state``'s contact rim, ``sweeps`` (default SETTLE_SWEEPS) sweeps at most; state's
+    """``settle_contact_rim`` on the nodes within ``width`` (default NewtonTuning.settle_width) spring hops of
+    ``state``'s contact rim, ``sweeps`` (default NewtonTuning.settle_sweeps) sweeps at most; state's
     positions (n, 3) [m] and in_contact (n,) are changed in place. kink: NewtonOptions.kink
     (times each table's first slope, as in NewtonLevel). Nodes of seam elements are left out.
     Returns the contact changes of the last sweep (0: settled), or -1 without a mold."""
@@ -301,8 +301,8 @@ def settle_start(model, state, kink, width=None, sweeps=None):
     has_mold, margs = model_mold_args(model)
     if not has_mold:
         return -1
-    width = SETTLE_WIDTH if width is None else width
-    sweeps = SETTLE_SWEEPS if sweeps is None else sweeps
+    width = NewtonTuning.settle_width if width is None else width
+    sweeps = NewtonTuning.settle_sweeps if sweeps is None else sweeps
     n = model.node_count
     ptr, oth, sp = model.adj_ptr, model.adj_node, model.adj_spring
     band = contact_rim_band(state.in_contact, ptr, oth, width)

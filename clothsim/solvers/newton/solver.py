@@ -35,7 +35,7 @@ class NewtonSolver(Solver):
 
     def __init__(self, model, options: NewtonOptions | None = None):
         super().__init__(model, options)
-        self.fine = NewtonLevel(model, kink=self.options.kink)
+        self.fine = NewtonLevel(model, kink=self.options.kink, tuning=self.options.tuning)
         # (a frictional load step starts from the previous equilibrium: no coarse grids, which
         # would not carry its frozen friction)
         self._seq_done = not self.options.sequencing or model.friction is not None
@@ -88,7 +88,7 @@ class NewtonSolver(Solver):
         if not self._seq_done:
             self._seq_done = True
             deadline = time.perf_counter() + (0.5 * time_left_s if time_left_s else 1e30)
-            trial = grid_sequence(model, state, e, self.options.kink, deadline)
+            trial = grid_sequence(model, state, e, self.options.kink, deadline, self.options.tuning)
             if trial is not None:
                 E_old = fine.energy_forces(state.positions, fine.F)
                 E_new = fine.energy_forces(trial.positions, fine.F)
@@ -108,13 +108,13 @@ class NewtonSolver(Solver):
             v0 = fine.residual(state.positions, state.in_contact)
         prev_pos = state.positions.copy()
         prev_c = state.in_contact.copy()
-        v, E, flag = fine.iterate(state, v0, forcing=_forcing(v0, e, fine.v_prev))
-        if flag == 2 or not math.isfinite(v) or not np.isfinite(state.positions).all() \
+        v, E, status = fine.iterate(state, v0, forcing=_forcing(v0, e, fine.v_prev, self.options.tuning.forcing_max))
+        if status == StepStatus.DIVERGED or not math.isfinite(v) or not np.isfinite(state.positions).all() \
                 or np.abs(state.positions).max() > fine.blowup:
             state.positions[:] = prev_pos
             state.in_contact[:] = prev_c
             return 0, v0, math.nan, StepStatus.DIVERGED
-        if flag == 3:
+        if status == StepStatus.NO_PROGRESS:
             return 0, v0, math.nan, StepStatus.NO_PROGRESS
         self._remember(state, v)
         return 1, v, E, StepStatus.CONVERGED if v <= e else StepStatus.OK

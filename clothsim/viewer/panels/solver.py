@@ -4,7 +4,7 @@ from the next Start."""
 
 from __future__ import annotations
 
-from ...config import SOLVER_METHODS, SceneError
+from ...config import SOLVER_METHODS, SceneError, SolverSettings
 from ..draft import C_MAX, MAX_ITERATIONS_MAX, as_float, as_int
 from . import Panel
 
@@ -30,10 +30,11 @@ class SolverPanel(Panel):
     def sync(self) -> None:
         g = self.gui
         s = self.app.scene_draft.data.get("solver", {})
-        g["method"].value = s.get("method", "auto")
-        g["C"].value = float(s.get("C", 2.0))
-        g["e"].value = f"{float(s.get('e', 1e-6)):g}"
-        g["max_iterations"].value = int(s.get("max_iterations", 200000))
+        default = {k: f.default for k, f in SolverSettings.model_fields.items()}  # the scene's defaults
+        g["method"].value = s.get("method", default["method"])
+        g["C"].value = float(s.get("C", default["C"]))
+        g["e"].value = f"{float(s.get('e', default['e'])):g}"
+        g["max_iterations"].value = int(s.get("max_iterations", default["max_iterations"]))
 
     def set(self, **kw) -> None:
         """Validate and send solver settings to the simulation; mirror them in the draft."""
