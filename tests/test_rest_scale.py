@@ -42,7 +42,7 @@ def test_strip_at_a_rest_scale_carries_the_tables_tension_at_the_scaled_strain(t
     t = float(np.interp(eps, tab.strain, tab.tension))
     np.testing.assert_allclose(m.spring_rest_length[warp], 1.1 * 0.005, rtol=1e-12)
     np.testing.assert_allclose(r.tension_warp, t * m.spring_width[warp].reshape(r.tension_warp.shape), rtol=1e-7)
-    assert 0.3 * 0.002 > 0  # the strip's design strain, 30 %, for contrast:
+    # the strip's design strain, 30 %, would read far more:
     assert abs(t - float(np.interp(0.3, tab.strain, tab.tension))) > 0.2 * t
     st = r.summary()["friction"]["stages"][0]
     assert st["rest_scale"] == [1.1, 1.0]
@@ -53,7 +53,7 @@ def test_loose_sleeve_relaxed_to_its_design_reaches_the_frictionless_sleeve_and_
     """configs/sewn_sleeve.yaml (20 x 8) put on 1.1 times its cut size (frictionless), then
     relaxed to 1.0 in 4 load steps with mold.friction 0: the equilibrium is the one-step
     frictionless sleeve's (positions within 1e-7 m) and its pressure is Laplace's T / r. With
-    mu = 0.4 the relaxed sleeve stays on the cylinder, every node in contact."""
+    mu = 0.4 every node sticks as the hoop tightens and the pressure stays within 3 % of T / r."""
     ref = clothsim.solve(load_scene(SLEEVE, SMALL))
     assert ref.solve.converged
     sc = _staged(SLEEVE, tmp_path, ["{name: loose, steps: 1, rest_scale: 1.1}",
@@ -69,13 +69,16 @@ def test_loose_sleeve_relaxed_to_its_design_reaches_the_frictionless_sleeve_and_
     t_course = float(np.interp(e, m.table_list[0].strain, m.table_list[0].tension))
     T = t_course / (1 + float(np.median(r.strain_weft)))
     np.testing.assert_allclose(r.contact_pressure[1:-1, 1:-1], T / 0.05, rtol=1e-5)
-    # the loose stage itself: 1.1 times the rest girth, so a lower course strain
-    assert 1 + e > 1.05 * (1 + 0.0)  # still stretched at its design size
     fr = _staged(SLEEVE, tmp_path, ["{name: loose, steps: 1, rest_scale: 1.1}",
                                     "{name: relax, steps: 4, rest_scale: 1.0, set: {mold.friction: 0.4}}"], SMALL)
     rf = clothsim.solve(fr)
     assert rf.solve.converged, rf.solve.message
-    assert rf.state.in_contact.all() or rf.summary()["friction"]["stick"] + rf.summary()["friction"]["slip"] > 0
+    f = rf.summary()["friction"]
+    # the hoop tightens round the cylinder without sliding: every node sticks, the cone holds,
+    # and friction keeps some of the loose stage's unevenness (0.7 mm, pressure within 3 %)
+    assert rf.state.in_contact.all() and f["slip"] == 0 and f["stick"] == 21 * 9 - 2 * 21 - 7  # all but the held rows and column
+    assert f["cone_violation"] <= 1e-6
+    np.testing.assert_allclose(rf.contact_pressure[1:-1, 1:-1], T / 0.05, rtol=0.03)
 
 
 def test_scale_rest_scales_a_pattern_and_one_is_the_design():
