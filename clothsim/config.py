@@ -907,6 +907,8 @@ def validate_mold_spec(spec: Any) -> Any:
 
 # the scene fields a stage may change (the lattice, seams and start are the scene's own)
 STAGE_FIELDS = ("constraints", "mold", "gravity", "solver")
+# a stage's rest_scale: the garment from half to twice its design size along each direction
+REST_SCALE_RANGE = (0.5, 2.0)
 
 
 class Stage(_Strict):
@@ -919,6 +921,30 @@ class Stage(_Strict):
     name: str = ""
     steps: Int = 1
     set: dict[str, Any] = Field(default_factory=dict)
+    # the garment's size relative to its design (every panel's rest lengths), one number or
+    # [warp, weft]; ramped from the previous stage's (1 before the first) over the steps;
+    # absent: the previous stage's
+    rest_scale: Any = None
+
+    @field_validator("rest_scale", mode="before")
+    @classmethod
+    def _rest_scale(cls, v):
+        if v is None:
+            return v
+        vals = [v] if isinstance(v, (int, float)) else list(v) if isinstance(v, (list, tuple)) else [None]
+        if len(vals) not in (1, 2) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and
+                                              math.isfinite(x) and
+                                              REST_SCALE_RANGE[0] <= x <= REST_SCALE_RANGE[1] for x in vals):
+            raise ValueError(f"must be a number or [warp, weft], each from {REST_SCALE_RANGE[0]} to "
+                             f"{REST_SCALE_RANGE[1]} (the garment's size over its design; got {v!r})")
+        return [float(x) for x in vals] if isinstance(v, (list, tuple)) else float(v)
+
+    def scale(self, previous: tuple) -> tuple:
+        """(s_warp, s_weft) this stage ramps to, from the previous stage's ``previous``."""
+        if self.rest_scale is None:
+            return tuple(previous)
+        v = self.rest_scale
+        return (float(v), float(v)) if isinstance(v, (int, float)) else (float(v[0]), float(v[-1]))
 
     @field_validator("steps")
     @classmethod

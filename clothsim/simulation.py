@@ -286,13 +286,18 @@ class Simulation:
         from .config import stage_scenes
 
         if not self.scene.stages:
-            return [["", self.model, int(self.settings.load_steps), None]]
+            return [["", self.model, int(self.settings.load_steps), None, None]]
         out = []
+        scale = (1.0, 1.0)
         for n, (st, sc) in enumerate(stage_scenes(self.scene)):
             m = compile_model(sc)
             if m.node_count != self.model.node_count:
                 raise SceneError(self.scene.locate(f"stages.{n}.set: changes the lattice"))
-            out.append([st.name or f"stage {n + 1}", m, int(st.steps), sc.solver])
+            new = st.scale(scale)
+            # the garment's rest scale ramped over the stage (None: the design all along)
+            scales = None if scale == new == (1.0, 1.0) else (scale, new)
+            out.append([st.name or f"stage {n + 1}", m, int(st.steps), sc.solver, scales])
+            scale = new
         return out
 
     def _run_steps(self, settings) -> SolveResult:
@@ -309,27 +314,34 @@ class Simulation:
             self._stage_reports = []
         res = None
         while self._plan:
-            name, model, steps, stage_solver = self._plan[0]
+            name, model, steps, stage_solver, scales = self._plan[0]
             if self._controls is None:
                 if self.scene.stages:
                     start = self.state.positions.copy()
                 else:
                     start = model.placement.apply(model.rest_positions) if steps > 1 else model.prescribed_positions
                 start = np.where(model.fixed_axes, start, model.prescribed_positions)
-                self._controls = load_steps(start, model.prescribed_positions, steps)
+                self._controls = load_steps(start, model.prescribed_positions, steps, scales)
                 self._stage_model = dataclasses.replace(model, prescribed_positions=start)
                 self._steps_done = 0
             todo = self._controls[self._steps_done:]
             # a stage's own solver fields (its set may change e), the run's limits otherwise
             s = settings if stage_solver is None else stage_solver.model_copy(
                 update={"max_iterations": settings.max_iterations})
+            done = self._steps_done
+            from_scale = (1.0, 1.0) if scales is None else \
+                (scales[0] if done == 0 else self._controls[done - 1].rest_scale)
             m, res = solve_steps(self._stage_model, self.state, todo, s, self._callback, self.history,
-                                 lambda mm: make_solver(mm, s))
+                                 lambda mm: make_solver(mm, s), model_scale=from_scale)
             self._steps_done += int(res.friction["steps_solved"])
-            self.model = self._stage_model = m
+            self.model = m
+            # the stage's design rest lengths stay with it: each control scales them anew
+            self._stage_model = dataclasses.replace(m, spring_rest_length=model.spring_rest_length,
+                                                    spring_width=model.spring_width)
             if not res.converged:
                 break
             self._stage_reports.append({"name": name, "load_steps": len(self._controls),
+                                        **({} if scales is None else {"rest_scale": list(scales[1])}),
                                         "converged": True, "iterations": int(res.iterations),
                                         "residual": float(res.residual), "friction": res.friction})
             self._plan.pop(0)

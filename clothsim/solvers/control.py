@@ -7,6 +7,10 @@ coordinates keep their values (the previous step's equilibrium is the next one's
 :func:`load_steps` interpolates controls linearly from initial prescribed positions to final ones;
 :func:`solve_load_steps` solves each in turn. Path-dependent physics (friction) will need the
 path; for the present path-independent model the last step's equilibrium is the one-step one.
+
+A Control may also carry a garment-level rest scale (warp, weft): the pattern's size relative to
+its design, as a stocking is pulled on wider than it is cut and relaxed onto the leg
+(:func:`scale_rest`; a stage's ``rest_scale``).
 """
 
 from __future__ import annotations
@@ -23,12 +27,19 @@ class Control:
     (``Model.fixed_axes``) for one load step; entries of free coordinates are ignored."""
 
     prescribed_positions: np.ndarray
+    # the pattern's size relative to its design along (warp, weft); None: the model's own
+    rest_scale: tuple | None = None
 
     def __post_init__(self):
         p = np.ascontiguousarray(self.prescribed_positions, dtype=float)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"Control.prescribed_positions must have shape (N, 3) (got {p.shape})")
         object.__setattr__(self, "prescribed_positions", p)
+        if self.rest_scale is not None:
+            sc = tuple(float(v) for v in np.broadcast_to(np.asarray(self.rest_scale, float), (2,)))
+            if not all(np.isfinite(v) and v > 0 for v in sc):
+                raise ValueError(f"Control.rest_scale must be positive (got {sc})")
+            object.__setattr__(self, "rest_scale", sc)
 
     def apply(self, model, state):
         """Move the constrained coordinates of ``state`` (in place) to this control's values and
@@ -40,19 +51,54 @@ class Control:
         if not np.all(np.isfinite(p[fixed])):
             raise ValueError("Control.prescribed_positions has non-finite constrained coordinates")
         state.positions[fixed] = p[fixed]
-        return dataclasses.replace(model, prescribed_positions=p.copy())
+        out = dataclasses.replace(model, prescribed_positions=p.copy())
+        return out if self.rest_scale is None else scale_rest(out, self.rest_scale)
 
 
-def load_steps(initial: np.ndarray, final: np.ndarray, n: int) -> list[Control]:
+def scale_rest(model, scale):
+    """``model`` with its pattern scaled by ``scale`` = (s_warp, s_weft) from the design (the
+    model's own rest lengths and widths): every warp spring (and warp bending spring) is
+    s_warp times as long at rest and s_weft times as wide, every weft spring the reverse, a shear
+    diagonal as long as the scaled cell's diagonal with its rest area share scaled by
+    s_warp s_weft; seams are unchanged (zero-length joins). A spring's strain is then
+    L / (s L0) - 1 and its force the table's tension at that strain times its scaled width.
+    (1, 1) returns ``model`` itself (bit for bit the design)."""
+    from ..grid import FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SHEAR, FAMILY_WARP, FAMILY_WEFT
+
+    su, sv = (float(v) for v in np.broadcast_to(np.asarray(scale, float), (2,)))
+    if su == 1.0 and sv == 1.0:
+        return model
+    fam = model.spring_family
+    rest = model.spring_rest_length.copy()
+    width = model.spring_width.copy()
+    for fams, along, across in (((FAMILY_WARP, FAMILY_BEND_WARP), su, sv), ((FAMILY_WEFT, FAMILY_BEND_WEFT), sv, su)):
+        k = np.isin(fam, fams)
+        rest[k] *= along
+        width[k] *= across
+    k = fam == FAMILY_SHEAR
+    if k.any():
+        du, dv = (float(v) for v in model.spacing)
+        f = np.hypot(su * du, sv * dv) / np.hypot(du, dv) if du > 0 and dv > 0 else np.sqrt(su * sv)
+        rest[k] *= f
+        width[k] *= su * sv / f
+    return dataclasses.replace(model, spring_rest_length=rest, spring_width=width)
+
+
+def load_steps(initial: np.ndarray, final: np.ndarray, n: int, scales=None) -> list[Control]:
     """n controls whose prescribed positions [m] (N, 3) go linearly from ``initial`` (excluded)
-    to ``final`` (the last control, exactly): step k of n prescribes initial + k/n (final - initial)."""
+    to ``final`` (the last control, exactly): step k of n prescribes initial + k/n (final - initial).
+    ``scales`` = (from, to), each (s_warp, s_weft): the rest scale ramped the same way (None: none)."""
     if int(n) != n or n < 1:
         raise ValueError(f"load_steps needs n >= 1 (got {n})")
     a = np.asarray(initial, float)
     b = np.asarray(final, float)
     if a.shape != b.shape:
         raise ValueError(f"initial {a.shape} and final {b.shape} prescribed positions differ in shape")
-    return [Control(b.copy() if k == n else a + (k / n) * (b - a)) for k in range(1, int(n) + 1)]
+    if scales is None:
+        return [Control(b.copy() if k == n else a + (k / n) * (b - a)) for k in range(1, int(n) + 1)]
+    s0, s1 = (np.broadcast_to(np.asarray(v, float), (2,)) for v in scales)
+    return [Control(b.copy() if k == n else a + (k / n) * (b - a),
+                    tuple(s1) if k == n else tuple(s0 + (k / n) * (s1 - s0))) for k in range(1, int(n) + 1)]
 
 
 def solve_load_steps(make_solver, model, state, controls, limits, callback=None, history=None):

@@ -85,11 +85,13 @@ def _frictional_step(base, state, control, limits, callback, hist):
         MAX_RELAGS, None
 
 
-def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None):
+def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None,
+                model_scale=(1.0, 1.0)):
     """Solve ``state`` in place through the load steps ``controls`` (Controls, from the model's
     current prescribed positions), with friction when ``model.friction_mu`` > 0 (``limits``: a
     SolverSettings or RunLimits; the Newton solver's options from it when it is a SolverSettings);
-    ``make_solver(model)`` solves the frictionless steps (default: Newton). Returns (the last step's Model, a
+    ``make_solver(model)`` solves the frictionless steps (default: Newton); ``model_scale``: the rest
+    scale the state is at before the first control (a halved first step ramps from it). Returns (the last step's Model, a
     SolveResult over all steps whose ``friction`` holds the steps' report: load steps, cuts,
     refreshes, and at the last step the stick and slip counts and the cone violation)."""
     hist = history if history is not None else History()
@@ -100,39 +102,43 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
     it0 = state.iteration
     base = dataclasses.replace(model, friction=None)
     frictional = model.friction_mu > 0 and model.mold is not None
-    queue = [c.prescribed_positions for c in controls]
+    queue = [(c.prescribed_positions, c.rest_scale) for c in controls]
     prev = model.prescribed_positions
+    prev_scale = None
     fixed = model.fixed_axes
     steps, cuts, relags_total = [], 0, 0
     res, m, rep = None, model, None
     cut_run = 0
     while queue:
-        target = queue.pop(0)
+        target, scale = queue.pop(0)
         snap = state.copy()
         ts = time.perf_counter()
         if frictional:
-            ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target), limits, callback, hist)
+            ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target, scale), limits, callback, hist)
         else:
-            m_new = Control(target).apply(base, state)
+            m_new = Control(target, scale).apply(base, state)
             res = make_solver(m_new).solve(state, limits, callback, hist)
             ok, relags, rep_new = res.converged, 1, None
         relags_total += relags
         if ok:
-            m, rep, prev, cut_run = m_new, rep_new, target, 0
+            m, rep, prev, prev_scale, cut_run = m_new, rep_new, target, scale, 0
             steps.append({"iterations": int(res.iterations), "refreshes": int(relags),
-                          "seconds": time.perf_counter() - ts, **(rep_new or {})})
+                          "seconds": time.perf_counter() - ts, **(rep_new or {}),
+                          **({} if scale is None else {"rest_scale": [float(v) for v in scale]})})
             continue
         m = m_new
         if res.status not in (Status.DIVERGED, Status.STALLED):
             break  # stopped, out of iterations or time: no cut
-        moved = not np.array_equal(prev[fixed], target[fixed])
+        s_from = prev_scale if prev_scale is not None else model_scale
+        moved = not np.array_equal(prev[fixed], target[fixed]) or (scale is not None and tuple(s_from) != tuple(scale))
         if not moved or cut_run >= MAX_CUTS:
             break
         # cut the failing step in half and go on from where it started
         state.positions[:] = snap.positions
         state.in_contact[:] = snap.in_contact
         half = np.where(fixed, 0.5 * (prev + target), target)
-        queue[:0] = [half, target]
+        half_scale = None if scale is None else tuple(0.5 * (np.asarray(s_from) + np.asarray(scale)))
+        queue[:0] = [(half, half_scale), (target, scale)]
         cuts += 1
         cut_run += 1
     done = len(steps)
