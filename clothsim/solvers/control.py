@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model import SpringFamily
+
 
 @dataclass(frozen=True)
 class Control:
@@ -63,19 +65,18 @@ def scale_rest(model, scale):
     s_warp s_weft; seams are unchanged (zero-length joins). A spring's strain is then
     L / (s L0) - 1 and its force the table's tension at that strain times its scaled width.
     (1, 1) returns ``model`` itself (bit for bit the design)."""
-    from ..grid import FAMILY_BEND_WARP, FAMILY_BEND_WEFT, FAMILY_SHEAR, FAMILY_WARP, FAMILY_WEFT
-
     su, sv = (float(v) for v in np.broadcast_to(np.asarray(scale, float), (2,)))
     if su == 1.0 and sv == 1.0:
         return model
     fam = model.spring_family
     rest = model.spring_rest_length.copy()
     width = model.spring_width.copy()
-    for fams, along, across in (((FAMILY_WARP, FAMILY_BEND_WARP), su, sv), ((FAMILY_WEFT, FAMILY_BEND_WEFT), sv, su)):
+    F = SpringFamily
+    for fams, along, across in (((F.WARP, F.BEND_WARP), su, sv), ((F.WEFT, F.BEND_WEFT), sv, su)):
         k = np.isin(fam, fams)
         rest[k] *= along
         width[k] *= across
-    k = fam == FAMILY_SHEAR
+    k = fam == F.SHEAR
     if k.any():
         du, dv = (float(v) for v in model.spacing)
         f = np.hypot(su * du, sv * dv) / np.hypot(du, dv) if du > 0 and dv > 0 else np.sqrt(su * sv)
