@@ -80,7 +80,9 @@ def test_probes_drawn_with_their_readings(sleeve):
     shown = poll(lambda: page.evaluate(BLUE_JS) > 100 and page.evaluate(BLUE_JS), timeout=30)
     page.get_by_role("tab", name="Probes").click()
     page.get_by_role("cell", name="ankle").first.wait_for(timeout=20_000)
-    assert page.get_by_text(re.compile("RAL-GZ 387: class II")).count() > 0
+    # the classes on a line below the table (issue 28 item 18): "RAL-GZ 387 **class II** · ..."
+    line = page.get_by_text(re.compile("Class at ankle"))
+    assert line.count() > 0 and re.search(r"RAL-GZ 387\s*class II\b", line.first.inner_text())
     page.get_by_label("Show probes").uncheck()
     hidden = poll(lambda: page.evaluate(BLUE_JS) < (shown or 0) / 4 and page.evaluate(BLUE_JS) + 1, timeout=30)
     print(f"probe ring pixels: {shown} shown, {hidden - 1 if hidden else None} hidden")
