@@ -50,3 +50,16 @@ def solver_methods():
 @pytest.fixture
 def root():
     return ROOT
+
+
+#: fixtures that start Debian's Chromium: a test using one is a browser test
+BROWSER_FIXTURES = {"browser", "chromium", "page"}
+
+
+def pytest_collection_modifyitems(config, items):
+    """The `browser` marker on every test that drives a real Chromium: the test_browser* modules
+    and any test using a browser fixture (tests that launch one themselves carry the marker in
+    their file). The fast subset is ``python -m pytest -m "not slow and not browser"``."""
+    for item in items:
+        if item.module.__name__.startswith("test_browser") or BROWSER_FIXTURES & set(item.fixturenames):
+            item.add_marker(pytest.mark.browser)

@@ -125,3 +125,19 @@ def test_the_core_types_import_no_builder_or_solver():
         bad = [_path(seen, t) for t in sorted(seen) if t in BUILDER or t.startswith("clothsim.solvers")
                or t in {"clothsim.simulation", "clothsim.results", "clothsim.initial"}]
         assert not bad, bad
+
+
+def test_no_test_module_imports_another():
+    """Issue 29 item 5: shared test helpers live in helper modules (conftest.py, viewer_util.py,
+    browser_util.py), never in a test module another test imports (that ran its tests' module
+    code twice and tied unrelated files together)."""
+    import ast
+    from pathlib import Path
+
+    bad = []
+    for f in sorted((Path(__file__).resolve().parent).glob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{f.name} imports {n}" for n in names if n.split(".")[-1].startswith("test_")]
+    assert not bad, "\n".join(bad)

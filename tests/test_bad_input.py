@@ -186,6 +186,7 @@ def test_time_limit_still_accepts_none_and_positive(tmp_path):
     assert load_scene(_write(tmp_path, scene_dict(**{"solver.max_iterations": 2e5}))).solver.max_iterations == 200000
 
 
+@pytest.mark.slow
 def test_summary_of_a_diverged_run_is_strict_json(tmp_path):
     from clothsim.simulation import solve
 
@@ -268,6 +269,7 @@ def test_strain_typed_as_percent_warns(tmp_path):
         parse_table_csv("strain [%],tension\n0,0\n10,20\n30,80\n", "t.csv")
 
 
+@pytest.mark.slow
 def test_strain_warning_printed_by_the_cli(tmp_path, capsys):
     s = _write(tmp_path, scene_dict(**{"fabric.weft": {"strain": [0, 10, 30], "tension": [0, 20, 80]}}))
     rc, err = _main(capsys, "run", str(s), "--quiet")

@@ -1,3 +1,4 @@
+import pytest
 """The benchmark's panel scenes (``app.py bench --garments``): each scene runs in several fresh
 processes and the report gives the best run beside every run's work units. The runs themselves
 are in the benchmark, not here."""
@@ -144,6 +145,7 @@ def test_garment_report_gives_the_same_process_ratio(tmp_path):
     assert cells["sphere cap 201^2"][9] == "1.00" and cells["four panels cap 40k"][9] == "-"
 
 
+@pytest.mark.slow
 def test_run_pair_times_two_real_scenes():
     """A real pair on small lattices: both reach 1e-7 N and every time is a positive CPU time."""
     base = bench.Case("sq", "configs/sphere_cap.yaml", ["fabric.divisions=[20,20]"], ("newton",), {"newton": 60})

@@ -34,7 +34,7 @@ from browser_util import (  # noqa: E402
 )
 
 from clothsim.config import load_scene, scene_from_dict  # noqa: E402
-from test_viewer import SMALL as SMALL_CAP  # noqa: E402  (one small scene for both)
+from viewer_util import SMALL as SMALL_CAP  # noqa: E402  (one small scene for both)
 from clothsim.viewer import ViewerApp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -68,6 +68,7 @@ def app_page(browser):
     app.close()
 
 
+@pytest.mark.slow
 def test_page_loads_and_canvas_not_blank(app_page):
     """The page connects, shows the status line and draws the coloured sheet (thousands of
     non-background, coloured pixels in the WebGL canvas)."""
@@ -149,6 +150,7 @@ def test_range_widgets_show_the_bar(app_page):
     app.gui["field"].value = "warp strain"
 
 
+@pytest.mark.slow
 def test_uploaded_mold_appears(app_page, tmp_path):
     """Uploading an STL through the page's upload button makes it the draft's mold and draws it
     (orange while not applied) in the 3D view; Apply makes it the simulation's mold."""
@@ -219,6 +221,7 @@ def test_screenshot(browser):
         app.close()
 
 
+@pytest.mark.slow
 def test_scene_picker_opens_a_bundled_scene_framed_on_the_garment(browser):
     """Issue 28, items 15 and 16: the Files tab's scene picker lists the bundled scenes; choosing
     the stocking (a garment on a 1.8 m body) and "Open bundled scene" replaces the scene without a

@@ -23,7 +23,7 @@ from clothsim.viewer import ViewerApp  # noqa: E402
 from clothsim.viewer.draft import scene_zip_bytes  # noqa: E402
 
 from conftest import ROOT  # noqa: E402
-from test_viewer import free_port  # noqa: E402
+from viewer_util import free_port  # noqa: E402
 
 CLASS2 = ROOT / "configs" / "class2_sleeve.yaml"
 
@@ -68,6 +68,7 @@ PLOT_TOP_JS = """(rows) => {
 }"""
 
 
+@pytest.mark.slow
 def test_probes_drawn_with_their_readings(sleeve):
     """Once converged, the probes' rings are drawn on the mold (blue pixels that go when 'Show
     probes' is off), their labels read 'ankle 25.0 mmHg', and the Probes tab lists them with
@@ -99,6 +100,7 @@ def test_plot_top_label_not_clipped(sleeve):
     assert page.evaluate(PLOT_TOP_JS, 40) > 0  # the labels are there, lower down
 
 
+@pytest.mark.slow
 def test_click_on_the_sheet_shows_a_readout(sleeve):
     """A click in the middle of the 3D view (the camera looks at the sleeve's centre) reaches the
     server as a ray, picks a node of the sleeve and shows its pressure in the page."""
@@ -117,6 +119,7 @@ def test_click_on_the_sheet_shows_a_readout(sleeve):
     page.get_by_text(re.compile(rf"{r['pressure_mmhg']:.2f} mmHg")).first.wait_for(timeout=20_000)
 
 
+@pytest.mark.slow
 def test_report_and_zip_downloads(sleeve, tmp_path):
     """Files > Report (.html) and Save scene + files (.zip) arrive as downloads: the report holds
     the ankle reading, the zip the scene and its CSV tables."""
@@ -136,6 +139,7 @@ def test_report_and_zip_downloads(sleeve, tmp_path):
     assert "files/compression_knit_course.csv" in zipfile.ZipFile(zpath).namelist()
 
 
+@pytest.mark.slow
 def test_open_scene_through_the_page(browser, tmp_path):
     """An upload through 'Open scene' of a broken scene shows its error and keeps the scene; a
     valid zip replaces it (the page's title follows) and the new sheet is drawn."""
@@ -168,6 +172,7 @@ def test_open_scene_through_the_page(browser, tmp_path):
         app.close()
 
 
+@pytest.mark.slow
 def test_camera_follows_a_stretched_sheet(browser):
     """A strip pulled to three times its length: the tab's camera is pointed at the stretched
     sheet (its look-at point moves to the new centre, and it stands further back)."""

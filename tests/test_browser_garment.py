@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 MAGENTA_JS = pixels_js("r > 120 && b > 120 && g < 0.45 * Math.min(r, b)")
 
 
+@pytest.mark.slow
 def test_panel_outlines_and_panel_list_in_chromium():
     require_chromium()
     from playwright.sync_api import sync_playwright

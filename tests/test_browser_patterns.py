@@ -13,13 +13,13 @@ pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
 from browser_util import close_notifications, free_port, launch, poll, require_chromium, wait_for_render  # noqa: E402
-from test_viewer import SMALL  # noqa: E402
-from test_viewer_garment import BOMB_SVG, pattern_dxf  # noqa: E402
+from viewer_util import BOMB_SVG, SMALL, pattern_dxf  # noqa: E402
 
 from clothsim.config import scene_from_dict  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
 
 
+@pytest.mark.slow
 def test_hostile_svg_upload_refused_on_the_page_which_keeps_answering(tmp_path):
     require_chromium()
     from playwright.sync_api import sync_playwright

@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 ORANGE_JS = pixels_js("r > 150 && g > 0.35 * r && g < 0.75 * r && b < 0.35 * g")
 
 
+@pytest.mark.slow
 def test_unequal_seam_threads_and_gap_list_in_chromium():
     """configs/garments/eased_seam.yaml started 3 cm open (its upper panel moved up): the 23
     threads (one per sewn node) show as orange pixels in the page, which go when the threads

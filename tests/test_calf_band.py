@@ -35,6 +35,7 @@ def band():
     return clothsim.solve(scene)
 
 
+@pytest.mark.slow
 def test_calf_band_converges_closed_and_outside_the_leg(band):
     res = band
     assert res.solve.converged, res.solve.message

@@ -1,3 +1,4 @@
+import pytest
 """Issue 11's circular blank on the sphere cap: the fine start of the grid sequencing (the outline
 band settled by node-wise Newton, rim.py), the sequencing hierarchy kept per model, the
 warm-started re-solve after blocking constraints, and the hold rule on analytic molds."""
@@ -76,6 +77,7 @@ def test_node_gauss_seidel_finds_a_single_nodes_equilibrium():
     assert not held[k]
 
 
+@pytest.mark.slow
 def test_settle_outline_removes_the_outline_error_of_the_interpolated_start():
     # the circle at 112 across: the interpolated fine start carries a force error at the outline's
     # fringe (the coarse grids represent the outline roughly); the settled band's is far smaller

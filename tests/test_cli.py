@@ -1,3 +1,4 @@
+import pytest
 """The headless command line: output files, --set overrides, exit statuses, error messages."""
 
 import json
@@ -23,6 +24,7 @@ def _write(tmp_path, d, name="s.yaml"):
     return p
 
 
+@pytest.mark.slow
 def test_run_writes_every_output_file(tmp_path):
     """`app.py run scene --out dir` writes result.npz (documented arrays and shapes),
     summary.json, history.csv, sheet.ply (readable by trimesh, with vertex colours) and a
@@ -104,6 +106,7 @@ def test_bundled_strip_config_runs(tmp_path):
     assert (tmp_path / "strip" / "summary.json").exists()
 
 
+@pytest.mark.slow
 def test_bench_quick_writes_table_and_plot(tmp_path):
     """`app.py bench --quick` measures every solver on small scenes and writes the markdown table
     (machine, versions, one row per solver and scene with times per residual level) and the
@@ -144,6 +147,7 @@ def test_run_json_prints_json_alone_on_stdout(tmp_path):
     assert r.returncode == 2 and "error: --out: empty folder name" in r.stderr
 
 
+@pytest.mark.slow
 def test_interrupted_run_keeps_the_state_it_reached(tmp_path):
     """Ctrl+C (SIGINT) during a run stops it at its next iteration and writes the state reached
     (status "stopped") with --out, exit 130: an interrupted run used to print "interrupted" and
@@ -218,6 +222,7 @@ def test_a_sleeve_off_the_limb_warns_and_its_probe_has_no_class(tmp_path):
     assert {c["class"] for c in s["classes"]["results"]} == {"no reading (no contact under the probe)"}
 
 
+@pytest.mark.slow
 def test_a_seam_held_open_warns():
     """Two panels of different heights whose top rows are both held in z: the seam's ends cannot
     meet, and the converged run says the seam did not close (it printed only the gap: a garment

@@ -47,6 +47,7 @@ def _wait_for(p, text: str, count: int = 1, limit_s: float = 600) -> str:
 # ----------------------------------------------------------------------------- item 5
 
 
+@pytest.mark.slow
 def test_a_second_run_into_a_busy_out_is_refused_at_once(tmp_path):
     """Two `run --out` into one folder at once both exited 0 and the folder held one run's
     summary.json beside the other's result.npz; the second is now refused before its solve (exit
@@ -83,6 +84,7 @@ def test_a_second_run_into_a_busy_out_is_refused_at_once(tmp_path):
 # ----------------------------------------------------------------------------- item 6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_an_interrupted_fit_keeps_its_tries(tmp_path, sig):
     """SIGINT after three finished tries left --out empty (no fit.csv); SIGTERM killed the fit
@@ -137,6 +139,7 @@ def test_a_bad_dask_address_is_refused_naming_dask(tmp_path, capsys, address):
     assert not out.exists() or not list(out.glob("run-*"))
 
 
+@pytest.mark.slow
 def test_a_port_that_never_answers_is_refused_within_the_timeout(tmp_path):
     """A port that accepts and never answers (not a scheduler) hung the sweep over 300 s; it is
     refused after clothsim.sweep.DASK_CONNECT_TIMEOUT_S (15 s) with exit 2."""
@@ -204,6 +207,7 @@ def test_a_fit_bound_the_scene_cannot_take_names_vary(capsys, bounds, which):
 # ----------------------------------------------------------------------------- item 17
 
 
+@pytest.mark.slow
 def test_run_prints_the_pressure_peak_and_the_probes(tmp_path):
     """`run` printed iterations, residual, energy and contact nodes but never a pressure: the
     sensor peak (mmHg and Pa) and each probe (name, mmHg, class) follow the summary line; with
@@ -318,6 +322,7 @@ def test_no_wheel_is_committed():
     assert not list(ROOT.glob("*.whl"))
 
 
+@pytest.mark.slow
 def test_the_compile_note_only_on_a_cold_cache(tmp_path):
     """`view` printed "compiling kernels (first run only)" on every start; it now says so only
     when numba's cache for these sources holds no compiled kernel, and that it loads them

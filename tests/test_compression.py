@@ -239,6 +239,7 @@ def test_parse_targets_and_varies():
 FIT_SET = ["probes=[{name: side, point: [0.06, 0.0, 0.0]}]"]
 
 
+@pytest.mark.slow
 def test_fit_recovers_a_known_sleeve_width():
     """The side probe's reading on a 0.235 m sleeve is the target; fit from 0.25 m finds the width
     again within 1e-4 relative."""
@@ -324,6 +325,7 @@ def test_a_sweep_output_naming_no_probe_of_its_scene_is_refused_before_any_run(t
 TWO_PROBES = "probes=[{name: side, point: [0.06, 0.0, 0.0]}, {name: cuff, point: [-0.05, 0.0, 0.044], radius: 0.008}]"
 
 
+@pytest.mark.slow
 def test_fit_two_fields_to_two_targets(tmp_path):
     """Several fields, several targets (least squares): the sleeve's width sets the side probe's
     reading (T / r) and its height how much of the cuff probe's disc the top edge covers, so

@@ -33,6 +33,8 @@ IMAGES_JS = """() => [...document.images].map(img => {
 })"""
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_report_opens_offline_with_images_and_the_summary_numbers(tmp_path):
     require_chromium()
     from playwright.sync_api import sync_playwright

@@ -160,6 +160,7 @@ def _height_field(n=20, size=0.1, h=0.015, z0=0.0):
     return V, F
 
 
+@pytest.mark.slow
 def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     """An open surface pushes the sheet from below; the same surface in millimetres with
     scale 0.001 is the same mold (vertices to float32 precision) and gives the same result within

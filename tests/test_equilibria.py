@@ -20,6 +20,7 @@ def test_every_example_has_a_reference():
     assert not missing, f"record them: {missing}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", eq.scenes())
 def test_example_equilibrium_unchanged(scene):
     assert eq.compare(scene, ROOT / "tests/data/equilibria") is None

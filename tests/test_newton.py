@@ -70,6 +70,7 @@ def test_pretensioned_sheet_relaxes_to_uniform_grid():
     assert np.abs(state.positions[:, 2]).max() < 1e-9
 
 
+@pytest.mark.slow
 def test_sphere_cap_same_equilibrium_as_paper():
     """Sphere cap at 21 x 21 nodes: newton and paper (both to 1e-8 N) give the same positions
     (within 1e-6 m, what a 1e-8 N residual with ~100 N/m stiffness implies, with margin) and

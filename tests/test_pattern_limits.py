@@ -179,6 +179,7 @@ def _run(scene: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize("name", ["bomb.svg", "nested.dxf", "fanout.svg", "circles.dxf", "segments.svg",
                                   "circle12.dxf", "square300.dxf", "scale308.svg"])
+@pytest.mark.slow
 def test_hostile_pattern_refused_by_run_with_exit_2(tmp_path, name):
     build, message = HOSTILE[name]
     build(tmp_path / name)

@@ -235,6 +235,7 @@ def _report_subprocess(d):
     return r.returncode, r.stderr
 
 
+@pytest.mark.slow
 def test_a_fifo_or_device_in_a_result_folder_refused(tmp_path, sleeve_run):
     """Issue 28 item 7: a FIFO history.csv hung the report; a history.csv linked to /dev/zero was
     read (5.5 GB). Both are refused as not regular files, as a scene file would be; so is a link

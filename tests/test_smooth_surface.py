@@ -509,6 +509,7 @@ def test_shape_operator_converges_to_the_sphere_curvature():
     assert _curvature_blocks(pos, -F, np.ones(1, bool), True, a, 1e-6, 2, diag, K) == 0  # pulled off
 
 
+@pytest.mark.slow
 def test_default_surface_is_smooth_for_scans_and_faceted_for_cad_molds(tmp_path):
     """``surface`` omitted (``auto_surface``): the bundled scans (a third of their edges bend by
     10-45 degrees) and a coarse icosphere get the smooth surface; the bundled CAD molds

@@ -216,6 +216,7 @@ def test_control_applies_prescribed_positions():
         load_steps(model.rest_positions, model.prescribed_positions, 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["newton", "paper"])
 def test_uniaxial_strip_in_four_load_steps_reaches_the_one_step_equilibrium(method):
     """The uniaxial strip (30 % stretch) applied in 4 load steps from the unstretched strip, each

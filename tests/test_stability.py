@@ -75,6 +75,7 @@ def test_lockup_material_converges():
     assert _pen(model, state) <= 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["newton", "paper"])
 def test_slack_regions_report_undetermined_nodes(method):
     """Perimeter compressed 10 % (stretch 0.9): no NaN, no blow-up (positions stay within the
@@ -150,6 +151,7 @@ def _box_mesh(lo, hi):
     return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["newton", "paper"])
 def test_nodes_starting_on_mold_edges_and_vertices(method, tmp_path):
     """A box mold whose top edges and vertices lie exactly under grid nodes; the sheet starts with
@@ -207,6 +209,7 @@ def _v_groove(depth=0.02, width=0.06, length=0.14):
     return V, np.asarray(F, np.int64)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["newton", "paper"])
 def test_sharp_concave_corner(method):
     """A sheet pulled down into a V-groove (sharp concave edge): nodes rest in the groove with
@@ -256,6 +259,7 @@ EXAMPLES = sorted(p.name for p in CONFIGS.glob("*.yaml"))
 NON_UNIQUE = {"torso_band.yaml", "torso_band_held.yaml"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_every_solver_reaches_the_reference_equilibrium(name):
     """Every example, every solver, bounded (newton 20 s, paper 8 s) to e = 1e-6 N: where it

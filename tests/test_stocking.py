@@ -18,6 +18,7 @@ def stocking():
     return clothsim.solve(scene)
 
 
+@pytest.mark.slow
 def test_stocking_converges_with_seams_closed(stocking):
     res = stocking
     assert res.solve.converged, res.solve.message

@@ -21,6 +21,7 @@ def dressed():
     return clothsim.solve(clothsim.load_scene(ROOT / "configs" / "garments" / "stocking_friction.yaml"))
 
 
+@pytest.mark.slow
 def test_stocking_relaxed_with_friction_keeps_its_wales(dressed):
     r = dressed
     assert r.solve.converged, r.solve.message

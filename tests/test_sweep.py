@@ -156,6 +156,7 @@ def test_material_scale_multiplies_the_table():
 # ----------------------------------------------------------------------------- executors
 
 
+@pytest.mark.slow
 def test_local_processes_and_dask_localcluster_give_identical_summaries(tmp_path):
     """The same sweep on local worker processes and on a real dask.distributed LocalCluster
     writes identical summary.csv files (timing columns aside) and the same run folders; after
@@ -176,6 +177,7 @@ def test_local_processes_and_dask_localcluster_give_identical_summaries(tmp_path
                                                "summary.json", "sweep_run.json"}
 
 
+@pytest.mark.slow
 def test_sweep_on_a_separate_dask_scheduler_over_tcp(tmp_path):
     """A real remote-style cluster: `dask scheduler` and `dask worker` started as their own
     processes (the command-line tools a user runs on other machines), the sweep given the
@@ -221,6 +223,7 @@ def test_sweep_on_a_separate_dask_scheduler_over_tcp(tmp_path):
 # ----------------------------------------------------------------------------- nothing lost
 
 
+@pytest.mark.slow
 def test_failing_run_recorded_exit_status_counts_it_and_force_reruns(tmp_path, capsys):
     """A run that raises (the initial sheet penetrates the mold) records status 'error' and the
     message; one stopped by max_iterations records its status; the others still run; exit 1 says
@@ -271,6 +274,7 @@ def test_edited_base_scene_reruns_stale_runs(tmp_path):
     assert rep["ran"] == 2 and rep["skipped"] == 0
 
 
+@pytest.mark.slow
 def test_interrupted_sweep_resumes_and_matches_an_uninterrupted_one(tmp_path):
     """`python app.py sweep` killed (SIGKILL to its process group: driver and workers) after a
     few runs finished keeps those runs; rerunning the same command skips them, runs only the rest,
@@ -303,6 +307,7 @@ def test_interrupted_sweep_resumes_and_matches_an_uninterrupted_one(tmp_path):
     assert not list(out.glob("run-*/.*.tmp*"))
 
 
+@pytest.mark.slow
 def test_an_unreachable_dask_scheduler_is_named_as_such(tmp_path, capsys, monkeypatch):
     """A scheduler that cannot be reached is reported against --dask, not as "--out: cannot
     write" (its TimeoutError is an OSError, and was taken for a write failure: a hostile pass)."""

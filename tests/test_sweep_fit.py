@@ -50,6 +50,7 @@ def _laplace_width(R: float, p_mmhg: float, nx: int = 34, wale: float = 0.05) ->
     return nx * 2 * R * math.sin(math.pi / nx) / (1 + e)
 
 
+@pytest.mark.slow
 def test_size_chart_sweep_fits_the_laplace_width_per_limb(tmp_path):
     """A fitting sweep over three limb radii: the two reachable ones get the Laplace width within
     1e-3 relative and read the target within the tolerance; the third (a 6 cm limb needs about

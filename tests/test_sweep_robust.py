@@ -79,6 +79,7 @@ def _descendants(pid: int) -> set[int]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
 def test_killed_driver_takes_its_workers_along(tmp_path, sig):
@@ -117,6 +118,7 @@ def test_killed_driver_takes_its_workers_along(tmp_path, sig):
         assert proc.returncode in (130, 143, -signal.SIGTERM)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="process tree")
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_killed_dask_driver_takes_its_cluster_along(tmp_path, sig):

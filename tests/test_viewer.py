@@ -26,28 +26,7 @@ from clothsim.viewer.glb import GlbMeshWriter, colormap, read_glb_positions  # n
 
 ROOT = Path(__file__).resolve().parent.parent
 
-SMALL = {
-    "name": "small-cap",
-    "fabric": {"size": [0.1, 0.1], "divisions": [10, 10],
-               "warp": {"strain": [0, 1], "tension": [0, 250]},
-               "weft": {"strain": [0, 1], "tension": [0, 250]}},
-    "constraints": [{"nodes": "perimeter", "axes": "xyz", "stretch": 1.1}],
-    "initial": {"lift": 0.03},
-    "mold": {"sphere": {"center": [0.05, 0.05, -0.02], "radius": 0.04}},
-    "solver": {"method": "paper", "C": 2.0, "e": 1e-6},
-}
-
-
-def small_scene(**solver):
-    d = {**SMALL, "solver": {**SMALL["solver"], **solver}}
-    return scene_from_dict(d)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
+from viewer_util import SMALL, free_port, settle, small_scene  # noqa: E402,F401
 
 @pytest.fixture
 def app():
@@ -55,17 +34,6 @@ def app():
     a.wait_idle(20)
     yield a
     a.close()
-
-
-def settle(app, t: float = 0.15):
-    """Let the update loop run the posted tasks and show the (still) state."""
-    app.wait_idle(20)
-    time.sleep(t)
-    app.wait_idle(20)
-    t0 = time.time()
-    while app.sim.status != "running" and time.time() - t0 < 10 and (
-            app.pushed_iteration != app.sim.state.iteration or app.shown != (app.sim.status, app.sim.version)):
-        time.sleep(0.02)
 
 
 def test_starts_on_free_port_and_stops_cleanly():
@@ -245,6 +213,7 @@ def test_mold_upload_limits_and_formats(tmp_path):
     assert not tmp.exists()
 
 
+@pytest.mark.slow
 def test_concurrent_edits_cannot_crash(app):
     """Eight threads (like eight tabs) hammer the app with valid and invalid edits and controls
     while it runs; afterwards the app, its update loop and the solver are alive and a final run
@@ -598,6 +567,7 @@ def test_bundled_scenes_open_from_an_upload_and_from_the_picker(app):
     assert "mesh" in app.sim.model.mold.kind_name and app.draft["name"] == "torso-band"
 
 
+@pytest.mark.slow
 def test_frame_the_sheet_frames_the_garment_on_a_body():
     """Issue 28, item 15: on a body, 'Frame the sheet' framed the whole 1.8 m body whenever the
     mold was under 10x the sheet (the stocking: a 1.84 m box for a 0.3 m garment, the camera

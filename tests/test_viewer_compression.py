@@ -25,7 +25,7 @@ from clothsim.viewer.pick import ray_hit, ring  # noqa: E402
 from clothsim.viewer.render import DEFAULT_SHEET_OPACITY, ViewSettings, needs_reframe  # noqa: E402
 
 from conftest import ROOT  # noqa: E402
-from test_viewer import SMALL, free_port, settle  # noqa: E402
+from viewer_util import SMALL, free_port, settle  # noqa: E402
 
 CLASS2 = ROOT / "configs" / "class2_sleeve.yaml"
 

@@ -20,22 +20,11 @@ from clothsim.patterns import PatternError
 from clothsim.simulation import Simulation
 from clothsim.viewer.draft import PATTERN_UPLOAD_MAX_BYTES, SceneDraft
 from clothsim.viewer.render import outline_loops, outline_segments
+from viewer_util import BOMB_SVG, pattern_dxf  # noqa: E402
 
 ezdxf = pytest.importorskip("ezdxf")
 
 GARMENTS = ROOT / "configs" / "garments"
-
-
-def pattern_dxf() -> bytes:
-    """A plain DXF in millimetres: FRONT, a 100 x 60 rectangle, and BACK, a trapezoid 100/60 wide,
-    60 high (areas 6000 and 4800 mm²)."""
-    doc = ezdxf.new("R2000", units=4)
-    msp = doc.modelspace()
-    msp.add_lwpolyline([(0, 0), (100, 0), (100, 60), (0, 60)], close=True, dxfattribs={"layer": "FRONT"})
-    msp.add_lwpolyline([(150, 0), (250, 0), (230, 60), (170, 60)], close=True, dxfattribs={"layer": "BACK"})
-    s = io.StringIO()
-    doc.write(s)
-    return s.getvalue().encode()
 
 
 def _free_port() -> int:
@@ -153,9 +142,6 @@ def test_pattern_upload_refusals_name_the_uploaded_file(tmp_path):
 
 
 #: issue 28, item 1: 89 bytes that froze every tab for minutes (memory to 3.7 GB)
-BOMB_SVG = b'<svg xmlns="http://www.w3.org/2000/svg"><path d="M0 0 C1e20 0 1e20 1e20 0 1e20 Z"/></svg>'
-
-
 def test_hostile_pattern_upload_refused_by_the_bounds(tmp_path):
     """The reader's bounds refuse the file before flattening it; the message names the upload,
     never the stored copy, and nothing is kept."""

@@ -90,7 +90,7 @@ def test_viewer_colour_bar_follows_the_range():
     pytest.importorskip("viser")
     from clothsim.viewer import ViewerApp
     from clothsim.viewer.glb import BAR_HEIGHT, nice_ticks, tick_x
-    from test_viewer import free_port, small_scene
+    from viewer_util import free_port, small_scene
 
     app = ViewerApp(small_scene(), port=free_port())
     try:

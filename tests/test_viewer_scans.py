@@ -51,6 +51,7 @@ def test_sheet_wrap_hull_edit_through_the_draft():
     assert scene.initial.wrap_hull.heights == (-0.04, 0.04)
 
 
+@pytest.mark.slow
 def test_viewer_opens_the_stocking_with_its_up_axis():
     """The viewer (server side, no browser) opens the stocking scene: the mold's up axis shows
     in its dropdown, and choosing z there re-reads the scan lying on its back."""

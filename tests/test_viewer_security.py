@@ -21,14 +21,14 @@ import pytest
 pytest.importorskip("viser")
 websockets = pytest.importorskip("websockets")
 
-import viser  # noqa: E402
+
 from viser import _messages  # noqa: E402
 
-from test_viewer import free_port, settle, small_scene  # noqa: E402
+from viewer_util import encode, free_port, protocol, settle, small_scene  # noqa: E402,F401
 from clothsim.viewer import ViewerApp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-PROTOCOL = f"viser-v{viser.__version__}"
+PROTOCOL = protocol()
 
 
 def handshake_status(port: int, host: str, origin: str | None, path: str = "/", cookie: str | None = None) -> int:
@@ -44,12 +44,6 @@ def handshake_status(port: int, host: str, origin: str | None, path: str = "/", 
         s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
         status = s.recv(4096).split(b"\r\n", 1)[0]
     return int(status.split()[1])
-
-
-def encode(msg) -> bytes:
-    import msgspec
-
-    return msgspec.msgpack.encode(msg.as_serializable_dict())
 
 
 def buffered(app) -> int:
@@ -173,6 +167,7 @@ def _rss_mb() -> float:
     return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+@pytest.mark.slow
 def test_upload_budget_is_for_the_whole_server_and_freed_on_close():
     """Issue 28, item 9: 40 tabs each holding an unfinished 19 MB upload (limit 200 MB per upload)
     used to be held in full (740 MB, the server 655 -> 1,075 MB, kept after they closed). The
@@ -418,6 +413,7 @@ def _status_shown(page, timeout_ms=120_000) -> str:
     return status_text(page)
 
 
+@pytest.mark.slow
 def test_browser_long_integer_does_not_brick_the_viewer(browser):
     """Issue 15, item 1 in Chromium: typing 99999999999999999999999 into Max iterations (and Warp
     divisions) and pressing Tab leaves the viewer working: a new tab connects and shows the
@@ -452,6 +448,7 @@ def test_browser_long_integer_does_not_brick_the_viewer(browser):
         a.close()
 
 
+@pytest.mark.slow
 def test_browser_refused_value_restored_in_new_tab(browser):
     """Issue 15, item 8 in Chromium: after C = 0.5 is refused, this tab and a new one show the
     last valid C (3.5)."""
@@ -518,6 +515,7 @@ def test_browser_page_elsewhere_cannot_connect(browser):
         a.close()
 
 
+@pytest.mark.slow
 def test_browser_token_url_connects(browser):
     """Issue 15, item 2 in Chromium: bound off loopback, the printed URL (with its token) connects;
     the same page without the token does not."""

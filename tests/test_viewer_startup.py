@@ -20,7 +20,7 @@ import yaml
 
 pytest.importorskip("viser")
 
-from test_viewer import free_port, small_scene  # noqa: E402
+from viewer_util import free_port, small_scene  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
 from clothsim.viewer.server import STARTUP_NOTE  # noqa: E402
 
@@ -114,6 +114,7 @@ def browser():
         b.close()
 
 
+@pytest.mark.slow
 def test_browser_shows_compiling_note_until_kernels_ready(browser):
     """Issue 14, item 4 in Chromium: while the (simulated slow) warm-up runs, the page shows the
     "Compiling kernels (first run only)" note and the relaxation has not started; once it returns

@@ -17,8 +17,8 @@ websockets = pytest.importorskip("websockets")
 
 from viser import _messages  # noqa: E402
 
-from test_viewer import free_port, settle, small_scene  # noqa: E402
-from test_viewer_security import PROTOCOL, encode  # noqa: E402
+from viewer_util import free_port, settle, small_scene  # noqa: E402
+from viewer_util import encode, protocol  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
 from clothsim.viewer import draft as draft_mod  # noqa: E402
 from clothsim.viewer.guard import UPLOAD_CHUNK  # noqa: E402
@@ -45,7 +45,7 @@ def app():
 def _connect(port: int):
     # no client keepalive: its 20 s ping timeout closed the connection at load average 8-10; the
     # tests measure the loop's responsiveness themselves (latencies, gaps between updates)
-    return websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[PROTOCOL],
+    return websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[protocol()],
                               origin=f"http://127.0.0.1:{port}", max_size=None, ping_interval=None)
 
 
@@ -76,6 +76,7 @@ async def _until(fn, timeout: float) -> bool:
     return bool(fn())
 
 
+@pytest.mark.slow
 def test_large_upload_parsed_off_the_loop_with_progress_then_cancelled(app, big_stl, monkeypatch):
     """While a 327k-triangle STL is parsed: another tab's edits (C) reach the solver within a
     second or two, that tab keeps receiving updates (the progress), and the progress bar moves.
