@@ -1,6 +1,6 @@
 """Speed-against-error benchmark: every solver on every benchmark scene, a table and a plot.
 
-``python app.py bench [--quick] [--out docs]`` writes ``<out>/benchmarks.md`` (machine, date,
+``python app.py bench [--quick] [--out docs/benchmarks]`` writes ``<out>/benchmarks.md`` (machine, date,
 versions, one row per solver and scene) and ``<out>/speed_vs_error.png`` (node-position error
 against time, log-log, one curve per solver and scene).
 
@@ -1022,7 +1022,7 @@ def write_scan_report(scan_rows: list[dict], out: Path, elapsed: float, surface:
     (out / f"{stem}.json").write_text(json.dumps({"machine": info, "scans": scan_rows}, indent=1))
 
 
-def run(quick: bool = False, out: str | Path = "docs", log=None, scans: str = "with",
+def run(quick: bool = False, out: str | Path = "docs/benchmarks", log=None, scans: str = "with",
         surface: str = "faceted", garments: bool = False, repeat: int = GARMENT_REPEAT) -> list[dict]:
     """Run the benchmark and write the report; returns the rows. scans: "with" (the scan campaign
     too, in the full benchmark only), "without", or "only" (the campaign alone, written to
@@ -1092,7 +1092,7 @@ def main(args) -> int:
     """CLI entry (``python app.py bench``): args.quick, args.out, args.scans (the scan campaign
     alone), args.surface (the scans' contact surface)."""
     quick = bool(getattr(args, "quick", False))
-    out = getattr(args, "out", "docs") or "docs"
+    out = getattr(args, "out", "docs/benchmarks") or "docs/benchmarks"
     only = bool(getattr(args, "scans", False))
     surface = getattr(args, "surface", None) or "faceted"
     garments = bool(getattr(args, "garments", False))
@@ -1111,7 +1111,7 @@ def main(args) -> int:
 if __name__ == "__main__":  # pragma: no cover
     p = argparse.ArgumentParser()
     p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", default="docs")
+    p.add_argument("--out", default="docs/benchmarks")
     p.add_argument("--scans", action="store_true")
     p.add_argument("--garments", action="store_true")
     p.add_argument("--repeat", type=int, default=GARMENT_REPEAT)

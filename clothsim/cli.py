@@ -488,7 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="small grids and short caps (about a minute)")
     b.add_argument("--out", default=str(Path("results") / "bench"),
                    help="folder for benchmarks.md and speed_vs_error.png (default: %(default)s; the "
-                        "repository's copies are in docs/)")
+                        "repository's copies are in docs/benchmarks/)")
     b.add_argument("--scans", action="store_true",
                    help="only the scan campaign (the torso band on the scanned bodies, newton alone): "
                         "writes benchmarks_scans.md")

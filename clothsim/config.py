@@ -675,7 +675,7 @@ FRICTION_MAX = 10.0
 class _MoldFriction(_Strict):
     """friction: the Coulomb coefficient mu between the fabric and the mold (>= 0; one value for
     static and kinetic friction; omitted or 0: frictionless contact). A scene with mu > 0 is
-    solved in load steps by Newton (``solver.load_steps``; see docs/friction.md)."""
+    solved in load steps by Newton (``solver.load_steps``; see docs/method/friction.md)."""
 
     friction: float | None = None
 

@@ -22,7 +22,7 @@ import numpy as np
 # the slide [m], as a share of the lattice spacing, below which a node sticks (the mollifier's
 # width eps: a sticking node's friction is a stiff spring of 2 mu f_n / eps, and it may creep by
 # up to eps per load step). 1e-3 of the spacing: the capstan's ratio and the incline's threshold
-# are met to well within their discretisation errors (docs/friction.md)
+# are met to well within their discretisation errors (docs/method/friction.md)
 SLIP_SHARE = 1e-3
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 # A spring shorter than this [m] has no defined direction: it carries no force (see
-# docs/modelling.md: projection can put two nodes on the same mold vertex).
+# docs/method/modelling.md: projection can put two nodes on the same mold vertex).
 LENGTH_EPS = 1e-14
 
 

@@ -3,7 +3,7 @@
 
 All presets are *estimates* for quick studies, not measurements of a specific product; import your
 own strip-test data (EN 14704-1, KES-FB1, ASTM D4964) as CSV for real work. Sources of the shapes
-and magnitudes (see docs/materials.md):
+and magnitudes (see docs/method/materials_data.md):
 
 - J-shaped, tension-only curves; knits stretch more in the course (weft) direction than the wale
   (warp) direction, the wale 1.5-3 times stiffer (RMIT study, JFBI 4:1, 2011).

@@ -191,7 +191,7 @@ def sensor_pressure(positions: np.ndarray, force: np.ndarray, area: np.ndarray, 
     node values there sample that drop at a distance from the line that depends on where the line
     crosses the lattice; their peak converges only at first order under refinement. The force is
     right in aggregate (the total contact force converges to 4 digits), so an average over a
-    sensor-sized disc converges (docs/pressure_convergence.md). Under a uniform pressure it
+    sensor-sized disc converges (docs/method/pressure_convergence.md). Under a uniform pressure it
     reads that pressure exactly (Laplace's T / r on a cylinder or sphere). Unlike a probe
     (force over pi r^2), a disc only partly under the sheet reads the covered part's mean."""
     X = np.asarray(positions, float)

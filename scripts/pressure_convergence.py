@@ -1,5 +1,5 @@
 """Contact pressure under lattice refinement: the node peak, the sensor peak and facet stripes
-(issue 12 item 1; docs/pressure_convergence.md).
+(issue 12 item 1; docs/method/pressure_convergence.md).
 
 Per run it prints (JSON lines): iterations, contact nodes, the node pressure's peak and 95th
 percentile over the contact nodes, the same for the sensor reading (results.sensor_pressure, a

@@ -1,5 +1,5 @@
 """The stocking's girth-mean pressure along the leg, frictionless against dressed with friction
-(docs/friction.md, The stocking with friction): 1 cm slices from the ankle to below the knee.
+(docs/method/friction.md, The stocking with friction): 1 cm slices from the ankle to below the knee.
 
     python scripts/stocking_profile.py docs/stocking_friction_profile.png
 

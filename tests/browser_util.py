@@ -1,5 +1,5 @@
 """Helpers for the browser tests: a real headless Chromium (Debian's ``chromium`` package) driven by
-Playwright's sync API, with the flags that give software WebGL2 (see docs/viser.md).
+Playwright's sync API, with the flags that give software WebGL2 (see docs/develop/viser.md).
 
 Never run ``playwright install`` here: the client comes from pip, the browser from apt."""
 

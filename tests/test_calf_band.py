@@ -1,7 +1,7 @@
 """configs/garments/calf_band.yaml (issue 12, the scanned-body band of the refinement target): a
 one-panel knit tube sewn to itself round the calf of the scanned man, on the scan's smooth
 surface, solved here at a coarse lattice (40 x 10, 7.2 mm cells; the example runs 80 x 20 and
-docs/pressure_convergence.md 160 x 40).
+docs/method/pressure_convergence.md 160 x 40).
 
 Known answer: Laplace's law for a membrane on a frictionless surface. The lattice carries no
 shear, so its stress is T_warp t_w t_w + T_weft t_f t_f and the normal pressure is

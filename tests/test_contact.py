@@ -171,7 +171,7 @@ def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     Fd = np.concatenate([F, [[0, 0, 1], [5, 6, 5]]])
     trimesh.Trimesh(V * 1000, Fd, process=False).export(tmp_path / "open_mm.ply")
     # paper's relaxation follows the same path on both files (newton may settle in another of the
-    # nearby equilibria a faceted mold has, depending on rounding: see docs/modelling.md)
+    # nearby equilibria a faceted mold has, depending on rounding: see docs/method/modelling.md)
     # 13 divisions: no node starts exactly above the bump's peak vertex, where rounding alone picks
     # which of the peak's faces it slides down (a genuine choice between nearby equilibria)
     base = scene_dict(SPHERE, **{"fabric.divisions": [13, 13], "initial": {"lift": 0.03},
@@ -187,7 +187,7 @@ def test_open_mold_and_millimetre_scale_and_degenerate_triangles(tmp_path):
     assert 0.007 < a.positions[6:8, 6:8, 2].max() <= 0.01 + 1e-12  # lifted by the bump (top z = 0.01)
     # the same mold: vertices agree to float32 storage precision (STL and PLY store float32)
     np.testing.assert_allclose(a.model.mold.vertices, b.model.mold.vertices, atol=1e-8)
-    # the same answer up to the nearby equilibria a faceted mold has (docs/modelling.md:
+    # the same answer up to the nearby equilibria a faceted mold has (docs/method/modelling.md:
     # ~1e-5 m apart, energies ~1e-8 relative): rounding alone moves the relaxation between them
     np.testing.assert_allclose(a.positions, b.positions, atol=2e-5)
     assert a.solve.energy == pytest.approx(b.solve.energy, rel=1e-6)

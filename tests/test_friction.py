@@ -1,5 +1,5 @@
 """Coulomb friction between the fabric and the mold, checked against known answers (see
-docs/friction.md): the capstan's tension ratio e^(mu phi) at two lattice sizes, a sheet on an
+docs/method/friction.md): the capstan's tension ratio e^(mu phi) at two lattice sizes, a sheet on an
 incline that sticks below tan(theta) = mu and slides above it, the scene field and its refusals,
 and mu = 0 giving the frictionless result bit for bit."""
 

@@ -1,4 +1,4 @@
-"""Contact pressure under lattice refinement (issue 12 item 1; docs/pressure_convergence.md).
+"""Contact pressure under lattice refinement (issue 12 item 1; docs/method/pressure_convergence.md).
 
 - on a smooth icosphere (``surface: smooth``) the sphere cap's node peak, 95th percentile and
   sensor peak change by well under 3 % from 24^2 to 48^2, match the analytic sphere's, and the

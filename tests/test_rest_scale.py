@@ -1,5 +1,5 @@
 """A stage's garment-level rest scale (issue 30 item 2): the garment drawn on wider than its
-design and relaxed back (docs/friction.md, Stages). Known answers: a uniaxial strip at rest scale
+design and relaxed back (docs/method/friction.md, Stages). Known answers: a uniaxial strip at rest scale
 s carries the table's tension at strain L / (s L0) - 1; a sleeve started loose (s > 1) and relaxed
 to its design size reaches the frictionless sleeve's equilibrium and Laplace's T / r; bad values
 are refused with the scene file's line."""

@@ -2,7 +2,7 @@
 cut girth and relaxed onto the leg with skin-knit friction (mu = 0.4). Friction keeps the wales
 from sliding along the leg and gathering where it narrows (frictionless: wale strain down to
 -49 %, 11 % of the wale springs slack); the pressure stays graduated and every stage's report is
-kept. The profile's residual steps come from the panels' lattice (docs/friction.md)."""
+kept. The profile's residual steps come from the panels' lattice (docs/method/friction.md)."""
 
 from __future__ import annotations
 

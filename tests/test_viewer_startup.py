@@ -4,7 +4,7 @@ model, the panels and the kernels in a start-up thread, and starts the relaxatio
 ready. Tested in a real headless Chromium with a warm-up hook that blocks (a slow compile
 simulated), and through the command line (the URL printed at once, a scene that cannot be built
 still exits 2). The time to the first frame on a truly cold cache is measured by
-scripts/cold_start.py (docs/benchmarks.md), not here."""
+scripts/cold_start.py (docs/benchmarks/benchmarks.md), not here."""
 
 from __future__ import annotations
 

@@ -32,7 +32,7 @@ the edge length (the facets at second), and so do its normal and curvature: no f
 the pressure. Coplanar neighbourhoods give their plane exactly. (The lead's first design blended
 the faces' planes instead. Measured on icospheres it undulates at the mesh's own wavelength with
 about half the facets' sagitta, an O(1) curvature error; quadratic jets left a +-25 % curvature
-ripple on the thermoform mold: see docs/smooth_surface.md.)
+ripple on the thermoform mold: see docs/method/smooth_surface.md.)
 
 Queries (the conventions of :mod:`clothsim.mold`): the closest point c on {phi = 0} is found from
 the faceted closest point by repeated projection of p onto the linearisation of phi at c (a

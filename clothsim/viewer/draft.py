@@ -41,7 +41,7 @@ C_MAX = 1e6
 THICKNESS_MM_MAX = 1e3  # [mm]
 MOLD_SCALE_MAX = 1e6
 #: most triangles an uploaded mold may have: parsing and building its search tree takes about
-#: 2-5 s per 100,000 triangles on a shared 2-core machine (docs/benchmarks.md, "Mold uploads")
+#: 2-5 s per 100,000 triangles on a shared 2-core machine (docs/benchmarks/benchmarks.md, "Mold uploads")
 #: and about 2.4 kB of memory per triangle at its peak, so the limit keeps an upload under
 #: about half a minute and 1.2 GB; a larger mesh can still be named in a scene file
 MOLD_UPLOAD_MAX_TRIANGLES = 500_000

@@ -40,7 +40,7 @@ from ...model import SpringFamily, State  # noqa: E402
 # level, once solved, at their fine nodes' places when its solution is interpolated onto the fine
 # lattice and the outline band settled there against the true held outline; that level is then
 # solved again (hold_band). On the 225-across circle: fine start 5.3e-3 -> 1.2e-3 N, fine Newton
-# iterations 3 -> 2 (docs/benchmarks.md, "Sixth round"). hold_fit False: the flat guesses, as before.
+# iterations 3 -> 2 (docs/benchmarks/benchmarks.md, "Sixth round"). hold_fit False: the flat guesses, as before.
 # The switches read here are fields of ``tuning.NewtonTuning`` (``_Hierarchy.tuning``). A placed hold
 # that would be inside the mold falls back to its flat guess (``_HoldFit.outside``).
 

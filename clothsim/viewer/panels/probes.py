@@ -159,7 +159,7 @@ class ProbesPanel(Panel):
         scene = self.app.sim.scene
         if not getattr(scene, "probes", None):
             return ("No probes in this scene. Add `probes: [{name, point: [x, y, z], radius}]` to the scene "
-                    "file (see the README's Compression engineering).")
+                    "file (see docs/guide/compression.md).")
         if not self.readings:
             return "Probes are read when the sheet is still (pause, or wait for convergence)."
         # three narrow columns (issue 28, item 18: five, the classes' long names among them,
