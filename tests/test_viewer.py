@@ -26,7 +26,7 @@ from clothsim.viewer.glb import GlbMeshWriter, colormap, read_glb_positions  # n
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from viewer_util import SMALL, free_port, settle, small_scene  # noqa: E402,F401
+from viewer_util import SMALL, free_port, settle, small_scene, wait_for  # noqa: E402,F401
 
 @pytest.fixture
 def app():
@@ -652,27 +652,18 @@ def test_invalid_table_keeps_the_typing_and_apply_resumes_a_run(app):
     try:  # a run of minutes
         big.wait_idle(20)
         big.start(wait=True)
-        assert poll_until(lambda: big.sim.state.iteration > 20) and big.sim.status == "running"
+        assert wait_for(lambda: big.sim.state.iteration > 20, 30) and big.sim.status == "running"
         big.gui["lift"].value = 0.031  # an edit of the model, as a tab makes it
         settle(big)
         assert "fabric" in big.pending, big.errors
         big.apply(wait=True)
         assert big.errors["run"] == "" and not big.pending
         it = big.sim.state.iteration
-        assert poll_until(lambda: big.sim.state.iteration > it + 5), big.sim.status
+        assert wait_for(lambda: big.sim.state.iteration > it + 5, 30), big.sim.status
         assert big.sim.status == "running"
         big.pause(wait=True)
     finally:
         big.close()
-
-
-def poll_until(fn, timeout=30.0) -> bool:
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if fn():
-            return True
-        time.sleep(0.05)
-    return bool(fn())
 
 
 def test_probe_table_columns_and_undetermined_advice():

@@ -24,7 +24,7 @@ websockets = pytest.importorskip("websockets")
 
 from viser import _messages  # noqa: E402
 
-from viewer_util import encode, free_port, protocol, settle, small_scene  # noqa: E402,F401
+from viewer_util import encode, free_port, protocol, settle, small_scene, wait_for  # noqa: E402,F401
 from clothsim.viewer import ViewerApp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,15 +50,6 @@ def buffered(app) -> int:
     """Bytes viser holds for uploads in flight."""
     states = app.server.gui._current_file_upload_states
     return sum(len(p) for s in list(states.values()) for p in list(s.get("parts", {}).values()))
-
-
-def wait_for(fn, timeout=10.0):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if fn():
-            return True
-        time.sleep(0.05)
-    return bool(fn())
 
 
 @pytest.fixture

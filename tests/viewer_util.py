@@ -42,6 +42,16 @@ def settle(app, t: float = 0.15):
         time.sleep(0.02)
 
 
+def wait_for(fn, timeout: float = 10.0) -> bool:
+    """Poll fn() every 50 ms until it is true or timeout [s] has passed; its last value."""
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        if fn():
+            return True
+        time.sleep(0.05)
+    return bool(fn())
+
+
 def protocol() -> str:
     """The websocket subprotocol viser speaks."""
     import viser
