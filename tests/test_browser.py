@@ -78,6 +78,7 @@ def test_page_loads_and_canvas_not_blank(app_page):
     assert "ready" in status_text(page)
 
 
+@pytest.mark.slow
 def test_start_makes_shown_residual_fall(app_page):
     """Clicking Start relaxes the sheet: the residual shown in the page falls from its initial
     value to below e, and the page reports convergence."""
@@ -176,6 +177,7 @@ def test_uploaded_mold_appears(app_page, tmp_path):
     page.get_by_text(re.compile("unknown mold format")).first.wait_for(timeout=20_000)
 
 
+@pytest.mark.slow
 def test_second_tab_and_download(app_page, browser, tmp_path):
     """A second tab shows the same simulation; the Files tab's export reaches the browser as a
     download that numpy reads back."""
