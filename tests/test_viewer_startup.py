@@ -20,20 +20,11 @@ import yaml
 
 pytest.importorskip("viser")
 
-from viewer_util import free_port, small_scene  # noqa: E402
+from viewer_util import free_port, small_scene, wait_for  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
 from clothsim.viewer.server import STARTUP_NOTE  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def _poll(fn, timeout: float) -> bool:
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if fn():
-            return True
-        time.sleep(0.1)
-    return bool(fn())
 
 
 def test_background_start_serves_at_once_and_starts_when_warm():
@@ -56,7 +47,7 @@ def test_background_start_serves_at_once_and_starts_when_warm():
         assert a.sim.status == "idle" and a.sim.state.iteration == 0
         gate.set()
         assert a.ready.wait(30) and a.startup_error is None and a._startup_note is None
-        assert _poll(lambda: a.sim.state.iteration > 0, 60)
+        assert wait_for(lambda: a.sim.state.iteration > 0, 60)
         assert a.sim.wait(120) == "converged"
     finally:
         gate.set()
