@@ -484,6 +484,17 @@ def test_unequal_seam_threads_and_widest_gap_list():
 
 
 # --------------------------------------------------------------------------- issue 28, items 10, 16
+def _scene_zip(weft_csv: str) -> bytes:
+    """A scene upload as a zip: scene.yaml naming files/weft.csv, and that table."""
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
+        z.writestr("files/weft.csv", weft_csv)
+    return buf.getvalue()
+
+
 def _scene_yaml(**fabric) -> str:
     import yaml
 
@@ -511,20 +522,12 @@ def test_uploaded_scene_reads_only_its_own_files(app, tmp_path):
         assert "TOPSECRET" not in err and str(app.upload_dir) not in err and "clothsim-uploads" not in err
         assert app.sim.scene.name == "small-cap"
     # a zip with its own table: a bad one is reported by its name in the zip, never the folder
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as z:
-        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
-        z.writestr("files/weft.csv", "strain,tension\n0,0\nzero,5\n")
-    app.post(lambda: fp.open_scene("bad.zip", buf.getvalue()), "files")
+    app.post(lambda: fp.open_scene("bad.zip", _scene_zip("strain,tension\n0,0\nzero,5\n")), "files")
     settle(app)
     err = app.errors["files"]
     assert "fabric.weft.csv" in err and "files/weft.csv" in err and "clothsim-uploads" not in err, err
     assert app.sim.scene.name == "small-cap"
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as z:
-        z.writestr("scene.yaml", _scene_yaml(weft={"csv": "files/weft.csv"}))
-        z.writestr("files/weft.csv", "strain,tension\n0,0\n1,300\n")
-    app.post(lambda: fp.open_scene("good.zip", buf.getvalue()), "files")
+    app.post(lambda: fp.open_scene("good.zip", _scene_zip("strain,tension\n0,0\n1,300\n")), "files")
     settle(app)
     assert app.errors["files"] == "" and app.sim.scene.name == "uploaded", app.errors
     saved = zipfile.ZipFile(io.BytesIO(app.scene_draft.scene_zip()))
