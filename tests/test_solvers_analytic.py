@@ -153,11 +153,11 @@ def test_non_finite_start_is_reported_as_diverged(monkeypatch):
     its bound is lifted here to reach the solver's own safety net behind it.)"""
     import math
 
-    import clothsim.config
+    import clothsim.config.scene
     import clothsim.material
 
     monkeypatch.setattr(clothsim.material, "VALUE_MAX", {})
-    monkeypatch.setattr(clothsim.config, "TENSION_MAX", math.inf)
+    monkeypatch.setattr(clothsim.config.scene, "TENSION_MAX", math.inf)
     scene = make_scene(**{"fabric.warp": {"strain": [0, 1], "tension": [0, 1e308]},
                           "constraints.1.displacement": [0.5, 0, 0]})
     res = clothsim.solve(scene)

@@ -1,7 +1,7 @@
 """Compression engineering: what a compression garment is specified, tested and prescribed by.
 
-- :mod:`.spec`: the scene fields ``probes``, ``profiles`` and ``classes`` (pydantic; no other
-  clothsim import, so ``config`` can import it).
+- :mod:`.spec`: the scene fields ``probes``, ``profiles`` and ``classes`` (pydantic; it imports only
+  :mod:`.standards` and ``clothsim.strict``, so ``config`` can import it).
 - :mod:`.standards`: compression classes (RAL-GZ 387, UK Drug Tariff) as data, and classifying.
 - :mod:`.probes`: pressure sensors (discs on the mold) and profiles (slices along a limb's axis)
   read from an equilibrium; CSV and plot outputs.

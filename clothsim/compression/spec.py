@@ -10,7 +10,7 @@
     # classes: {probe: ankle, standards: [RAL-GZ 387], extra: [{name: mine, classes: [...]}]}
 
 Units: metres; pressures in the outputs are Pa and mmHg (1 mmHg = 133.322 Pa). This module
-imports nothing from clothsim (``clothsim.config`` imports it).
+imports only the leaves ``clothsim.strict`` and :mod:`.standards` (``clothsim.config`` imports it).
 """
 
 from __future__ import annotations
@@ -18,14 +18,13 @@ from __future__ import annotations
 import math
 from typing import Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
+
+from ..strict import Strict as _Strict
+from .standards import STANDARDS, ClassBand, Standard  # noqa: F401  (ClassBand re-exported)
 
 #: a sensor's default radius [m]: the 1-2 cm discs used to measure garments on limbs
 DEFAULT_PROBE_RADIUS = 0.01
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
 
 
 def _finite_tuple(v):
@@ -104,36 +103,6 @@ class Profile(_Strict):
         return [self.start + k * self.step for k in range(n + 1)]
 
 
-class ClassBand(_Strict):
-    """One class of a standard: pressures from ``min`` to ``max`` mmHg (``max`` None: and more)."""
-
-    name: str = Field(min_length=1)
-    min: float
-    max: float | None = None
-
-
-class Standard(_Strict):
-    """A compression-class standard: its classes in rising order, where it is measured (``site``)
-    and where its numbers come from (``source``)."""
-
-    name: str = Field(min_length=1)
-    site: str = "ankle"
-    source: str = ""
-    classes: list[ClassBand] = Field(min_length=1)
-
-    @model_validator(mode="after")
-    def _rising(self):
-        prev = -math.inf
-        for k, c in enumerate(self.classes):
-            hi = math.inf if c.max is None else c.max
-            if not (c.min >= prev and hi >= c.min):
-                raise ValueError(f"classes.{k}: classes must rise and not overlap (min {c.min}, max {c.max})")
-            if c.max is None and k != len(self.classes) - 1:
-                raise ValueError(f"classes.{k}.max: only the last class may be open-ended")
-            prev = hi
-        return self
-
-
 class Classes(_Strict):
     """Report the class of probe ``probe`` under ``standards`` (names of built-in or ``extra``
     standards; default: every built-in one) and under the user's ``extra`` standards."""
@@ -159,8 +128,6 @@ def check_compression(probes: list[Probe], profiles: list[Profile], classes: Cla
     if classes is not None:
         if classes.probe not in seen:
             raise ValueError(f"classes.probe: no probe named '{classes.probe}' (probes: {', '.join(sorted(seen)) or 'none'})")
-        from .standards import STANDARDS
-
         known = {s.name for s in STANDARDS} | {s.name for s in classes.extra}
         for k, name in enumerate(classes.standards or []):
             if name not in known:

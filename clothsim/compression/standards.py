@@ -15,7 +15,7 @@ Sources (checked for this table):
   apparatus of BS 6612:1985): class 1 14-17, class 2 18-24, class 3 25-35 mmHg at the ankle, as
   listed by Credenhill (credenhill.co.uk, "How much compression?").
 
-Users extend the table with ``classes.extra`` in a scene (see :class:`.spec.Standard`) or by
+Users extend the table with ``classes.extra`` in a scene (see :class:`Standard`) or by
 appending to :data:`STANDARDS`.
 """
 
@@ -23,7 +23,40 @@ from __future__ import annotations
 
 import math
 
-from .spec import ClassBand, Standard
+from pydantic import Field, model_validator
+
+from ..strict import Strict as _Strict
+
+
+class ClassBand(_Strict):
+    """One class of a standard: pressures from ``min`` to ``max`` mmHg (``max`` None: and more)."""
+
+    name: str = Field(min_length=1)
+    min: float
+    max: float | None = None
+
+
+class Standard(_Strict):
+    """A compression-class standard: its classes in rising order, where it is measured (``site``)
+    and where its numbers come from (``source``)."""
+
+    name: str = Field(min_length=1)
+    site: str = "ankle"
+    source: str = ""
+    classes: list[ClassBand] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _rising(self):
+        prev = -math.inf
+        for k, c in enumerate(self.classes):
+            hi = math.inf if c.max is None else c.max
+            if not (c.min >= prev and hi >= c.min):
+                raise ValueError(f"classes.{k}: classes must rise and not overlap (min {c.min}, max {c.max})")
+            if c.max is None and k != len(self.classes) - 1:
+                raise ValueError(f"classes.{k}.max: only the last class may be open-ended")
+            prev = hi
+        return self
+
 
 STANDARDS: list[Standard] = [
     Standard(
