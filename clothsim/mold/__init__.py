@@ -42,8 +42,9 @@ is on a smooth (G1) surface blended from its face planes (:mod:`clothsim.mold.sm
 query answers code 0 (a face) with a point-dependent normal, as on the analytic sphere. Drawing,
 exports and sizes use the mesh itself.
 
-Modules, by job: ``record`` (the :class:`Mold` and its codes), ``queries`` (closest point, inside
-test, BVH traversal; numba), ``segment`` (segment hits; numba), ``build`` (mesh cleaning, BVH,
+Modules, by job: ``record`` (the :class:`Mold` and its codes), ``closest`` (closest point on a
+triangle, the BVH traversal, each primitive; numba), ``queries`` (the query of a mold, inside
+test and contact normals, dispatched on its kind; numba), ``segment`` (segment hits; numba), ``build`` (mesh cleaning, BVH,
 pseudo-normals, primitives), ``readers`` (file formats, safe file reading), ``load`` (specs,
 transforms, loaders, the cache of loaded molds), ``checks`` (sanity warnings against the scene),
 ``smooth`` (the smooth surface of a mesh; numba).

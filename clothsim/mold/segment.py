@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .queries import _mesh_query
+from .closest import _mesh_query
 from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
 from .smooth import _smooth_query_flag
 

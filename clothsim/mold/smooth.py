@@ -56,7 +56,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .queries import _box_d2, _mesh_query, _tri_closest
+from .closest import _box_d2, _mesh_query, _tri_closest
 
 _FOOT_TOL = 1e-13      # [m] tangential residual |p - c - ((p - c).n) n| of a converged foot point
 _FOOT_ITERS = 30

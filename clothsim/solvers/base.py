@@ -13,47 +13,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 
 from ..defaults import SOLVER_DEFAULTS
+from .driver import run
+from .status import Status, StepStatus, _StrEnum  # noqa: F401  (re-exported)
 
 
 def settings_default(name: str):
     """The default of ``solver.<name>`` (``clothsim.defaults``, which ``config.SolverSettings``
     reads too): the one place the solvers' defaults are kept (RunLimits and the options read it)."""
     return SOLVER_DEFAULTS[name]
-
-
-class _StrEnum(str, Enum):
-    """A str-valued enum whose members compare, hash, format and serialise (json) as their value."""
-
-    def __str__(self) -> str:
-        return self.value
-
-    def __format__(self, spec: str) -> str:
-        return format(self.value, spec)
-
-
-class Status(_StrEnum):
-    """How a run ended (``SolveResult.status``, ``summary.json``'s ``status``)."""
-
-    CONVERGED = "converged"  # ||V||_inf <= e
-    MAX_ITERATIONS = "max_iterations"  # the iteration budget ran out
-    TIME_LIMIT = "time_limit"  # the wall-clock budget ran out
-    STALLED = "stalled"  # no 1 % gain in the best residual over the stall window, or no move possible
-    DIVERGED = "diverged"  # non-finite or blown-up positions (the last finite state is kept)
-    STOPPED = "stopped"  # the callback asked to stop
-
-
-class StepStatus(_StrEnum):
-    """How one ``Solver.step`` ended."""
-
-    OK = "ok"  # performed the iterations asked for (or stopped early for no reason below)
-    CONVERGED = "converged"  # reached ||V||_inf <= e within the step
-    DIVERGED = "diverged"  # the last iteration blew up; the state was restored to the last finite one
-    NO_PROGRESS = "no_progress"  # no iteration could lower the energy or the residual; state unchanged
 
 
 @dataclass
@@ -126,8 +97,6 @@ class Solver:
         """Run to equilibrium under ``limits`` (``SolverSettings`` or :class:`RunLimits`, re-read
         between batches) with the shared driver; returns a ``SolveResult``. See
         ``clothsim.solvers.driver.run`` for ``callback``, ``history`` and ``before_batch``."""
-        from .driver import run
-
         return run(self, state, limits, callback, history, before_batch)
 
 

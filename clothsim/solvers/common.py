@@ -19,7 +19,7 @@ from ..contact import residual_from_forces
 from ..kernels import forces_and_energy
 from ..model import State
 
-from .base import Status
+from .status import Status
 
 # the run statuses' strings (``Status`` values), in the order they have always been listed
 STATUSES = tuple(s.value for s in Status)

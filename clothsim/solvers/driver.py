@@ -25,7 +25,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .base import Status, StepStatus
+from .status import Status, StepStatus
 from .common import Progress, SolveResult, energy, force_scale, residual
 
 
