@@ -81,20 +81,30 @@ def compare(scene: str, folder: Path) -> str | None:
 def reference_residual(scene: str, positions: np.ndarray) -> tuple[float, float]:
     """(||V||_inf [N] of the code at the recorded positions (N, 3) [m], the scene's e [N]). The
     nodes within 1e-9 m of the mold's surface count as in contact (a converged solve leaves its
-    contact nodes on the surface, its free nodes off it or touching it without force)."""
+    contact nodes on the surface, its free nodes off it or touching it without force). A staged
+    scene is judged by its last stage's model (its friction, gravity, mold and rest scale); with
+    friction the residual is the full one, friction included (``clothsim.friction.coulomb_residual``:
+    each contact node's tangential force up to mu times its normal force is the mold's, as at any
+    frictional equilibrium; the frictionless residual would count it as out of balance)."""
     import clothsim
     from clothsim.compile import compile_scene
-    from clothsim.solvers.common import residual
+    from clothsim.config import stage_scenes
+    from clothsim.friction import coulomb_residual
     from clothsim.mold import mold_query
+    from clothsim.solvers.control import scale_rest
 
     s = clothsim.load_scene(ROOT / scene)
-    model, state = compile_scene(s)
+    final, scale = s, (1.0, 1.0)
+    for st, sc in stage_scenes(s):
+        final, scale = sc, st.scale(scale)
+    model, state = compile_scene(final)
+    model = scale_rest(model, scale)
     state.positions[:] = positions
     state.in_contact[:] = False
     if model.mold is not None:
         margs, q = model.mold.kernel_args(), np.empty(8)
         state.in_contact[:] = [mold_query(margs, p, q) <= 1e-9 for p in state.positions]
-    return residual(model, state)[0], float(s.solver.e)
+    return coulomb_residual(model, state), float(final.solver.e)
 
 
 def main(argv: list[str]) -> int:

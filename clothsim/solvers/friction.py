@@ -4,8 +4,9 @@ frozen at its start (``clothsim.friction.lag_friction``: normal forces and tange
 contact node anchored at the previous step's equilibrium), and solved again with the friction
 refreshed at the equilibrium found until the residual with the refreshed friction (the full
 residual: springs, loads and friction) is at most e. A step that fails is cut in half (both halves
-solved in turn), at most ``MAX_CUTS`` times in a row, and the result says how many were cut.
-Without friction the steps are solved as ``control.solve_load_steps`` does.
+solved in turn), at most ``max_cuts`` times in a row, and the result says how many were cut.
+Without friction the steps are solved as ``control.solve_load_steps`` does. The switches and
+constants of the schedule are a :class:`~clothsim.solvers.tuning.FrictionTuning` record.
 """
 
 from __future__ import annotations
@@ -20,15 +21,7 @@ from .base import Status
 from .common import SolveResult, residual
 from .control import Control
 from .driver import History
-
-# re-solves of one load step with the friction refreshed before the step counts as failed
-MAX_RELAGS = 40
-# the friction refreshed before every Newton iteration (True) or once per solve (False)
-REFRESH_EVERY_ITERATION = True
-# a refresh's solve stops at this share of the residual it starts from (or at e, the last one)
-REFRESH_FORCING = 0.1
-# halvings of one load step in a row before the sequence ends
-MAX_CUTS = 8
+from .tuning import FrictionTuning
 
 
 def _newton(model, limits):
@@ -47,28 +40,29 @@ def _with_e(limits, e):
     return dataclasses.replace(limits, e=e)
 
 
-def _frictional_step(base, state, control, limits, callback, hist):
+def _frictional_step(base, state, control, limits, callback, hist, tuning: FrictionTuning):
     """One load step with friction: (converged, model with the refreshed friction, the last
-    SolveResult, refreshes, report dict). With REFRESH_EVERY_ITERATION the Newton solver takes
-    the friction refreshed at every iterate; otherwise each solve keeps one frozen friction and
-    stops at REFRESH_FORCING times the residual it starts from (or e). Either way the step is
-    done when the residual with the friction refreshed at its equilibrium is at most e."""
+    SolveResult, refreshes, report dict). With ``tuning.refresh_every_iteration`` the Newton
+    solver takes the friction refreshed at every iterate; otherwise each solve keeps one frozen
+    friction and stops at ``tuning.refresh_forcing`` times the residual it starts from (or e).
+    Either way the step is done when the residual with the friction refreshed at its
+    equilibrium is at most e."""
     anchor = state.positions.copy()
     m = control.apply(base, state)
     lag = lag_friction(m, state, anchor)
     mm = dataclasses.replace(m, friction=lag)
     solver = _newton(mm, limits)
-    if REFRESH_EVERY_ITERATION:
+    if tuning.refresh_every_iteration:
         def refresh(st):
             return dataclasses.replace(m, friction=lag_friction(m, st, anchor))
         solver.refresh = refresh
     e = limits.e
     res = None
-    for r in range(1, MAX_RELAGS + 1):
+    for r in range(1, tuning.max_relags + 1):
         lim = limits
-        if not REFRESH_EVERY_ITERATION:
+        if not tuning.refresh_every_iteration:
             v0, _ = residual(mm, state)
-            lim = _with_e(limits, max(e, REFRESH_FORCING * v0))
+            lim = _with_e(limits, max(e, tuning.refresh_forcing * v0))
         res = solver.solve(state, lim, callback, hist)
         if not res.converged:
             return False, solver.model, res, r, None
@@ -81,17 +75,18 @@ def _frictional_step(base, state, control, limits, callback, hist):
         mm = m2
         solver.retarget(mm)
     return False, mm, dataclasses.replace(res, converged=False, status=Status.STALLED,
-                                          message=f"friction not settled after {MAX_RELAGS} refreshes"), \
-        MAX_RELAGS, None
+                                          message=f"friction not settled after {tuning.max_relags} refreshes"), \
+        tuning.max_relags, None
 
 
 def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None,
-                model_scale=(1.0, 1.0)):
+                model_scale=(1.0, 1.0), tuning: FrictionTuning = FrictionTuning()):
     """Solve ``state`` in place through the load steps ``controls`` (Controls, from the model's
     current prescribed positions), with friction when ``model.friction_mu`` > 0 (``limits``: a
     SolverSettings or RunLimits; the Newton solver's options from it when it is a SolverSettings);
     ``make_solver(model)`` solves the frictionless steps (default: Newton); ``model_scale``: the rest
-    scale the state is at before the first control (a halved first step ramps from it). Returns (the last step's Model, a
+    scale the state is at before the first control (a halved first step ramps from it); ``tuning``: the
+    schedule's switches (:class:`~clothsim.solvers.tuning.FrictionTuning`). Returns (the last step's Model, a
     SolveResult over all steps whose ``friction`` holds the steps' report: load steps, cuts,
     refreshes, and at the last step the stick and slip counts and the cone violation)."""
     hist = history if history is not None else History()
@@ -114,7 +109,8 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         snap = state.copy()
         ts = time.perf_counter()
         if frictional:
-            ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target, scale), limits, callback, hist)
+            ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target, scale), limits, callback,
+                                                              hist, tuning)
         else:
             m_new = Control(target, scale).apply(base, state)
             res = make_solver(m_new).solve(state, limits, callback, hist)
@@ -131,7 +127,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
             break  # stopped, out of iterations or time: no cut
         s_from = prev_scale if prev_scale is not None else model_scale
         moved = not np.array_equal(prev[fixed], target[fixed]) or (scale is not None and tuple(s_from) != tuple(scale))
-        if not moved or cut_run >= MAX_CUTS:
+        if not moved or cut_run >= tuning.max_cuts:
             break
         # cut the failing step in half and go on from where it started
         state.positions[:] = snap.positions

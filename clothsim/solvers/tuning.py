@@ -180,4 +180,30 @@ class NewtonTuning:
         object.__setattr__(self, "curvature", Curvature(self.curvature))
 
 
-__all__ = ["NewtonTuning", "Curvature"]
+@dataclass(frozen=True)
+class FrictionTuning:
+    """The frictional load steps' switches and constants (``friction.solve_steps``; defaults: its
+    behaviour, measured in docs/method/friction.md, Candidates measured)."""
+
+    max_relags: int = 40
+    """Solves of one load step with the friction refreshed before the step counts as failed [solves]."""
+    refresh_every_iteration: bool = True
+    """The friction's normal forces and tangent planes refreshed before every Newton iteration
+    (True) or once per solve (False: each solve keeps one frozen friction)."""
+    refresh_forcing: float = 0.1
+    """With refreshes once per solve: a refresh's solve stops at this share of the residual it
+    starts from (or at e, the last one) [1]."""
+    max_cuts: int = 8
+    """Halvings of one load step in a row before the sequence ends [cuts]."""
+
+    def __post_init__(self):
+        if isinstance(self.max_relags, bool) or int(self.max_relags) != self.max_relags or self.max_relags < 1:
+            raise ValueError(f"FrictionTuning.max_relags must be a whole number >= 1 (got {self.max_relags!r})")
+        if isinstance(self.max_cuts, bool) or int(self.max_cuts) != self.max_cuts or self.max_cuts < 0:
+            raise ValueError(f"FrictionTuning.max_cuts must be a whole number >= 0 (got {self.max_cuts!r})")
+        if not 0.0 < float(self.refresh_forcing) < 1.0:
+            raise ValueError(f"FrictionTuning.refresh_forcing must lie in (0, 1) (got {self.refresh_forcing!r})")
+        object.__setattr__(self, "refresh_every_iteration", bool(self.refresh_every_iteration))
+
+
+__all__ = ["NewtonTuning", "FrictionTuning", "Curvature"]
