@@ -21,6 +21,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Fie
 
 from .defaults import SOLVER_DEFAULTS
 from .compression.spec import Classes, Probe, Profile, check_compression
+from .sizing import GarmentSpec
 from .material import (TENSION_MAX, MaterialError, Table, check_table, read_table_csv,
                        warn_implausible_strain)
 
@@ -983,6 +984,8 @@ class Scene(_Strict):
     classes: Classes | None = None
     # a loading path in stages (empty: one stage, the scene as it is)
     stages: list[Stage] = Field(default_factory=list)
+    # sizing the garment: panel scale, reduction at measuring levels, grading (clothsim.sizing)
+    garment: GarmentSpec | None = None
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
