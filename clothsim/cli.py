@@ -341,10 +341,10 @@ def _cmd_fit(args, stop: list[str], held: contextlib.ExitStack) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(("fitted: " if res.converged else "not fitted: ") + res.message)
-    for v, x in zip(varies, res.values):
-        print(f"  {v.path} = {x:.10g}")
-    for t, p in zip(targets, res.readings_mmhg):
-        print(f"  {t.probe}: {p:.3f} mmHg (target {t.mmhg:.3f})")
+    from .compression.fit import fitted_lines
+
+    for line in fitted_lines(res, varies, targets):
+        print(line)
     print(res.tries_csv(varies, targets), end="")
     if args.out:
         before = _file_stamps(Path(args.out))

@@ -32,17 +32,21 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
     Mold or None) is what ``wrap_hull`` placements wrap round."""
     from .hullwrap import hull_wrap
 
+    from .sizing import sized, sized_spacing
+
     fab = scene.fabric
+    # the outlines sized by the scene's garment field (clothsim.sizing): before any lattice is cut
+    design, outlines, grains = sized(scene, mold)
     if not scene.panels:
         nx, ny = fab.divisions
-        lx, ly = fab.size
+        lx, ly = (float(x) for x in np.ptp(outlines[0], axis=0))
         warp, weft = scene.tables()
         geom = rectangle_geometry("fabric", nx, ny, lx / nx, ly / ny, origin=fab.origin[:2])
         hull = None
         if scene.initial.wrap_hull is not None:
             box = np.array([[0.0, 0.0], [lx, 0.0], [lx, ly], [0.0, ly]])
             hull = hull_wrap(scene.initial.wrap_hull, mold, box, ly / ny, "initial.wrap_hull")
-        return [PanelBuild(geom, warp, weft, Placement(tuple(fab.origin), tuple(fab.size), scene.initial.wrap,
+        return [PanelBuild(geom, warp, weft, Placement(tuple(fab.origin), (lx, ly), scene.initial.wrap,
                                                        hull=hull),
                            z=fab.origin[2])]
     for key in ("wrap", "wrap_hull"):
@@ -51,15 +55,10 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
     out = []
     default = {}
     for n, panel in enumerate(scene.panels):
-        outline, grain = panel.outline, panel.grain
-        if panel.pattern is not None:
-            piece = _pattern_piece(scene, n)
-            outline = piece.outline
-            if grain is None and piece.grain is not None:
-                grain = tuple(piece.grain)
+        outline, grain = outlines[n], grains[n]
+        spacing = panel.spacing if outline is design[n] else sized_spacing(panel.spacing, design[n], outline, grain)
         try:
-            geom = panel_geometry(panel.name, outline, grain if grain is not None else (1.0, 0.0),
-                                  panel.spacing, panel.divisions)
+            geom = panel_geometry(panel.name, outline, grain, spacing, panel.divisions)
         except PanelError as exc:
             raise SceneError(f"panels.{n}: {exc}") from None
         thick = panel.thickness if panel.thickness is not None else fab.thickness

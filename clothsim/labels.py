@@ -55,9 +55,10 @@ FIELD_UNITS = {
     "e": "N", "stiffness": "N/m", "tension": "N/m", "stress": "Pa",
     "areal_density": "kg/m^2", "g": "m/s^2", "time_limit_s": "s",
     "divisions": "", "max_iterations": "", "max_retries": "", "stall_iterations": "", "seed": "",
+    "reduction": "%", "girth": "m", "hem": "m", "height": "m", "at": "m", "girth_cm": "cm", "length_cm": "cm",
 }
 #: the unit of a field under a given parent: a seam's stiffness is per length of seam
-PARENT_UNITS = {("seams", "stiffness"): "N/m^2"}
+PARENT_UNITS = {("seams", "stiffness"): "N/m^2", ("garment", "width"): "-", ("garment", "length"): "-"}
 #: how the index after a field reads: fabric.size.0 is the warp size, center.2 the z coordinate
 INDEX_NAMES = {"size": ("warp", "weft"), "divisions": ("warp", "weft"), "stretch": ("warp", "weft"),
                **{k: ("x", "y", "z") for k in ("center", "origin", "translate", "point", "min", "max",
@@ -87,6 +88,17 @@ def field_label(path: str) -> str:
     unit = next((u for (parent, n), u in PARENT_UNITS.items() if n == name and parts[0] == parent),
                 FIELD_UNITS.get(name, ""))
     return " ".join(words) + _unit(unit)
+
+
+def field_unit(path: str) -> str:
+    """The unit of a scene field path ("m", "%", "-" for a ratio; "" when not known)."""
+    parts = path.split(".")
+    names = [p for p in parts if not p.isdigit()]
+    if not names:
+        return ""
+    name = names[-1]
+    return next((u for (parent, n), u in PARENT_UNITS.items() if n == name and parts[0] == parent),
+                FIELD_UNITS.get(name, ""))
 
 
 def axis_label(name: str) -> str:

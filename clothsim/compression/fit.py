@@ -191,6 +191,15 @@ def _schema_value(scene, path: str):
             except (ValueError, IndexError):
                 raise FitError(f"--vary {path}: '{part}' is not an index of {where}, a {len(node)}-item list") from None
             owner = name = None
+        elif node is None and _omitted_block(owner, name) is not None:
+            # an omitted block whose fields all have defaults (garment: scale.width is 1)
+            node = _omitted_block(owner, name)
+            fields = type(node).model_fields
+            key = next((k for k, f in fields.items() if part in (k, f.alias)), None)
+            if key is None:
+                known = ", ".join(sorted(f.alias or k for k, f in fields.items()))
+                raise FitError(f"--vary {path}: {where} has no field '{part}' (its fields: {known})")
+            owner, name, node = type(node).__name__, key, getattr(node, key)
         elif node is None:
             raise FitError(f"--vary {path}: {where} is not set in the scene and has no default; give it with "
                            f"--set (e.g. --set {'.'.join(done)}=...)")
@@ -198,6 +207,16 @@ def _schema_value(scene, path: str):
             raise FitError(f"--vary {path}: {where} holds {node!r}, which has no field '{part}'")
         done.append(part)
     return node, owner, name
+
+
+def _omitted_block(owner, name):
+    """The default of an omitted scene block a fit may vary fields of (``garment``: its scale
+    is the design's, 1), or None."""
+    if (owner, name) == ("Scene", "garment"):
+        from ..sizing import GarmentSpec
+
+        return GarmentSpec()
+    return None
 
 
 def start_value(data: dict, path: str, scene=None) -> float:
@@ -214,6 +233,10 @@ def start_value(data: dict, path: str, scene=None) -> float:
     value, owner, name = _schema_value(scene, path)
     if value is None and (owner, name) in OMITTED_MEANS:
         value = OMITTED_MEANS[(owner, name)]
+    if value is None and path == "garment.reduction":
+        from ..sizing import default_for
+
+        value = default_for(path, scene)  # the design pattern's own reduction at the first level
     if value is None:
         raise FitError(f"--vary {path}: the field is not set and has no default value; give its start value "
                        f"with --set {path}=VALUE")
@@ -596,10 +619,44 @@ def write_outputs(res: FitResult, out: str | Path, varies: list[Vary], targets: 
 
 
 def fit_info(res: FitResult, varies: list[Vary], targets: list[Target]) -> dict:
-    """What fit.json holds: converged, message, fields {path: value}, targets_mmhg,
-    readings_mmhg {probe: mmHg} and the number of solves."""
-    return {"converged": res.converged, "message": res.message,
+    """What fit.json holds: converged, message, fields {path: value}, units {path: unit},
+    targets_mmhg, readings_mmhg {probe: mmHg}, the number of solves and, for a scene with
+    measuring levels (``garment.levels``), levels: per level the body's girth, the fitted
+    garment's relaxed circumference and its reduction (clothsim.sizing.sizing_table)."""
+    from ..labels import field_unit
+
+    info = {"converged": res.converged, "message": res.message,
             "fields": {v.path: x for v, x in zip(varies, res.values)},
+            "units": {v.path: field_unit(v.path) for v in varies},
             "targets_mmhg": {t.probe: t.mmhg for t in targets},
             "readings_mmhg": {t.probe: p for t, p in zip(targets, res.readings_mmhg)},
             "solves": len(res.tries)}
+    levels = fitted_levels(res)
+    if levels:
+        info["levels"] = levels
+    return info
+
+
+def fitted_levels(res: FitResult) -> list[dict]:
+    """The sizing table (clothsim.sizing.sizing_table) of the fitted scene: [] without levels."""
+    if res.result is None or getattr(res.result.scene, "garment", None) is None:
+        return []
+    from ..sizing import sizing_table
+
+    return sizing_table(res.result.scene, getattr(res.result.model, "mold", None))
+
+
+def fitted_lines(res: FitResult, varies: list[Vary], targets: list[Target]) -> list[str]:
+    """What ``fit`` prints after its verdict: each fitted field with its unit, each probe's
+    reading and, with measuring levels, each level's girth, relaxed circumference and reduction."""
+    from ..labels import field_unit
+    from ..sizing import table_lines
+
+    out = []
+    for v, x in zip(varies, res.values):
+        unit = field_unit(v.path)
+        out.append(f"  {v.path} = {x:.10g}" + (f" {unit}" if unit and unit != "-" else
+                                                " (a ratio to the design)" if unit == "-" else ""))
+    for t, p in zip(targets, res.readings_mmhg):
+        out.append(f"  {t.probe}: {p:.3f} mmHg (target {t.mmhg:.3f})")
+    return out + table_lines(fitted_levels(res))

@@ -14,6 +14,7 @@ import yaml
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from ..compression.spec import Classes, Probe, Profile, check_compression
+from ..sizing import GarmentSpec
 from ..errors import SceneError
 from ..fileio import fmt_beyond
 from ..material import TENSION_MAX, Table, read_table_csv
@@ -106,6 +107,8 @@ class Scene(_Strict):
     classes: Classes | None = None
     # a loading path in stages (empty: one stage, the scene as it is)
     stages: list[Stage] = Field(default_factory=list)
+    # sizing the garment: panel scale, reduction at measuring levels, grading (clothsim.sizing)
+    garment: GarmentSpec | None = None
 
     model_config = ConfigDict(extra="forbid")
     _source: Path | None = None
