@@ -50,8 +50,7 @@ SCALE_RANGE = (0.2, 5.0)
 AXES = {"x": 0, "y": 1, "z": 2}
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+from .strict import Strict as _Strict
 
 
 def _number(v, name: str, lo: float, hi: float, unit: str = ""):
