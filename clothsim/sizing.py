@@ -41,7 +41,9 @@ import math
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
+
+from .strict import Strict as _Strict
 
 #: reduction [%] a scene may give: -50 (a garment half as large again as the limb) to 90
 REDUCTION_RANGE = (-50.0, 90.0)
@@ -50,7 +52,6 @@ SCALE_RANGE = (0.2, 5.0)
 AXES = {"x": 0, "y": 1, "z": 2}
 
 
-from .strict import Strict as _Strict
 
 
 def _number(v, name: str, lo: float, hi: float, unit: str = ""):
