@@ -240,3 +240,19 @@ def test_the_stocking_sizes_sweep_fits_each_size_to_class_ii_at_b(tmp_path):
         assert r["fit_converged"] == "True" and abs(float(r["probe:ankle_mmhg"]) - 27.5) <= 0.1
         w = _laplace_width(R, 27.5, wale=0.004 / (0.08 + 0.01 * d))
         assert float(r["fit:garment.reduction"]) == pytest.approx(100 * (1 - w / (2 * math.pi * R)), abs=0.1)
+
+
+def test_the_viewer_edits_the_reduction_through_the_draft():
+    """The viewer's one garment control: the draft's set_reduction validates with the whole scene
+    (a value out of range refused by name, the draft unchanged), and needs measuring levels."""
+    from clothsim.viewer.draft import SceneDraft
+
+    draft = SceneDraft(load_scene(CLASS2, ["garment={hem: -0.04, levels: [{name: B, height: 0.0}]}"]))
+    assert draft.has_levels() and draft.reduction() is None
+    assert draft.set_reduction(21.5).garment.reduction == 21.5 and draft.reduction() == 21.5
+    with pytest.raises(ValueError, match=r"garment reduction \[%\]: must be between -50 and 90"):
+        draft.set_reduction(95)
+    assert draft.reduction() == 21.5
+    plain = SceneDraft(load_scene(CLASS2))
+    with pytest.raises(SceneError, match="garment.levels: the scene has no measuring levels"):
+        plain.set_reduction(20)
