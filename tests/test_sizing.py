@@ -209,7 +209,7 @@ def test_the_stocking_is_sized_by_garment_fields_not_fabric_size():
 
 
 @pytest.mark.slow
-def test_fit_by_reduction_meets_laplace_and_run_reproduces_it(tmp_path):
+def test_fit_by_reduction_meets_laplace_and_run_reproduces_it(tmp_path, capsys):
     """The class II tube on a 3.5 cm cylinder fitted by garment.reduction to 25 mmHg from 15 %:
     within 0.1 mmHg, the reduction is Laplace's (width w* of tests/test_sweep_fit.py) within
     0.1 % of the girth, fit prints it with its unit and the level's table, and the fitted scene
@@ -221,7 +221,11 @@ def test_fit_by_reduction_meets_laplace_and_run_reproduces_it(tmp_path):
                "--set", "solver.e=1e-9", "--vary", "garment.reduction=5:40", "--target", "ankle=25mmHg", "--tol", "0.02",
                "--out", str(out), "--quiet"])
     assert rc == 0
+    printed = capsys.readouterr().out
     info = json.loads((out / "fit.json").read_text())
+    assert f"  garment.reduction = {info['fields']['garment.reduction']:.10g} %\n" in printed
+    assert "  level B (at 0 m on the body): girth 21.99 cm, garment " in printed and " relaxed (design 16.68 cm), " \
+        f"reduction {info['fields']['garment.reduction']:.2f} %" in printed, printed
     assert abs(info["readings_mmhg"]["ankle"] - 25.0) <= 0.1 and info["units"] == {"garment.reduction": "%"}
     R = 0.035
     girth = 2 * math.pi * R
