@@ -36,7 +36,7 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
 
     fab = scene.fabric
     # the outlines sized by the scene's garment field (clothsim.sizing): before any lattice is cut
-    design, outlines, grains = sized(scene, mold)
+    design, outlines, grains = sized(scene, *design_outlines(scene), mold)
     if not scene.panels:
         nx, ny = fab.divisions
         lx, ly = (float(x) for x in np.ptp(outlines[0], axis=0))
@@ -90,6 +90,25 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
             placement = Placement(origin, size, None, grain=tuple(g))
         out.append(PanelBuild(geom, tables[0], tables[1], placement, z=0.0))
     return out
+
+
+def design_outlines(scene: Scene) -> tuple[list, list]:
+    """(outlines, grains) of the scene's design pattern, before clothsim.sizing sizes it: each
+    panel's outline (a pattern file's piece read) and grain, or the ``fabric`` sheet's rectangle."""
+    if not scene.panels:
+        lx, ly = scene.fabric.size
+        return [np.array([[0.0, 0.0], [lx, 0.0], [lx, ly], [0.0, ly]])], [(1.0, 0.0)]
+    outlines, grains = [], []
+    for n, panel in enumerate(scene.panels):
+        outline, grain = panel.outline, panel.grain
+        if panel.pattern is not None:
+            piece = _pattern_piece(scene, n)
+            outline = piece.outline
+            if grain is None and piece.grain is not None:
+                grain = tuple(piece.grain)
+        outlines.append(np.asarray(outline, float))
+        grains.append(grain if grain is not None else (1.0, 0.0))
+    return outlines, grains
 
 
 def _pattern_piece(scene: Scene, n: int):

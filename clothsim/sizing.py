@@ -376,9 +376,9 @@ def body_girth(scene, n: int, mold=None) -> float:
 
 def _mold_mesh(scene, mold):
     if mold is None:
-        from .compile import load_scene_mold
+        from .mold import load_mold
 
-        mold = load_scene_mold(scene)
+        mold = load_mold(scene.mold, scene.base_dir)
     return np.asarray(mold.vertices, float), np.asarray(mold.faces, np.int64)
 
 
@@ -418,27 +418,6 @@ def mesh_girth(mesh, axis: np.ndarray, height: float, center, where: str = "girt
 # what compile and fit call
 
 
-def design_outlines(scene) -> tuple[list, list]:
-    """(outlines, grains) of the scene's design pattern: each panel's outline (a pattern file's
-    piece read) and grain, or the ``fabric`` sheet's rectangle."""
-    if not scene.panels:
-        lx, ly = scene.fabric.size
-        return [np.array([[0.0, 0.0], [lx, 0.0], [lx, ly], [0.0, ly]])], [(1.0, 0.0)]
-    from .compile import _pattern_piece
-
-    outlines, grains = [], []
-    for n, panel in enumerate(scene.panels):
-        outline, grain = panel.outline, panel.grain
-        if panel.pattern is not None:
-            piece = _pattern_piece(scene, n)
-            outline = piece.outline
-            if grain is None and piece.grain is not None:
-                grain = tuple(piece.grain)
-        outlines.append(np.asarray(outline, float))
-        grains.append(grain if grain is not None else (1.0, 0.0))
-    return outlines, grains
-
-
 def girths(scene, mold=None, needed_only: bool = True) -> list[float | None]:
     """The body's girth at each level [m] (None where no reduction needs it, if ``needed_only``)."""
     spec = scene.garment
@@ -449,12 +428,12 @@ def girths(scene, mold=None, needed_only: bool = True) -> list[float | None]:
     return out
 
 
-def sized(scene, mold=None) -> tuple[list, list, list]:
-    """(design outlines, sized outlines, grains) of the scene (sized = design when the scene has
-    no ``garment``). SceneError (located) on a garment that cannot be sized."""
+def sized(scene, outlines: list, grains: list, mold=None) -> tuple[list, list, list]:
+    """(design outlines, sized outlines, grains) of the scene, given its design ``outlines`` and
+    ``grains`` (clothsim.compile.design_outlines; sized = design when the scene has no
+    ``garment``). SceneError (located) on a garment that cannot be sized."""
     from .errors import SceneError
 
-    outlines, grains = design_outlines(scene)
     spec = getattr(scene, "garment", None)
     if spec is None or spec.is_identity():
         return outlines, outlines, grains
@@ -471,7 +450,7 @@ def sized(scene, mold=None) -> tuple[list, list, list]:
     return outlines, new, grains
 
 
-def sizing_table(scene, mold=None) -> list[dict]:
+def sizing_table(scene, outlines: list, grains: list, mold=None) -> list[dict]:
     """Per level: name, height [m] (on the body; None if not given), at [m] (pattern height of the
     design), girth_m (the body's), design_m and garment_m (the relaxed circumference of the
     design and of the sized pattern), reduction_pct (100 (1 - garment / girth)) and
@@ -479,7 +458,7 @@ def sizing_table(scene, mold=None) -> list[dict]:
     spec = getattr(scene, "garment", None)
     if spec is None or not spec.levels:
         return []
-    design, new, grains = sized(scene, mold)
+    design, new, grains = sized(scene, outlines, grains, mold)
     uv0 = [p @ _frame(g) for p, g in zip(design, grains)]
     uv1 = [p @ _frame(g) for p, g in zip(new, grains)]
     rows = []
@@ -520,12 +499,12 @@ def table_lines(rows: list[dict]) -> list[str]:
     return out
 
 
-def default_for(path: str, scene) -> Any:
+def default_for(path: str, scene, outlines: list, grains: list) -> Any:
     """The start value a fit takes for an omitted ``garment.reduction``: the design pattern's own
-    reduction at the first level (None when it has no level)."""
+    reduction at the first level (None when it has no level); ``outlines`` and ``grains``: the
+    design's (clothsim.compile.design_outlines)."""
     if path != "garment.reduction" or scene.garment is None or not scene.garment.levels:
         return None
-    outlines, grains = design_outlines(scene)
     uvs = [p @ _frame(g) for p, g in zip(outlines, grains)]
     c = circumference(uvs, level_heights(scene.garment)[0])
     return round(100.0 * (1.0 - c / body_girth(scene, 0)), 6)

@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 import clothsim
-from clothsim.compile import scene_panels
+from clothsim.compile import design_outlines, scene_panels
 from clothsim.config import SceneError, load_scene, scene_from_dict
 from clothsim.sizing import body_girth, mesh_girth, sizing_table
 
@@ -42,7 +42,21 @@ def _tube(outlines: list, garment: dict) -> dict:
 
 
 def _table(data: dict) -> dict:
-    return {r["name"]: r for r in sizing_table(scene_from_dict(data))}
+    scene = scene_from_dict(data)
+    return {r["name"]: r for r in sizing_table(scene, *design_outlines(scene))}
+
+
+COURSE = ROOT / "static" / "materials" / "compression_knit_course.csv"
+
+
+def _laplace_width(R: float, p_mmhg: float, nx: int = 34, wale: float = 0.05) -> float:
+    """The tube's width that reads p on a cylinder of radius R (tests/test_sweep_fit.py's known
+    answer): w = nx 2 R sin(pi / nx) / (1 + e), e the course strain at T = p R (1 + wale)."""
+    from clothsim.compression import MMHG
+
+    d = np.loadtxt(COURSE, delimiter=",", comments="#", skiprows=4)
+    e = float(np.interp(p_mmhg * MMHG * R * (1 + wale), d[:, 1], d[:, 0] / 100.0))
+    return nx * 2 * R * math.sin(math.pi / nx) / (1 + e)
 
 
 @pytest.mark.parametrize("size,steps", [("S", -1), ("M", 0), ("L", 1), ("XL", 2)])
@@ -142,10 +156,9 @@ def test_the_girth_of_a_mesh_section():
     ("{reduction: 20}", "garment", "needs levels"),
 ])
 def test_bad_garment_fields_name_file_line_and_field(tmp_path, garment, field, words):
-    data = yaml.safe_load(STOCKING.read_text().replace("../../", str(ROOT) + "/"))
+    text = STOCKING.read_text().replace("../../", str(ROOT) + "/").split("\ngarment:")[0]  # its own levels out
     p = tmp_path / "g.yaml"
-    p.write_text(STOCKING.read_text().replace("../../", str(ROOT) + "/") + f"garment: {garment}\n")
-    assert data  # the stocking reads as a scene
+    p.write_text(text + f"\ngarment: {garment}\n")
     with pytest.raises(SceneError) as e:
         load_scene(p)
     line = len(p.read_text().splitlines())
@@ -180,21 +193,39 @@ def test_fit_starts_garment_fields_from_the_design():
     assert lines[:2] == ["  garment.reduction = 24.2 %", "  fabric.size.0 = 0.17 m"]
 
 
+@pytest.mark.slow  # the scan's section (trimesh) takes about 2 s
+def test_the_stocking_is_sized_by_garment_fields_not_fabric_size():
+    """The issue's command (--vary fabric.size.0 on the stocking) is refused with the way to size
+    panels; garment.reduction starts from the design's own reduction at B (17.60 cm on a girth of
+    22.39 cm measured on the scan: 21.39 %)."""
+    from clothsim.compression.fit import FitError, start_value
+    from clothsim.config import read_yaml
+
+    stocking, _ = read_yaml(STOCKING)
+    scene = scene_from_dict(stocking, STOCKING)
+    with pytest.raises(FitError, match="a garment of panels has no fabric.size .* vary garment.scale.width"):
+        start_value(stocking, "fabric.size.0", scene)
+    assert start_value(stocking, "garment.reduction", scene) == pytest.approx(21.39, abs=0.01)
+
+
 @pytest.mark.slow
-def test_fit_by_reduction_meets_laplace_and_run_reproduces_it(tmp_path):
+def test_fit_by_reduction_meets_laplace_and_run_reproduces_it(tmp_path, capsys):
     """The class II tube on a 3.5 cm cylinder fitted by garment.reduction to 25 mmHg from 15 %:
     within 0.1 mmHg, the reduction is Laplace's (width w* of tests/test_sweep_fit.py) within
     0.1 % of the girth, fit prints it with its unit and the level's table, and the fitted scene
     run again reads the same."""
     from clothsim.cli import main
-    from test_sweep_fit import _laplace_width
 
     out = tmp_path / "fit"
     rc = main(["fit", str(CLASS2), "--set", "garment={hem: -0.04, levels: [{name: B, height: 0.0}], reduction: 15}",
                "--set", "solver.e=1e-9", "--vary", "garment.reduction=5:40", "--target", "ankle=25mmHg", "--tol", "0.02",
                "--out", str(out), "--quiet"])
     assert rc == 0
+    printed = capsys.readouterr().out
     info = json.loads((out / "fit.json").read_text())
+    assert f"  garment.reduction = {info['fields']['garment.reduction']:.10g} %\n" in printed
+    assert "  level B (at 0 m on the body): girth 21.99 cm, garment " in printed and " relaxed (design 16.68 cm), " \
+        f"reduction {info['fields']['garment.reduction']:.2f} %" in printed, printed
     assert abs(info["readings_mmhg"]["ankle"] - 25.0) <= 0.1 and info["units"] == {"garment.reduction": "%"}
     R = 0.035
     girth = 2 * math.pi * R
@@ -229,7 +260,6 @@ def test_the_stocking_sizes_sweep_fits_each_size_to_class_ii_at_b(tmp_path):
     import io
 
     from clothsim import sweep as sw
-    from test_sweep_fit import _laplace_width
 
     out = tmp_path / "sizes"
     sw.run_sweep(SIZES, out, workers=2, stream=io.StringIO(), plots=False)
@@ -240,3 +270,19 @@ def test_the_stocking_sizes_sweep_fits_each_size_to_class_ii_at_b(tmp_path):
         assert r["fit_converged"] == "True" and abs(float(r["probe:ankle_mmhg"]) - 27.5) <= 0.1
         w = _laplace_width(R, 27.5, wale=0.004 / (0.08 + 0.01 * d))
         assert float(r["fit:garment.reduction"]) == pytest.approx(100 * (1 - w / (2 * math.pi * R)), abs=0.1)
+
+
+def test_the_viewer_edits_the_reduction_through_the_draft():
+    """The viewer's one garment control: the draft's set_reduction validates with the whole scene
+    (a value out of range refused by name, the draft unchanged), and needs measuring levels."""
+    from clothsim.viewer.draft import SceneDraft
+
+    draft = SceneDraft(load_scene(CLASS2, ["garment={hem: -0.04, levels: [{name: B, height: 0.0}]}"]))
+    assert draft.has_levels() and draft.reduction() is None
+    assert draft.set_reduction(21.5).garment.reduction == 21.5 and draft.reduction() == 21.5
+    with pytest.raises(ValueError, match=r"garment reduction \[%\]: must be between -50 and 90"):
+        draft.set_reduction(95)
+    assert draft.reduction() == 21.5
+    plain = SceneDraft(load_scene(CLASS2))
+    with pytest.raises(SceneError, match="garment.levels: the scene has no measuring levels"):
+        plain.set_reduction(20)

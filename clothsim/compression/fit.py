@@ -230,13 +230,18 @@ def start_value(data: dict, path: str, scene=None) -> float:
 
     if scene is None:
         scene = scene_from_dict(copy.deepcopy(data))
+    if scene.panels and path.split(".")[:2] == ["fabric", "size"]:
+        raise FitError(f"--vary {path}: a garment of panels has no fabric.size (each panel has its outline): vary "
+                       f"garment.scale.width (the panels' width over the design's) or garment.reduction (% of "
+                       f"the body's girth at garment.levels)")
     value, owner, name = _schema_value(scene, path)
     if value is None and (owner, name) in OMITTED_MEANS:
         value = OMITTED_MEANS[(owner, name)]
     if value is None and path == "garment.reduction":
+        from ..compile import design_outlines
         from ..sizing import default_for
 
-        value = default_for(path, scene)  # the design pattern's own reduction at the first level
+        value = default_for(path, scene, *design_outlines(scene))  # the design pattern's own reduction at the first level
     if value is None:
         raise FitError(f"--vary {path}: the field is not set and has no default value; give its start value "
                        f"with --set {path}=VALUE")
@@ -641,9 +646,11 @@ def fitted_levels(res: FitResult) -> list[dict]:
     """The sizing table (clothsim.sizing.sizing_table) of the fitted scene: [] without levels."""
     if res.result is None or getattr(res.result.scene, "garment", None) is None:
         return []
+    from ..compile import design_outlines
     from ..sizing import sizing_table
 
-    return sizing_table(res.result.scene, getattr(res.result.model, "mold", None))
+    scene = res.result.scene
+    return sizing_table(scene, *design_outlines(scene), getattr(res.result.model, "mold", None))
 
 
 def fitted_lines(res: FitResult, varies: list[Vary], targets: list[Target]) -> list[str]:

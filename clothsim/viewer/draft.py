@@ -461,6 +461,26 @@ class SceneDraft:
         ax = [as_float(x, "wrap axis", -ABS_LENGTH_MAX, ABS_LENGTH_MAX) for x in axis]
         return self.edit("panels", lambda d: d["panels"][i]["placement"]["wrap"].update(radius=rad, axis=ax))
 
+    def reduction(self) -> float | None:
+        """The garment's reduction [%] (clothsim.sizing), None when not given; the key ``levels``
+        says whether the scene has measuring levels to reduce at."""
+        g = self.data.get("garment") or {}
+        r = g.get("reduction")
+        return None if r is None else float(r)
+
+    def has_levels(self) -> bool:
+        return bool((self.data.get("garment") or {}).get("levels"))
+
+    def set_reduction(self, value) -> Scene:
+        """garment.reduction [%]: the garment's relaxed circumference at every measuring level is
+        the body's girth there times (1 - value / 100). Needs the scene's ``garment.levels``."""
+        from ..sizing import REDUCTION_RANGE
+
+        if not self.has_levels():
+            raise SceneError("garment.levels: the scene has no measuring levels; give them in the scene file")
+        v = as_float(value, "garment reduction [%]", *REDUCTION_RANGE)
+        return self.edit("panels", lambda d: d["garment"].update(reduction=v))
+
     def add_pattern(self, name: str, data: bytes) -> str:
         """Read an uploaded DXF or SVG pattern (clothsim.patterns.read_pattern) from a copy stored
         in ``upload_dir`` under a name chosen here; returns its label (a key of ``patterns``).

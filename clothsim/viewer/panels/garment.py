@@ -65,6 +65,10 @@ class GarmentPanel(Panel):
         g["pl_axis"] = app.on(gui.add_vector3("Wrap axis", (0.0, 0.0, 1.0), step=0.1, min=(-big,) * 3,
                                               max=(big,) * 3),
                               lambda v: self.set_wrap(), "panels")
+        g["reduction"] = app.on(gui.add_number("Reduction [%] (garment, at its levels)", 0.0, step=0.1, min=-50.0,
+                                               max=90.0, hint="garment.reduction: the relaxed circumference at "
+                                                              "each measuring level = girth x (1 - r/100)"),
+                                lambda v: self.set_reduction(), "panels")
         app.err("panels")
         up = gui.add_upload_button("Upload pattern (DXF/SVG)", icon=viser.Icon.UPLOAD, mime_type="*/*",
                                    hint=f"a DXF (DXF-AAMA or plain) or SVG pattern; at most "
@@ -98,6 +102,11 @@ class GarmentPanel(Panel):
         keep = g["panel_pick"].value if g["panel_pick"].value in opts else opts[0]
         g["panel_pick"].options = opts
         g["panel_pick"].value = keep
+        draft = self.app.scene_draft
+        g["reduction"].visible = draft.has_levels()  # a scene with measuring levels (garment.levels)
+        r = draft.reduction()
+        if r is not None:
+            g["reduction"].value = r
         self.show_placement()
 
     def selected(self) -> int | None:
@@ -129,6 +138,10 @@ class GarmentPanel(Panel):
     def set_transform(self) -> None:
         g = self.gui
         self.app.scene_draft.set_transform(self.selected(), g["pl_translate"].value, g["pl_rotate"].value)
+        self.app.draft_changed()
+
+    def set_reduction(self) -> None:
+        self.app.scene_draft.set_reduction(self.gui["reduction"].value)
         self.app.draft_changed()
 
     def set_wrap(self) -> None:
