@@ -20,6 +20,8 @@ from .base import Status
 from .common import SolveResult, residual
 from .control import Control
 from .driver import History
+from .newton import NewtonSolver
+from .options import NewtonOptions
 
 # re-solves of one load step with the friction refreshed before the step counts as failed
 MAX_RELAGS = 40
@@ -33,9 +35,6 @@ MAX_CUTS = 8
 
 def _newton(model, limits):
     """Newton for ``model`` with a SolverSettings' newton options (defaults for RunLimits)."""
-    from .newton import NewtonSolver
-    from .options import NewtonOptions
-
     return NewtonSolver(model, NewtonOptions(kink=float(getattr(limits, "newton_kink", NewtonOptions.kink)),
                                              sequencing=bool(getattr(limits, "newton_sequencing", True))))
 
