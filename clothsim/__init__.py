@@ -8,6 +8,11 @@ Quick use::
     result.save("results/strip")
 """
 
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
 __version__ = "0.1.0"
 
 
@@ -19,10 +24,6 @@ def _numba_cache_dir() -> None:
     old callee after an update. Keying the directory by all sources makes any change start a fresh
     cache. Base: $NUMBA_CACHE_DIR if set, else ~/.cache/clothsim/numba (XDG_CACHE_HOME honoured); if
     that cannot be written, the system's temporary folder; if neither, numba's own default."""
-    import hashlib
-    import os
-    from pathlib import Path
-
     here = Path(__file__).resolve().parent
     h = hashlib.sha1(__version__.encode())
     for f in sorted(here.rglob("*.py")):
@@ -30,9 +31,7 @@ def _numba_cache_dir() -> None:
         h.update(f.read_bytes())
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "clothsim", "numba")
-    import tempfile
-
-    from numba import config
+    from numba import config  # (not at the top: ``config`` would shadow clothsim.config here)
 
     for root in (base, os.path.join(tempfile.gettempdir(), f"clothsim-numba-{os.getuid() if hasattr(os, 'getuid') else 0}")):
         path = os.path.join(root, h.hexdigest()[:16])
@@ -53,8 +52,6 @@ def kernels_cached() -> bool:
     """Whether numba's on-disk cache for these sources (see _numba_cache_dir) holds compiled
     kernels (index files, ``*.nbi``): False on the first start after an install or an update,
     when the kernels are compiled (about a minute), True once a run has cached them."""
-    import os
-
     from numba import config
 
     root = getattr(config, "CACHE_DIR", None)

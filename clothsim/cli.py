@@ -20,6 +20,17 @@ import time
 import warnings
 from pathlib import Path
 
+from . import simulation
+from .compression.fit import (FitError, FitInterrupted, FitResult, fit, fit_info, parse_target,
+                              parse_vary, write_outputs)
+from .compression.report import ReportError, write_report
+from .config import SceneError, load_scene
+from .fileio import FolderLock, OutputError, atomic_write_bytes, check_out_dir, describe_write_error
+from .material import MaterialError, MaterialWarning
+from .mold import MoldError
+from .results import gathered_rows_warning, strict_json
+from .sweep import main as sweep_main
+
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "configs" / "thermoform.yaml"
 
 
@@ -32,7 +43,6 @@ def _progress_printer(stream, every_s: float = 0.2):
         if now - last[0] < every_s:
             return False
         last[0] = now
-        import math
 
         r = prog.residual
         frac = 0.0 if not math.isfinite(r) or r <= 0 else min(1.0, max(0.0, 1 - math.log10(max(r, 1e-30)) / 20))
@@ -70,12 +80,6 @@ def cmd_run(args) -> int:
 
 
 def _cmd_run(args, stop: list[str], held: contextlib.ExitStack) -> int:
-    from . import simulation
-    from .config import SceneError, load_scene
-    from .fileio import FolderLock, OutputError, check_out_dir, describe_write_error
-    from .mold import MoldError
-    from .material import MaterialError
-
     if args.out is not None and not args.out.strip():
         print("error: --out: empty folder name (omit --out to write nothing)", file=sys.stderr)
         return 2
@@ -133,7 +137,6 @@ def _cmd_run(args, stop: list[str], held: contextlib.ExitStack) -> int:
     if s.get("min_weft_extent_ratio", 1.0) < 0.5:
         say(f"  note: the sheet's narrowest weft extent is {s['min_weft_extent_ratio']:.0%} of its rest width "
             f"(it gathers: nothing holds its width)")
-    from .results import gathered_rows_warning
 
     if gathered_rows_warning(s):
         say(gathered_rows_warning(s))
@@ -157,8 +160,6 @@ def _cmd_run(args, stop: list[str], held: contextlib.ExitStack) -> int:
         written = _written_files(out, before)
         say(f"  wrote {out}/" + ", ".join(written))
     if args.json:
-        from .results import strict_json
-
         print(strict_json(s))
     if interrupted:
         return 130
@@ -262,8 +263,6 @@ def cmd_view(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .sweep import main as sweep_main
-
     return sweep_main(args)
 
 
@@ -316,12 +315,6 @@ def cmd_fit(args) -> int:
 
 
 def _cmd_fit(args, stop: list[str], held: contextlib.ExitStack) -> int:
-    from .compression.fit import FitError, FitInterrupted, fit, parse_target, parse_vary, write_outputs
-    from .config import SceneError
-    from .fileio import FolderLock, OutputError, check_out_dir, describe_write_error
-    from .material import MaterialError
-    from .mold import MoldError
-
     def log(t):
         vals = ", ".join(f"{x:.8g}" for x in t.values)
         reads = ", ".join(f"{p:.3f} mmHg ({r:+.3f})" for p, r in zip(t.readings_mmhg, t.residuals_mmhg))
@@ -361,10 +354,6 @@ def _cmd_fit(args, stop: list[str], held: contextlib.ExitStack) -> int:
 def _fit_interrupted(args, exc, varies, targets) -> int:
     """A signal stopped the fit: the tries it finished go to standard output and, with --out, to
     fit.csv and fit.json (each written atomically); exit 130."""
-    from .compression.fit import FitResult, fit_info
-    from .fileio import atomic_write_bytes, describe_write_error
-    from .results import strict_json
-
     res = FitResult(False, f"{exc}; not fitted", [], [], tries=exc.tries)
     print(f"not fitted: {res.message}")
     text = res.tries_csv(varies, targets)
@@ -385,10 +374,6 @@ def _fit_interrupted(args, exc, varies, targets) -> int:
 
 
 def cmd_report(args) -> int:
-    from .compression.report import ReportError, write_report
-    from .config import SceneError
-    from .mold import MoldError
-
     try:
         path = write_report(args.result_dir, args.out)
     except (ReportError, SceneError, MoldError) as exc:
@@ -509,8 +494,6 @@ def build_parser() -> argparse.ArgumentParser:
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """Our own warnings (implausible tables, a mold in millimetres, mold files' dropped triangles)
     as one ``warning: ...`` line, no source location."""
-    from .material import MaterialWarning
-
     if issubclass(category, MaterialWarning) or "clothsim" in str(filename):
         # once per command: a scene is validated again when it is resolved, copied or written
         # (a table's warning came 2 or 3 times)

@@ -12,16 +12,23 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
+from pathlib import Path
 
 import numpy as np
 
+from . import patterns
 from .config import Scene
 from .errors import SceneError
 from .grid import build_model, rotation_matrix
+from .hullwrap import hull_wrap
 from .initial import initial_state
 from .model import Model, PanelBuild, Placement, State
+from .mold import load_mold, mold_reach_warning, mold_scale_warning
 from .panels import PanelError, panel_geometry, rectangle_geometry
+from .patterns import DEFAULT_TOLERANCE, PatternError
 from .selection import SelectionError
+from .sizing import sized, sized_spacing
 
 _NO_MOLD = object()
 
@@ -30,10 +37,6 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
     """The scene's panels as the builder takes them: the ``fabric`` rectangle (one panel named
     ``fabric``), or each of ``panels`` cut to its outline (clothsim.panels). ``mold`` (a loaded
     Mold or None) is what ``wrap_hull`` placements wrap round."""
-    from .hullwrap import hull_wrap
-
-    from .sizing import sized, sized_spacing
-
     fab = scene.fabric
     # the outlines sized by the scene's garment field (clothsim.sizing): before any lattice is cut
     design, outlines, grains = sized(scene, *design_outlines(scene), mold)
@@ -113,13 +116,11 @@ def design_outlines(scene: Scene) -> tuple[list, list]:
 
 def _pattern_piece(scene: Scene, n: int):
     """The piece panels.n.pattern names, read from its file (clothsim.patterns)."""
-    from .patterns import DEFAULT_TOLERANCE, PatternError, read_pattern
-
     ref = scene.panels[n].pattern
     where = f"panels.{n}.pattern"
     try:
         # only the piece the scene uses must be valid (another one, broken, is left out with a warning)
-        pieces = read_pattern(scene.resolve(ref.file), units=ref.units, piece=ref.piece,
+        pieces = patterns.read_pattern(scene.resolve(ref.file), units=ref.units, piece=ref.piece,
                               tolerance=ref.tolerance if ref.tolerance is not None else DEFAULT_TOLERANCE)
     except PatternError as exc:
         raise SceneError(f"{where}: {exc}") from None
@@ -138,7 +139,6 @@ def load_scene_mold(scene: Scene):
     """The scene's mold (clothsim.mold.Mold, loaded once per spec and cached) or None."""
     if scene.mold is None:
         return None
-    from .mold import load_mold
 
     return load_mold(scene.mold, scene.base_dir)
 
@@ -171,8 +171,6 @@ def estimated_nodes(scene: Scene) -> int:
 
 def _cgroup_paths() -> dict[str, str]:
     """The process's cgroup paths from /proc/self/cgroup: {"": v2 path, "memory": v1 path}."""
-    from pathlib import Path
-
     out = {}
     try:
         for line in Path("/proc/self/cgroup").read_text().splitlines():
@@ -190,8 +188,6 @@ def _cgroup_headroom() -> float | None:
     ``memory.current`` (``inactive_file`` of ``memory.stat`` reclaimable), else cgroup v1
     ``memory.limit_in_bytes`` / ``memory.usage_in_bytes`` (``total_inactive_file``). The
     process's own cgroup (/proc/self/cgroup) is read where it is mounted, else the mount's root."""
-    from pathlib import Path
-
     own = _cgroup_paths()
     for root, key, lim, cur, cache in (("/sys/fs/cgroup", "", "memory.max", "memory.current", "inactive_file"),
                                        ("/sys/fs/cgroup/memory", "memory", "memory.limit_in_bytes",
@@ -361,9 +357,6 @@ def _warn_scale(mold, panels) -> None:
     """Warn (``mold: ... millimetres?``) when the mold is 100x larger or smaller than the sheet."""
     if mold is None:
         return
-    import warnings
-
-    from .mold import mold_scale_warning
 
     msg = mold_scale_warning(mold, max(max(p.placement.size) for p in panels))
     if msg:
@@ -386,9 +379,6 @@ def _warn_reach(model: Model, state: State) -> None:
     sheet's size of the mold."""
     if model.mold is None:
         return
-    import warnings
-
-    from .mold import mold_reach_warning
 
     pts = np.concatenate([state.positions, model.prescribed_positions[model.fixed_axes.any(axis=1)]])
     # a strided sample of at most 20,000 points (lattice neighbours are consecutive, so it misses

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels import forces_and_energy
+from .mold import mold_query_many
+
 # the slide [m], as a share of the lattice spacing, below which a node sticks (the mollifier's
 # width eps: a sticking node's friction is a stiff spring of 2 mu f_n / eps, and it may creep by
 # up to eps per load step). 1e-3 of the spacing: the capstan's ratio and the incline's threshold
@@ -52,8 +55,6 @@ def slip_eps(model) -> float:
 
 def elastic_forces(model, positions) -> np.ndarray:
     """The resultants (n, 3) [N] of the springs, seams and loads (no friction) at positions."""
-    from .kernels import forces_and_energy
-
     F = np.empty_like(positions)
     forces_and_energy(positions, *model.spring_args(), model.external_force, F)
     model.add_seam_forces(positions, F)
@@ -64,8 +65,6 @@ def normal_forces(model, state):
     """(nodes (m,), normals (m, 3), lam (m,) [N]) of the contact nodes without a constrained
     axis: their mold normals at their positions and their normal forces lam = max(0, -n . F)
     (F: springs, seams and loads; the reaction the mold gives them)."""
-    from .mold import mold_query_many
-
     nodes = np.nonzero(state.in_contact & ~model.fixed_axes.any(axis=1))[0].astype(np.int64)
     m = nodes.shape[0]
     nrm = np.zeros((m, 3))

@@ -24,6 +24,7 @@ import numpy as np
 from .lattice import _adjacency, coarsen_model, lattice_springs, seam_adjacency  # noqa: F401
 from .material import Table, TablePack
 from .model import Model, PanelBuild, Placement, Placements, SeamInfo, SpringFamily, State  # noqa: F401
+from .selection import SelectionError, arc_elements, seam_pairs, seam_sides, select_nodes
 from .topology import Topology
 
 # the spring families by their former names, for code outside the package (inside it:
@@ -60,8 +61,6 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     ``a``, ``b``, ``reverse`` and ``stiffness`` [N/m^2] (None = the default); mold: a loaded Mold
     or None. A selector that selects nothing valid raises SelectionError naming its field
     (``constraints.N.nodes: ...``, ``seams.N.a: ...``)."""
-    from .selection import SelectionError, arc_elements, seam_pairs, seam_sides, select_nodes
-
     geoms = [p.geometry for p in panels]
     topology = Topology.from_masks([g.mask for g in geoms], [g.name for g in geoms],
                                    outlines=[g.outline_lattice for g in geoms])

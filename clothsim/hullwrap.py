@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import SceneError
+from .mold.record import MESH_KINDS
 
 if TYPE_CHECKING:
     from .config import WrapHull
@@ -206,8 +207,6 @@ def hull_wrap(spec, mold, outline_uv: np.ndarray, row_spacing: float, where: str
     """The HullWrap of a panel (outline_uv (K, 2) [m] in its grain frame, row_spacing [m] its
     lattice spacing across the grain) round ``mold`` (a loaded mesh Mold); SceneError naming
     ``where`` when there is no mesh mold."""
-    from .mold.record import MESH_KINDS
-
     if mold is None:
         raise SceneError(f"{where}: needs a mold (the sheet is wrapped round the mold's hull)")
     if mold.kind not in MESH_KINDS:

@@ -8,12 +8,16 @@ nodes at the flat sheet, then ``lift`` (a smooth dome), ``wrap`` (the sheet roll
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .errors import SceneError
+from .fileio import check_input_file, excerpt
 from .model import Model, SpringFamily, State
+from .mold import mold_query_many
 
 
 def initial_state(model: Model, initial, file: Path | None = None) -> State:
@@ -69,11 +73,6 @@ def _read_positions(path, shape: tuple) -> np.ndarray:
     """The ``positions`` array [m] of an earlier result.npz; SceneError ``file: initial.file: why``
     for anything else (not a regular file, not an npz, a truncated or oversized member, a
     non-real dtype)."""
-    import zipfile
-    import zlib
-
-    from .fileio import check_input_file, excerpt
-
     where = f"{path}: initial.file"
     try:
         # a regular file, not a link out of its folder (np.load opens it by name)
@@ -252,8 +251,6 @@ def _check_clearance(ini, model: Model, state: State, from_file: bool = False) -
     penetrates the mold. from_file: the start is an earlier result's positions, whose contact
     nodes lie on the surface: nodes within FILE_CONTACT_TOL x the sheet's size of it start in
     contact (state.in_contact) instead of being refused."""
-    from .mold import mold_query_many
-
     margs = model.mold.kernel_args()
     n = model.node_count
     sd = np.empty(n)

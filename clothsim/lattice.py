@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from .model import Model, Placements, SpringFamily
+from .panels import rectangle_geometry
 from .topology import Topology
 
 
@@ -158,7 +159,6 @@ def coarsen_model(model: Model):
     nx, ny = nx1 - 1, ny1 - 1
     if nx % 2 or ny % 2 or nx < 4 or ny < 4:
         return None, None
-    from .panels import rectangle_geometry
 
     ctopo, sub = topo.coarsen()
     dx, dy = 2 * model.spacing[0], 2 * model.spacing[1]

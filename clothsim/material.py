@@ -18,10 +18,14 @@ from __future__ import annotations
 import csv
 import io
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .fileio import excerpt, fmt_beyond, read_text
+from .kernels import table_eval
 
 
 class MaterialError(ValueError):
@@ -48,8 +52,6 @@ def warn_implausible_strain(strain, where: str) -> None:
     file or field (``fabric.warp.strain``)."""
     m = max((float(x) for x in strain), default=0.0)
     if m > STRAIN_WARN:
-        import warnings
-
         warnings.warn(MaterialWarning(
             f"{where}: {m:g} ({m * 100:g} %) is implausible for a fabric: was a percentage typed as a "
             f"strain? (strain is a fraction, 0.3 = 30 %; a CSV header 'strain [%]' reads percent)"), stacklevel=2)
@@ -92,8 +94,6 @@ def check_table(strain, value, value_name: str = "stress", shown=None) -> None:
         hi, unit = VALUE_MAX[value_name]
         for k, x in enumerate(value):
             if float(x) > hi:
-                from .fileio import fmt_beyond
-
                 raise _bad(f"{value_name}: at most {hi:.0e} {unit} (got {fmt_beyond(x, hi)} {unit})", k)
     for k in range(1, len(value)):
         if float(value[k]) < float(value[k - 1]):
@@ -119,8 +119,6 @@ CSV_UNITS = {
 def _csv_unit(cell: str, name: str, source: str, line: int) -> float:
     """The factor of a header cell ``name [unit]`` (``CSV_UNITS[name]``; 1 with no unit); an unknown
     unit or text that is not a bracketed unit raises MaterialError naming the file and line."""
-    from .fileio import excerpt
-
     rest = cell.strip()[len(name):].strip()
     if not rest:
         return 1.0
@@ -154,8 +152,6 @@ def read_table_csv(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
     Errors name the file and the line; the file must be a regular UTF-8 file of at most 10 MB.
     A largest strain above 500 % warns (MaterialWarning: percent typed as a fraction?).
     """
-    from .fileio import read_text
-
     path = Path(path)
     text = read_text(path, MaterialError, encoding="utf-8-sig")
     return parse_table_csv(text, str(path))
@@ -179,8 +175,6 @@ def _csv_number(cell: str) -> float:
 
 def parse_table_csv(text: str, source: str = "<csv>") -> tuple[np.ndarray, np.ndarray, str]:
     """Parse CSV text as in :func:`read_table_csv` (used for browser uploads too)."""
-    from .fileio import excerpt
-
     rows = [r for r in csv.reader(io.StringIO(text))]
     numbered = [(n + 1, _cells(r)) for n, r in enumerate(rows) if r and any(c.strip() for c in r)]
     numbered = [(n, r) for n, r in numbered if not r[0].lstrip().startswith("#")]
@@ -255,7 +249,6 @@ class Table:
         pack = TablePack.from_tables([self])
         strain = np.atleast_1d(np.asarray(strain, float))
         out = np.empty_like(strain)
-        from .kernels import table_eval
 
         for n, s in enumerate(strain):
             out[n] = table_eval(pack.x, pack.y, pack.cum, pack.start, pack.compression, 0, s)[0]

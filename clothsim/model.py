@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from .contact import friction_forces_energy
+from .kernels import seam_forces_and_energy, seam_gaps
 from .material import Table, TablePack
 from .topology import Topology
 
@@ -266,7 +268,6 @@ class Model:
         nothing done when there are none)."""
         if not self.seam_nodes.shape[0]:
             return 0.0
-        from .kernels import seam_forces_and_energy
 
         return seam_forces_and_energy(pos, self.seam_nodes, self.seam_weight, self.seam_stiffness, out)
 
@@ -276,7 +277,6 @@ class Model:
         f = self.friction
         if f is None:
             return 0.0
-        from .contact import friction_forces_energy
 
         return friction_forces_energy(pos, f.nodes, f.anchor, f.normal, f.weight, f.eps, out)
 
@@ -284,8 +284,6 @@ class Model:
         """Per seam (in scene order) its gaps [m] at positions pos (N,3): the zero-length
         springs' lengths, and for a seam of unequal counts each element's |g| (the distance from
         its node to the point of the other side it is sewn to)."""
-        from .kernels import seam_gaps
-
         g = np.empty(self.seam_count)
         if g.size:
             seam_gaps(pos, self.seam_nodes, self.seam_weight, g)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextvars
 import math
 import re
+import xml.etree.ElementTree as ET
 from collections import deque
 
 import numpy as np
@@ -205,8 +206,6 @@ def prescan_svg(label: str, data: bytes) -> None:
     whose references nest deeper than MAX_DEPTH or refer to themselves, before svgelements
     builds them (a 1 KB file of nested ``<use>`` built 1.3 GB). An unparsable file passes (the
     SVG reader says why it cannot read it)."""
-    import xml.etree.ElementTree as ET
-
     try:
         root = ET.fromstring(data)
     except Exception:   # noqa: BLE001 - the SVG reader reports unreadable files

@@ -14,17 +14,23 @@ import dataclasses
 import math
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from .config import Scene, SceneError
+from .config import Scene, SceneError, scene_from_dict, stage_scenes
 from .compile import compile_model, compile_state
+from .material import MaterialWarning
 from .model import Model, SpringFamily, State
+from .mold import mold_query_many
 from .results import Result
-from .solvers import History, SolveResult, pick_method
+from .solvers import History, SolveResult, load_steps, make_solver, pick_method
 from .solvers import solve as run_solver
+from .solvers.base import Status
+from .solvers.common import energy as energy_fn, residual as residual_fn, residual
+from .solvers.friction import solve_steps
 
 
 def prepare(scene: Scene, on_stage: Callable[[str], None] | None = None) -> tuple[Model, State, float]:
@@ -53,8 +59,6 @@ def warm_up(model: Model, state: State, settings) -> float:
     s = settings.model_copy(update={"max_iterations": 1, "time_limit_s": None, "newton_sequencing": False})
     run_solver(model, state.copy(), s, None)
     if model.mold is not None:
-        from .mold import mold_query_many
-
         p = np.ascontiguousarray(state.positions[:1])
         mold_query_many(model.mold.kernel_args(), p, np.empty(1), np.empty((1, 3)), np.empty((1, 3)),
                         np.empty((1, 2), np.int64))
@@ -71,11 +75,6 @@ def warm_up(model: Model, state: State, settings) -> float:
 
 def _tiny_scene(model: Model):
     """A 4 x 4 sheet with the model's tables and terms (for warm_up), far from any mold."""
-    import warnings
-
-    from .config import scene_from_dict
-    from .material import MaterialWarning
-
     t = model.table_list
     d = {
         "fabric": {"size": [0.01, 0.01], "divisions": [4, 4], "origin": [1e6, 1e6, 1e6],
@@ -283,8 +282,6 @@ class Simulation:
     def _stages(self) -> list:
         """[[name, Model, steps]]: the scene's stages (config.stage_scenes), or the scene itself
         as one stage of ``solver.load_steps`` steps from the placed sheet."""
-        from .config import stage_scenes
-
         if not self.scene.stages:
             return [["", self.model, int(self.settings.load_steps), None, None]]
         out = []
@@ -306,9 +303,6 @@ class Simulation:
         stages: from the placed sheet) to its values in its steps; a paused run goes on with the
         step it was in. The result's ``friction`` holds the last stage's report and ``stages``
         every stage's."""
-        from .solvers import load_steps, make_solver
-        from .solvers.friction import solve_steps
-
         if self._plan is None:
             self._plan = self._stages()
             self._stage_reports = []
@@ -357,8 +351,6 @@ class Simulation:
         with self._lock:
             r = self.last_result
             if r is None:
-                from .solvers.common import energy as energy_fn, residual as residual_fn
-
                 v, _ = residual_fn(self.model, self.state)
                 r = SolveResult(False, "idle", "not run", 0, v, math.nan, energy_fn(self.model, self.state),
                                 int(self.state.in_contact.sum()), 0.0, self.method)
@@ -441,8 +433,6 @@ class Simulation:
     def current_residual(self) -> float:
         """||V||_inf [N] of the current state, evaluated now (under the lock, so a consistent
         state): what the viewer shows before a run has reported one."""
-        from .solvers.common import residual
-
         with self._lock:
             return float(residual(self.model, self.state)[0])
 
@@ -491,7 +481,6 @@ def _startup_over(sim: Simulation, limit: float | None, t0: float, what: str) ->
     took = time.perf_counter() - t0
     if limit is None or took <= limit:
         return False
-    from .solvers.base import Status
 
     msg = (f"time limit {limit:g} s reached during start-up ({what} took {took:.1f} s); "
            f"not relaxed")

@@ -25,7 +25,7 @@ NOT_SWITCHES = {"PENETRATION_TOL", "STALL_NEWTON", "RULES", "HIERARCHY_CACHE", "
 
 def test_no_newton_module_keeps_a_switch_of_its_own():
     found = []
-    for path in sorted(NEWTON.glob("*.py")):
+    for path in sorted(NEWTON.rglob("*.py")):
         for node in ast.parse(path.read_text()).body:
             targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
                 node, ast.AnnAssign) else []

@@ -41,7 +41,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydantic import BaseModel
 
+from .. import simulation
+from ..config import SceneError, apply_overrides, read_yaml, scene_from_dict
+from ..mold import mold_query_many
+from ..results import atomic_write_bytes
 from . import MMHG
 
 
@@ -172,8 +177,6 @@ def _raw_value(data, path: str):
 def _schema_value(scene, path: str):
     """(value, owner class name, field name) at ``path`` in the validated scene: a field the file
     omits holds its default. Raises FitError when the schema has no such field."""
-    from pydantic import BaseModel
-
     node, owner, name = scene, None, None
     done: list[str] = []
     for part in path.split("."):
@@ -226,8 +229,6 @@ def start_value(data: dict, path: str, scene=None) -> float:
     (a count: ``fabric.divisions``, ``solver.max_iterations``; a fit varies a continuous value),
     and an omitted field with no default value (give it with --set first). ``scene``: the
     validated scene of ``data`` (it tells the field's type)."""
-    from ..config import scene_from_dict
-
     if scene is None:
         scene = scene_from_dict(copy.deepcopy(data))
     if scene.panels and path.split(".")[:2] == ["fabric", "size"]:
@@ -269,7 +270,6 @@ def warm_start(model, state, positions: np.ndarray, rounds: int = 8) -> None:
     state.positions[free] = positions[free]
     if model.mold is None:
         return
-    from ..mold import mold_query_many
 
     margs = model.mold.kernel_args()
     for _ in range(rounds):
@@ -298,14 +298,9 @@ class _Solver:
         self.log = log
 
     def scene_dict(self, x) -> dict:
-        from ..config import apply_overrides
-
         return apply_overrides(self.data, {v.path: float(xi) for v, xi in zip(self.varies, x)})
 
     def __call__(self, x) -> np.ndarray:
-        from ..config import scene_from_dict
-        from ..simulation import Simulation, warm_up
-
         if self.stop:
             raise FitInterrupted(self.stop[0], self.tries)
         t0 = time.perf_counter()
@@ -313,14 +308,14 @@ class _Solver:
         blame = {v.path: f"--vary {v.path} (at {float(xi):.8g})" for v, xi in zip(self.varies, x)}
         scene = scene_from_dict(self.scene_dict(x), self.source, None, blame)
         # a signal stops the solve at its next iteration; that try is dropped (not an equilibrium)
-        sim = Simulation(scene, callback=lambda prog: bool(self.stop))
+        sim = simulation.Simulation(scene, callback=lambda prog: bool(self.stop))
         warm = self.prev is not None and not self.fresh
         if warm:
             if self.prev.positions.shape != sim.state.positions.shape:
                 raise FitError("the varied field changes the number of nodes: a fit cannot vary it")
             warm_start(sim.model, sim.state, self.prev.positions)
         if not self.warm:
-            warm_up(sim.model, sim.state, sim.settings)
+            simulation.warm_up(sim.model, sim.state, sim.settings)
             self.warm = True
         sim.run()
         if self.stop:
@@ -345,8 +340,6 @@ def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, ov
     docstring). Raises FitError on bad input or an unreachable target (with the reachable range),
     FitInterrupted (with the finished tries) once ``stop`` (a list a signal handler appends to)
     is not empty."""
-    from ..config import apply_overrides, read_yaml
-
     scene_path = Path(scene_path)
     data, _ = read_yaml(scene_path)
     data = apply_overrides(data, overrides or [])
@@ -359,8 +352,6 @@ def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list
     (see :func:`start_value`) and the scene takes both its bounds (:func:`_check_bounds`; a sweep
     checks every run's fit so before anything runs). Returns the start values; raises FitError
     (or SceneError)."""
-    from ..config import scene_from_dict
-
     if not varies or not targets:
         raise FitError("fit needs at least one --vary and one --target")
     for what, names in (("--vary", [v.path for v in varies]), ("--target", [t.probe for t in targets])):
@@ -454,8 +445,6 @@ def _check_bounds(data: dict, source: Path | None, varies: list[Vary], x0, lo, h
     """Refuse, before any solve, a bound the scene cannot take (a negative width, a width over
     the 1e6 m bound), naming the --vary that gave it: each bound is validated with the other
     fields at their start values."""
-    from ..config import SceneError, apply_overrides, scene_from_dict
-
     for n, v in enumerate(varies):
         for which, b in (("lower", lo[n]), ("upper", hi[n])):
             x = list(x0)
@@ -610,8 +599,6 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
 def write_outputs(res: FitResult, out: str | Path, varies: list[Vary], targets: list[Target]) -> Path:
     """out/fitted.yaml (the scene at the fitted values), out/fit.csv (the tries), out/fit.json and
     the fitted run's result files (result.npz, summary.json, ...)."""
-    from ..results import atomic_write_bytes
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if res.result is not None:

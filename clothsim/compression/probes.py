@@ -32,13 +32,14 @@ import math
 
 import numpy as np
 
+from ..mold import mold_query_many
+from ..plottext import PLAIN, plain_legend
 from . import MMHG
+from .standards import classify_all
 
 
 def _mold_closest(mold, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(closest points (M, 3) [m], signed distances (M,) [m]) of points P (M, 3) on the mold."""
-    from ..mold import mold_query_many
-
     P = np.ascontiguousarray(P, dtype=float).reshape(-1, 3)
     m = len(P)
     sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
@@ -238,8 +239,6 @@ def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressu
     if profiles:
         out["profiles"] = [read_profile(model, positions, in_contact, pressure, pf) for pf in profiles]
     if classes is not None and probes:
-        from .standards import classify_all
-
         reading = next(r for r in out["probes"] if r["name"] == classes.probe)
         results = classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)
         if not reading["contact_fraction"] > 0.0:
@@ -290,8 +289,6 @@ def profile_png(profiles: list[dict], title: str = "") -> bytes:
 
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
-
-    from ..plottext import PLAIN, plain_legend
 
     fig = Figure(figsize=(5.0, 4.5), dpi=100)
     ax = fig.add_subplot(1, 1, 1)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, Mold,
                      MoldError, _ro)
+from .smooth import FACE_LIST_MAX_ENTRIES, face_vertex_lists, smooth_phi
 
 
 # --------------------------------------------------------------------------------------------
@@ -439,7 +440,6 @@ def with_surface(mold: Mold, surface: str = "faceted", smoothing: float | None =
                               bvh_reach=_ro(_bvh_reach(mold, jets[:, 15]), np.float64),
                               face_vertex_ptr=None, face_vertex_idx=None)
     # each face's gathering list for the queries started on it (``smooth.face_vertex_lists``)
-    from .smooth import FACE_LIST_MAX_ENTRIES, face_vertex_lists
 
     fptr, fidx = face_vertex_lists(out.kernel_args(), FACE_LIST_MAX_ENTRIES)
     out = dataclasses.replace(out, face_vertex_ptr=_ro(fptr, np.int64), face_vertex_idx=_ro(fidx, np.int64))
@@ -466,8 +466,6 @@ def smooth_departure(mold: Mold):
     lies farther than a tenth of the face's longest edge from it (first order: |phi| / |grad
     phi|), and the largest such distance [m]. Faces beyond every vertex's reach (answered by the
     facets) count as on it."""
-    from .smooth import smooth_phi
-
     T = mold.vertices[mold.faces]
     C = np.ascontiguousarray(T.mean(axis=1))
     L = np.linalg.norm(T - np.roll(T, 1, axis=1), axis=2).max(axis=1)

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from .queries import mold_query_many
 from .record import MESH_KINDS, MOLD_BOX, MOLD_CYLINDER, MOLD_PLANE, MOLD_SPHERE, Mold
 
 #: a mold this many times larger (or smaller) than the sheet gets a units warning: a file in
@@ -73,7 +74,6 @@ def mold_reach_warning(mold: Mold | None, points: np.ndarray, sheet_size_m) -> s
     sheet = float(np.max(np.asarray(sheet_size_m, dtype=np.float64)))
     if P.shape[0] == 0 or not (math.isfinite(sheet) and sheet > 0) or not np.isfinite(P).all():
         return None
-    from .queries import mold_query_many
 
     n = P.shape[0]
     sd = np.empty(n)

@@ -13,33 +13,31 @@ options (``options.options_from_settings``, the one place) and runs it.
 
 from __future__ import annotations
 
+from .auto import AutoSolver
 from .base import RunLimits, Solver, Status, StepReport, StepStatus
 from .common import Progress, SolveResult, STATUSES, residual
 from .control import Control, load_steps, solve_load_steps
 from .driver import History, run
+from .newton import NewtonSolver
 from .options import AutoOptions, NewtonOptions, PaperOptions, live_options, options_from_settings
 from .paper import PaperSolver
 
 
 def pick_method(model, settings) -> str:
-    """The method ``auto`` runs: ``newton`` when it is available, else ``paper``."""
+    """The method ``auto`` runs: ``newton`` (always available: scipy is a dependency)."""
     if settings.method != "auto":
         return settings.method
-    try:
-        from . import newton  # noqa: F401
-    except ImportError:
-        return "paper"
     return "newton"
 
 
 def solver_class(method: str) -> type:
     """The Solver class of ``method`` ("paper", "newton" or "auto")."""
     if method == "paper":
-        from .paper import PaperSolver as cls
+        cls = PaperSolver
     elif method == "newton":
-        from .newton import NewtonSolver as cls
+        cls = NewtonSolver
     elif method == "auto":
-        from .auto import AutoSolver as cls
+        cls = AutoSolver
     else:  # validated by config, so this is a programming error
         raise ValueError(f"unknown solver method {method!r}")
     return cls
@@ -71,15 +69,3 @@ __all__ = ["Progress", "SolveResult", "STATUSES", "Status", "StepStatus", "StepR
            "NewtonOptions", "AutoOptions", "options_from_settings", "Control", "load_steps",
            "solve_load_steps", "residual", "solve", "pick_method", "make_solver", "solver_class"]
 
-
-def __getattr__(name):
-    # Newton (scipy) and the composite are loaded on first use, as pick_method expects
-    if name == "NewtonSolver":
-        from .newton import NewtonSolver
-
-        return NewtonSolver
-    if name == "AutoSolver":
-        from .auto import AutoSolver
-
-        return AutoSolver
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,7 +13,9 @@ import dataclasses
 from .base import Solver, Status
 from .common import SolveResult
 from .driver import History
+from .newton import NewtonSolver
 from .options import AutoOptions
+from .paper import PaperSolver
 
 
 def _with(limits, **kw):
@@ -35,7 +37,6 @@ class AutoSolver(Solver):
 
     def __init__(self, model, options: AutoOptions | None = None):
         super().__init__(model, options)
-        from .newton import NewtonSolver
 
         self.newton = NewtonSolver(model, self.options.newton)
         self._rescue = None
@@ -45,8 +46,6 @@ class AutoSolver(Solver):
     def rescue(self):
         """The paper's relaxation (built on first use)."""
         if self._rescue is None:
-            from .paper import PaperSolver
-
             self._rescue = PaperSolver(self.model, self.options.paper)
         return self._rescue
 

@@ -16,9 +16,10 @@ from typing import Optional
 import numpy as np
 
 from ..contact import residual_from_forces
-from ..kernels import forces_and_energy
+from ..kernels import forces_and_energy, spring_strains_tensions
 from ..model import State
 
+from ..mold import load_mold
 from .status import Status
 
 # the run statuses' strings (``Status`` values), in the order they have always been listed
@@ -68,8 +69,6 @@ class SolveResult:
 
 @functools.lru_cache(maxsize=1)
 def _dummy_mold_args():
-    from ..mold import load_mold
-
     return load_mold({"plane": {"point": [0.0, 0.0, -1e9], "normal": [0.0, 0.0, 1.0]}}).kernel_args()
 
 
@@ -107,8 +106,6 @@ def energy(model, state) -> float:
 
 def force_scale(model, state) -> float:
     """Largest spring force [N] (for the relative residual)."""
-    from ..kernels import spring_strains_tensions
-
     s = np.empty(model.spring_count)
     f = np.empty(model.spring_count)
     spring_strains_tensions(state.positions, *model.spring_args(), s, f)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import SpringFamily
+from .driver import History
 
 
 @dataclass(frozen=True)
@@ -107,8 +108,6 @@ def solve_load_steps(make_solver, model, state, controls, limits, callback=None,
     ``make_solver(model)`` (a solver for the model with that step's prescribed positions) under
     ``limits`` to equilibrium. Returns (the last step's Model, [SolveResult per step]); a step that
     does not converge ends the sequence. ``history`` (a History, optional) records every step."""
-    from .driver import History
-
     hist = history if history is not None else History()
     results = []
     for c in controls:

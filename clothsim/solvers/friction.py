@@ -21,14 +21,13 @@ from .base import Status
 from .common import SolveResult, residual
 from .control import Control
 from .driver import History
+from .newton import NewtonSolver
+from .options import NewtonOptions
 from .tuning import FrictionTuning
 
 
 def _newton(model, limits):
     """Newton for ``model`` with a SolverSettings' newton options (defaults for RunLimits)."""
-    from .newton import NewtonSolver
-    from .options import NewtonOptions
-
     return NewtonSolver(model, NewtonOptions(kink=float(getattr(limits, "newton_kink", NewtonOptions.kink)),
                                              sequencing=bool(getattr(limits, "newton_sequencing", True))))
 

@@ -32,7 +32,7 @@ class Curvature(enum.IntEnum):
 class NewtonTuning:
     """Newton's switches and constants (defaults: the solver's behaviour)."""
 
-    # --- the linear solve (iteration.py, linalg.py)
+    # --- the linear solve (iteration.py, linalg/)
     direct_dofs: int = 6000
     """Systems with at most this many unknowns are factorised directly (no multigrid) [unknowns]."""
     band_work: float = 1.2e7

@@ -7,6 +7,7 @@ import signal
 import sys
 import time
 
+from .. import kernels_cached
 from ..config import SceneError, load_scene
 from ..material import MaterialError
 from ..mold import MoldError
@@ -53,8 +54,6 @@ def main(args) -> int:
         if app.port != args.port and args.port != 0:
             print(f"note: port {args.port} is busy; using {app.port}", file=sys.stderr)
         print(f"clothsim viewer: {app.url}  (scene {args.scene}; Ctrl+C stops)", flush=True)
-        from .. import kernels_cached
-
         print("loading the compiled kernels from numba's cache..." if kernels_cached() else
               "compiling kernels (first start after an install or update: about a minute)...",
               file=sys.stderr, flush=True)

@@ -11,15 +11,21 @@ running relaxation) and are only mirrored here so that the saved scene carries t
 from __future__ import annotations
 
 import copy
+import io
 import math
 import re
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..config import Scene, SceneError, scene_from_dict
+import yaml
+
+from .. import patterns
+from ..config import Scene, SceneError, load_scene, scene_from_dict
 from ..material import MaterialError, check_table, parse_table_csv
 from ..mold import MoldError, cache_mold, load_mold, load_mold_bytes
+from ..patterns import PatternError
 from ..presets import PRESETS
 from .scenes import bundled_match, check_references, check_scene_files, open_bundled, scrub
 
@@ -494,8 +500,6 @@ class SceneDraft:
     def pattern_slot(self, name: str, data: bytes) -> tuple[str, Path]:
         """(label name, stored path) for an upload, after the cheap checks (uploads accepted, a
         .dxf or .svg name, the byte limit); nothing is written yet."""
-        from ..patterns import PatternError
-
         label_name = _safe_name(name)
         if self.upload_dir is None:
             raise PatternError("uploads are not accepted here")
@@ -513,12 +517,10 @@ class SceneDraft:
         """Write the upload to its slot and read its pieces (no draft state is read or changed:
         safe in a worker thread; the reader's bounds keep the work to seconds,
         clothsim.patternlimits). On a refusal the stored copy is removed."""
-        from ..patterns import PatternError, read_pattern
-
         label_name, stored = slot
         stored.write_bytes(data)
         try:
-            pieces = read_pattern(stored)
+            pieces = patterns.read_pattern(stored)
         except PatternError as exc:
             stored.unlink(missing_ok=True)
             raise type(exc)(str(exc).replace(str(stored), label_name)) from None
@@ -642,11 +644,6 @@ def scene_zip_bytes(scene: Scene, head: str = "") -> bytes:
     pattern files, initial positions) under ``files/``, the scene's references rewritten to those
     relative paths: unzip it anywhere and ``python app.py run scene.yaml`` reruns it. The mold is
     stored as ``files/mold<ext>``, the others under their own names."""
-    import io
-    import zipfile
-
-    import yaml
-
     d = scene.resolved().to_dict()
     stored: dict[str, str] = {}  # source path -> name in the zip
     used: set[str] = set()
@@ -695,8 +692,6 @@ def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> S
     (``configs/``) is opened from there instead, its files resolved beside it. Raises SceneError
     (or MoldError, MaterialError) with the uploaded file's name and the line and field, never
     ``dest``."""
-    import zipfile
-
     label = _safe_name(name)
     ext = Path(str(name)).suffix.lower()
     if ext not in SCENE_EXTS:
@@ -706,8 +701,6 @@ def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> S
         return open_bundled(bundled)
     dest.mkdir(mode=0o700, parents=True, exist_ok=False)
     if ext == ".zip":
-        import io
-
         try:
             z = zipfile.ZipFile(io.BytesIO(data))
             infos = z.infolist()
@@ -745,7 +738,6 @@ def open_scene_upload(name: str, data: bytes, dest: Path, limit_bytes: int) -> S
     else:
         path = dest / label
         path.write_bytes(data)
-    from ..config import load_scene
 
     try:
         scene = load_scene(path)

@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from ..compression.probes import _mold_closest, evaluate
 from ..kernels import spring_strains_tensions
 from ..results import MMHG, contact_reaction
 
@@ -99,7 +100,6 @@ def probe_readings(scene, model, positions: np.ndarray, in_contact: np.ndarray) 
     classes and each disc's mold normal (unit (3,), for drawing); [] without probes."""
     if not getattr(scene, "probes", None):
         return []
-    from ..compression.probes import _mold_closest, evaluate
 
     pressure = contact_reaction(model, positions, in_contact)[1]
     out = evaluate(scene, model, positions, in_contact, pressure).get("probes", [])

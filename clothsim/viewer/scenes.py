@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from ..config import Scene, SceneError
+from ..config import Scene, SceneError, load_scene
 from ..material import MaterialError
 from ..mold import MoldError, check_mold
 
@@ -128,8 +128,6 @@ def open_bundled(path: Path) -> Scene:
     """A bundled scene (:func:`bundled_scenes`), its references resolved against its own folder
     (``../../static/bodies/smpl_man.stl``) and its files read as a run would; errors name
     ``configs/...:line: field``."""
-    from ..config import load_scene
-
     path = Path(path)
     rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else path.name
     try:

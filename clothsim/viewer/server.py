@@ -44,6 +44,7 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -53,9 +54,10 @@ import viser
 from ..config import Scene, SceneError
 from ..material import MaterialError
 from ..mold import MoldError
-from .. import kernels_cached
+from .. import kernels_cached, simulation
 from ..simulation import Simulation
 from .draft import SceneDraft
+from .fields import node_field
 from .guard import GuiValueGuard, HandshakeCheck, UploadGuard, guarded_server, is_loopback, new_token
 from .panels.constraints import ConstraintsPanel
 from .panels.fabric import FabricPanel
@@ -90,10 +92,7 @@ def _startup_html(elapsed: float, cached: bool) -> str:
 def warm_kernels(sim: Simulation) -> None:
     """Compile (or load from numba's cache) every kernel the relaxation and the display will
     call, so that a run started afterwards draws its first frame at once."""
-    from ..simulation import warm_up
-    from .fields import node_field
-
-    warm_up(sim.model, sim.state, sim.settings)
+    simulation.warm_up(sim.model, sim.state, sim.settings)
     sim.current_residual()
     for key in ("strain_warp", "pressure"):
         try:
@@ -601,8 +600,6 @@ class ViewerApp:
     def _do_apply(self, reset: bool, resume: bool | None = None) -> None:
         """Rebuild the model from the draft (warm start unless ``reset``); a relaxation that was
         running goes on from the new model (``resume``: None = if it was running)."""
-        import warnings
-
         resume = self.sim.status == "running" if resume is None else resume
         scene = self.scene_draft.validate()
         with warnings.catch_warnings(record=True) as caught:  # the mold's units and reach

@@ -8,6 +8,7 @@ Shapes: n nodes; positions/forces (n, 3) [m]/[N]; residuals ||V||_inf [N]; energ
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -610,8 +611,6 @@ def _smallest_eigenpair(matvec, prec, x0, iters):
 
     Reference: Knyazev A. V., Toward the optimal preconditioned eigensolver: locally optimal block
     preconditioned conjugate gradient method, SIAM J. Sci. Comput. 23 (2001)."""
-    import warnings
-
     m = x0.shape[0]
 
     def mm(X):

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from ...mold import mold_query_many
 from .active_set import PENETRATION_TOL
 from ..base import StepStatus
 from ..tuning import NewtonTuning
@@ -123,7 +124,6 @@ class _HoldFit:
         dst (n, 3) [m] that are inside the level's mold (a held node is never moved onto it)."""
         if level_model.mold is None or self.g.size == 0:
             return
-        from ...mold import mold_query_many
 
         g = self.g
         pts = np.ascontiguousarray(dst[g])
@@ -259,8 +259,6 @@ def prolong_state(coarse_model, coarse_state, fine_model, fine_state, P=None, ki
     nonlinear Gauss-Seidel (``rim.settle_outline``; ``band``: ``rim.outline_band(fine_model)`` when
     known). P: the interpolation (``_prolongation``) and rim_op:
     ``_rim_operator(fine_model)``, when known; tuning: NewtonOptions.tuning."""
-    from ...mold import mold_query_many
-
     pos, cont = _interpolated(coarse_model, coarse_state, fine_model, fine_state, P, kink, band, rim_op, tuning)
     fixed = fine_model.fixed_axes
     if fine_model.mold is not None:

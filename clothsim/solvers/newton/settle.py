@@ -24,9 +24,10 @@ import numpy as np
 from numba import njit
 
 from ...contact import MAX_FEATURE_NORMALS, cone_active, cut_move, free_axis_normals, stop_at_surface
-from ...kernels import LENGTH_EPS
+from ...kernels import LENGTH_EPS, first_slope
 from ...mold.queries import contact_normals_at, is_primitive, query_at
 from ...mold.segment import primitive_segment_hit
+from ..common import model_mold_args
 from .active_set import held_axis_rows, orthonormal_rows
 
 from ..tuning import NewtonTuning
@@ -187,8 +188,6 @@ def node_spring_block(k, pos, ptr, sp, oth, rest, width, table, x, y, cum, start
 def spring_kinks(model, kink: float) -> np.ndarray:
     """(S,) [N/m]: each spring's kink stiffness, ``kink`` (NewtonOptions.kink) times its table's
     first slope, as NewtonLevel has them (zeros when kink is 0)."""
-    from ...kernels import first_slope
-
     if not kink > 0:
         return np.zeros(model.spring_count)
     t = model.tables
@@ -296,8 +295,6 @@ def settle_start(model, state, kink, width=None, sweeps=None):
     positions (n, 3) [m] and in_contact (n,) are changed in place. kink: NewtonOptions.kink
     (times each table's first slope, as in NewtonLevel). Nodes of seam elements are left out.
     Returns the contact changes of the last sweep (0: settled), or -1 without a mold."""
-    from ..common import model_mold_args
-
     has_mold, margs = model_mold_args(model)
     if not has_mold:
         return -1

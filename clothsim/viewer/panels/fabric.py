@@ -16,7 +16,7 @@ from pathlib import Path
 
 import viser
 
-from ...mold import load_mold, mold_cached
+from ...mold import load_mold, mold_cached, mold_scale_warning
 from ..draft import ABS_LENGTH_MAX, DIVISIONS_MAX, MOLD_SCALE_MAX, MOLD_UPLOAD_MAX_TRIANGLES, SCENE_MOLD
 from . import Panel
 
@@ -240,7 +240,6 @@ class FabricPanel(Panel):
         self.mold_preview = mold if mold is not None else "none"
         self.mold_warnings = []
         if mold is not None:  # units at once; the reach is checked when the edit is applied
-            from ...mold import mold_scale_warning
 
             msg = mold_scale_warning(mold, self.app.sim.model.placement.size)
             self.mold_warnings = [f"mold: {msg}"] if msg else []

@@ -11,6 +11,7 @@ import threading
 
 import viser
 
+from ...compression.report import build_report
 from ..draft import SceneDraft, open_scene_upload
 from ..scenes import bundled_scenes, open_bundled
 from . import Panel
@@ -87,8 +88,6 @@ class FilesPanel(Panel):
         app = self.app
 
         def work():
-            from ...compression.report import build_report
-
             try:
                 with tempfile.TemporaryDirectory(prefix="clothsim-report-") as td:
                     result.save(td)

@@ -4,6 +4,8 @@ from the next Start."""
 
 from __future__ import annotations
 
+from pydantic import ValidationError
+
 from ...config import SOLVER_METHODS, SceneError, SolverSettings
 from ..draft import C_MAX, MAX_ITERATIONS_MAX, as_float, as_int
 from . import Panel
@@ -38,8 +40,6 @@ class SolverPanel(Panel):
 
     def set(self, **kw) -> None:
         """Validate and send solver settings to the simulation; mirror them in the draft."""
-        from pydantic import ValidationError
-
         try:
             self.app.sim.set_solver(**kw)  # validates before recording the edit
         except ValidationError as exc:
