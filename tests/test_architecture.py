@@ -141,3 +141,20 @@ def test_no_test_module_imports_another():
                      [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             bad += [f"{f.name} imports {n}" for n in names if n.split(".")[-1].startswith("test_")]
     assert not bad, "\n".join(bad)
+
+
+def test_only_conftest_starts_a_browser():
+    """Issue 29 item 5: Chromium is started in one place, conftest.py's ``browser`` fixture (one
+    per test module); the test modules launched it themselves in nine places (four module
+    fixtures, four test bodies and a helper, each with its own copy of the set-up)."""
+    import ast
+    from pathlib import Path
+
+    bad = []
+    for f in sorted((Path(__file__).resolve().parent).glob("test_*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module == "playwright.sync_api":
+                bad.append(f"{f.name}:{node.lineno} imports playwright.sync_api")
+            if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) == "launch":
+                bad.append(f"{f.name}:{node.lineno} calls launch()")
+    assert not bad, "\n".join(bad)
