@@ -52,8 +52,27 @@ def root():
     return ROOT
 
 
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's Chromium, headless, through Playwright (``browser_util.launch``: software WebGL,
+    generous action timeouts): one per test module, closed after it. Without /usr/bin/chromium
+    the test skips locally and fails in CI (``CI`` set). The one place a test starts a browser."""
+    pytest.importorskip("playwright")
+    from browser_util import launch, require_chromium
+
+    require_chromium()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = launch(p)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
 #: fixtures that start Debian's Chromium: a test using one is a browser test
-BROWSER_FIXTURES = {"browser", "chromium", "page"}
+BROWSER_FIXTURES = {"browser"}
 
 
 def pytest_collection_modifyitems(config, items):

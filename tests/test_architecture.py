@@ -319,3 +319,20 @@ def test_no_file_over_the_line_limit():
             if (n := len(p.read_text().splitlines())) > LINE_LIMIT}
     bad = {f: n for f, n in long.items() if f not in LONG_FILES}
     assert not bad, f"files over {LINE_LIMIT} lines: {bad}"
+
+
+def test_only_conftest_starts_a_browser():
+    """Issue 29 item 5: Chromium is started in one place, conftest.py's ``browser`` fixture (one
+    per test module); the test modules launched it themselves in nine places (four module
+    fixtures, four test bodies and a helper, each with its own copy of the set-up)."""
+    import ast
+    from pathlib import Path
+
+    bad = []
+    for f in sorted((Path(__file__).resolve().parent).glob("test_*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module == "playwright.sync_api":
+                bad.append(f"{f.name}:{node.lineno} imports playwright.sync_api")
+            if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) == "launch":
+                bad.append(f"{f.name}:{node.lineno} calls launch()")
+    assert not bad, "\n".join(bad)

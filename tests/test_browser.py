@@ -22,10 +22,8 @@ from browser_util import (  # noqa: E402
     canvas_pixels,
     close_notifications,
     free_port,
-    launch,
     pixels_js,
     poll,
-    require_chromium,
     shown_iteration,
     shown_residual,
     status_text,
@@ -43,17 +41,6 @@ SMALL = {**SMALL_CAP, "name": "browser-cap"}
 
 # orange of a mold that is uploaded but not yet applied (viewer: (235, 140, 50)), lit: any shade
 ORANGE_JS = pixels_js("r > 90 && r > 1.3 * g && g > 1.3 * b && r - b > 60")
-
-
-@pytest.fixture(scope="module")
-def browser():
-    require_chromium()
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = launch(p)
-        yield b
-        b.close()
 
 
 @pytest.fixture(scope="module")

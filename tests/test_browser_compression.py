@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, launch, pixels_js, poll, require_chromium, wait_for_render  # noqa: E402
+from browser_util import close_notifications, pixels_js, poll, wait_for_render  # noqa: E402
 
 from clothsim.config import load_scene, scene_from_dict  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -26,17 +26,6 @@ from conftest import ROOT  # noqa: E402
 from viewer_util import free_port  # noqa: E402
 
 CLASS2 = ROOT / "configs" / "class2_sleeve.yaml"
-
-
-@pytest.fixture(scope="module")
-def browser():
-    require_chromium()
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = launch(p)
-        yield b
-        b.close()
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, free_port, launch, poll, require_chromium, wait_for_render  # noqa: E402
+from browser_util import close_notifications, free_port, poll, wait_for_render  # noqa: E402
 from viewer_util import BOMB_SVG, SMALL, pattern_dxf  # noqa: E402
 
 from clothsim.config import scene_from_dict  # noqa: E402
@@ -20,33 +20,28 @@ from clothsim.viewer import ViewerApp  # noqa: E402
 
 
 @pytest.mark.slow
-def test_hostile_svg_upload_refused_on_the_page_which_keeps_answering(tmp_path):
-    require_chromium()
-    from playwright.sync_api import sync_playwright
-
+def test_hostile_svg_upload_refused_on_the_page_which_keeps_answering(tmp_path, browser):
     app = ViewerApp(scene_from_dict({**SMALL, "name": "browser-patterns"}), port=free_port())
     try:
-        with sync_playwright() as p:
-            browser = launch(p)
-            try:
-                page = browser.new_page(viewport={"width": 1400, "height": 900})
-                page.goto(app.url)
-                wait_for_render(page, min_pixels=2000, timeout=90)
-                close_notifications(page)
-                page.get_by_role("tab", name="Fabric & mold").click()
-                upload = f"#file_upload_{app.gui['pattern_upload']._impl.uuid}"
-                bomb = tmp_path / "bomb.svg"
-                bomb.write_bytes(BOMB_SVG)
-                page.set_input_files(upload, files=[str(bomb)])
-                page.get_by_text(re.compile(r"bomb\.svg: piece path1, <path>: .*beyond the bound of 1e\+06 m")) \
-                    .first.wait_for(timeout=30_000)
-                good = tmp_path / "pieces.dxf"
-                good.write_bytes(pattern_dxf())
-                page.set_input_files(upload, files=[str(good)])
-                assert poll(lambda: app.gui["pattern_piece"].options == ("FRONT", "BACK"), timeout=30), app.errors
-                page.get_by_text(re.compile(r"pieces\.dxf \(\d+\)")).first.wait_for(timeout=20_000)
-                assert app.errors["pattern"] == ""
-            finally:
-                browser.close()
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        try:
+            page.goto(app.url)
+            wait_for_render(page, min_pixels=2000, timeout=90)
+            close_notifications(page)
+            page.get_by_role("tab", name="Fabric & mold").click()
+            upload = f"#file_upload_{app.gui['pattern_upload']._impl.uuid}"
+            bomb = tmp_path / "bomb.svg"
+            bomb.write_bytes(BOMB_SVG)
+            page.set_input_files(upload, files=[str(bomb)])
+            page.get_by_text(re.compile(r"bomb\.svg: piece path1, <path>: .*beyond the bound of 1e\+06 m")) \
+                .first.wait_for(timeout=30_000)
+            good = tmp_path / "pieces.dxf"
+            good.write_bytes(pattern_dxf())
+            page.set_input_files(upload, files=[str(good)])
+            assert poll(lambda: app.gui["pattern_piece"].options == ("FRONT", "BACK"), timeout=30), app.errors
+            page.get_by_text(re.compile(r"pieces\.dxf \(\d+\)")).first.wait_for(timeout=20_000)
+            assert app.errors["pattern"] == ""
+        finally:
+            page.close()
     finally:
         app.close()

@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, free_port, launch, pixels_js, poll, require_chromium, status_text, wait_for_render  # noqa: E402
+from browser_util import close_notifications, free_port, pixels_js, poll, status_text, wait_for_render  # noqa: E402
 
 from clothsim.config import load_scene  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -26,42 +26,36 @@ ORANGE_JS = pixels_js("r > 150 && g > 0.35 * r && g < 0.75 * r && b < 0.35 * g")
 
 
 @pytest.mark.slow
-def test_unequal_seam_threads_and_gap_list_in_chromium():
+def test_unequal_seam_threads_and_gap_list_in_chromium(browser):
     """configs/garments/eased_seam.yaml started 3 cm open (its upper panel moved up): the 23
     threads (one per sewn node) show as orange pixels in the page, which go when the threads
     are hidden; after Start the status line in the page lists 'seam 0: widest gap ... m (ease
     10.0 %)' with the gap closed below 1e-5 m."""
-    require_chromium()
-    from playwright.sync_api import sync_playwright
-
     scene = load_scene(ROOT / "configs" / "garments" / "eased_seam.yaml",
                        ["panels.1.placement.transform.translate=[-0.005,0.08,0]"])
     app = ViewerApp(scene, port=free_port())
     try:
-        with sync_playwright() as p:
-            browser = launch(p)
-            page = browser.new_page(viewport={"width": 1400, "height": 900})
-            try:
-                page.goto(app.url)
-                wait_for_render(page, min_pixels=2000, timeout=90)
-                close_notifications(page)
-                assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 23
-                shown = poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
-                app.renderer.h_seams.visible = False
-                hidden = poll(lambda: page.evaluate(ORANGE_JS) < (shown or 0) / 4 and page.evaluate(ORANGE_JS) + 1,
-                               timeout=30)
-                print(f"orange pixels: {shown} with the seam threads, {hidden and hidden - 1} without")
-                assert shown and hidden and hidden - 1 < shown / 4
-                app.renderer.h_seams.visible = True
-                page.get_by_role("button", name="Start").click()
-                text = poll(lambda: "converged" in status_text(page) and "seam 0" in status_text(page)
-                             and status_text(page), timeout=90)
-                assert text, status_text(page)
-                m = re.search(r"seam 0: widest gap ([0-9.eE+-]+) m \(ease 10\.0 %\)", text)
-                assert m, text
-                assert float(m.group(1)) < 1e-5
-            finally:
-                page.close()
-                browser.close()
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        try:
+            page.goto(app.url)
+            wait_for_render(page, min_pixels=2000, timeout=90)
+            close_notifications(page)
+            assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 23
+            shown = poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
+            app.renderer.h_seams.visible = False
+            hidden = poll(lambda: page.evaluate(ORANGE_JS) < (shown or 0) / 4 and page.evaluate(ORANGE_JS) + 1,
+                           timeout=30)
+            print(f"orange pixels: {shown} with the seam threads, {hidden and hidden - 1} without")
+            assert shown and hidden and hidden - 1 < shown / 4
+            app.renderer.h_seams.visible = True
+            page.get_by_role("button", name="Start").click()
+            text = poll(lambda: "converged" in status_text(page) and "seam 0" in status_text(page)
+                         and status_text(page), timeout=90)
+            assert text, status_text(page)
+            m = re.search(r"seam 0: widest gap ([0-9.eE+-]+) m \(ease 10\.0 %\)", text)
+            assert m, text
+            assert float(m.group(1)) < 1e-5
+        finally:
+            page.close()
     finally:
         app.close()

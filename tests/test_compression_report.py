@@ -11,8 +11,6 @@ import pytest
 
 pytest.importorskip("playwright")
 
-from browser_util import launch, require_chromium  # noqa: E402
-
 import clothsim  # noqa: E402
 from clothsim.config import load_scene  # noqa: E402
 
@@ -35,10 +33,7 @@ IMAGES_JS = """() => [...document.images].map(img => {
 
 @pytest.mark.browser
 @pytest.mark.slow
-def test_report_opens_offline_with_images_and_the_summary_numbers(tmp_path):
-    require_chromium()
-    from playwright.sync_api import sync_playwright
-
+def test_report_opens_offline_with_images_and_the_summary_numbers(tmp_path, browser):
     from clothsim.cli import main
 
     scene = load_scene(ROOT / "configs" / "sewn_sleeve.yaml", [
@@ -53,33 +48,31 @@ def test_report_opens_offline_with_images_and_the_summary_numbers(tmp_path):
     assert "http://" not in text and "https://" not in text and "<script" not in text
     s = json.loads((out / "summary.json").read_text())
     requests = []
-    with sync_playwright() as pw:
-        browser = launch(pw)
-        try:
-            page = browser.new_page()
+    page = browser.new_page()
+    try:
 
-            def block(route):
-                if not route.request.url.startswith(("file:", "data:")):
-                    requests.append(route.request.url)
-                    route.abort()
-                else:
-                    route.continue_()
+        def block(route):
+            if not route.request.url.startswith(("file:", "data:")):
+                requests.append(route.request.url)
+                route.abort()
+            else:
+                route.continue_()
 
-            page.route("**/*", block)
-            page.goto(page_file.as_uri())
-            page.wait_for_load_state("load")
-            imgs = page.evaluate(IMAGES_JS)
-            figures = page.eval_on_selector_all("figure.map", """els => els.map(f => ({id: f.id,
-                views: [...f.querySelectorAll('img.view')].map(i => i.alt),
-                bars: [...f.querySelectorAll('img.colorbar')].map(i => i.alt)}))""")
-            cells = page.eval_on_selector_all("#probes td.mmhg", "els => els.map(e => e.textContent)")
-            fracs = page.eval_on_selector_all("#probes td.frac", "els => els.map(e => e.textContent)")
-            classes = page.eval_on_selector_all("#classes td", "els => els.map(e => e.textContent)")
-            peak = page.text_content("#peak")
-            version = page.text_content("#version")
-            gradient = page.text_content("p.gradient")
-        finally:
-            browser.close()
+        page.route("**/*", block)
+        page.goto(page_file.as_uri())
+        page.wait_for_load_state("load")
+        imgs = page.evaluate(IMAGES_JS)
+        figures = page.eval_on_selector_all("figure.map", """els => els.map(f => ({id: f.id,
+            views: [...f.querySelectorAll('img.view')].map(i => i.alt),
+            bars: [...f.querySelectorAll('img.colorbar')].map(i => i.alt)}))""")
+        cells = page.eval_on_selector_all("#probes td.mmhg", "els => els.map(e => e.textContent)")
+        fracs = page.eval_on_selector_all("#probes td.frac", "els => els.map(e => e.textContent)")
+        classes = page.eval_on_selector_all("#classes td", "els => els.map(e => e.textContent)")
+        peak = page.text_content("#peak")
+        version = page.text_content("#version")
+        gradient = page.text_content("p.gradient")
+    finally:
+        page.close()
     assert not requests, requests
     # the pressure, warp strain and weft strain maps, each from three views with its colour bar
     maps = ["pressure map", "warp strain map", "weft strain map"]

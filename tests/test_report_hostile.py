@@ -100,36 +100,27 @@ INJECTED_JS = """() => ({
 })"""
 
 
-def _open_in_chromium(pages: dict) -> dict:
+def _open_in_chromium(browser, pages: dict) -> dict:
     """{name: what each report.html did in a real headless Chromium}: the dialogs it opened
     (alert() from injected script or handlers), its script elements, the elements with an id
     starting 'inj' and the elements carrying an on* handler, and a few texts."""
-    from playwright.sync_api import sync_playwright
-
-    from browser_util import launch
-
     seen = {}
-    with sync_playwright() as pw:
-        browser = launch(pw)
-        try:
-            for name, f in pages.items():
-                page = browser.new_page()
-                dialogs = []
+    for name, f in pages.items():
+        page = browser.new_page()
+        dialogs = []
 
-                def on_dialog(dlg, dialogs=dialogs):
-                    dialogs.append(dlg.message)
-                    dlg.dismiss()
+        def on_dialog(dlg, dialogs=dialogs):
+            dialogs.append(dlg.message)
+            dlg.dismiss()
 
-                page.on("dialog", on_dialog)
-                page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(("file:", "data:"))
-                           else route.abort())
-                page.goto(f.as_uri())
-                page.wait_for_load_state("load")
-                page.wait_for_timeout(500)   # an onerror / onload handler fires after the load
-                seen[name] = {"dialogs": dialogs, **page.evaluate(INJECTED_JS)}
-                page.close()
-        finally:
-            browser.close()
+        page.on("dialog", on_dialog)
+        page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(("file:", "data:"))
+                   else route.abort())
+        page.goto(f.as_uri())
+        page.wait_for_load_state("load")
+        page.wait_for_timeout(500)   # an onerror / onload handler fires after the load
+        seen[name] = {"dialogs": dialogs, **page.evaluate(INJECTED_JS)}
+        page.close()
     return seen
 
 
@@ -139,27 +130,19 @@ def _assert_inert(seen: dict) -> None:
         assert got["injected"] == [] and got["handlers"] == [], (name, got)
 
 
-@pytest.fixture
-def chromium():
-    pytest.importorskip("playwright")
-    from browser_util import require_chromium
-
-    require_chromium()
-
-
-def test_markup_in_number_fields_never_runs_in_chromium(tmp_path, capsys, sleeve_run, chromium):
+def test_markup_in_number_fields_never_runs_in_chromium(tmp_path, capsys, sleeve_run, browser):
     """Issue 28 item 3: markup in summary.json's iterations, contact_count and node_count ran as
     script (Chromium fired three alerts). A non-number there is refused: exit 2, naming the file
     and key, and no report file (so nothing to open); any page written is opened in Chromium."""
     d = _copy(sleeve_run, tmp_path / "numbers", _hostile_numbers)
     rc, err = _main(capsys, "report", str(d))
     page = d / "report.html"
-    _assert_inert(_open_in_chromium({"numbers": page} if page.exists() else {}))
+    _assert_inert(_open_in_chromium(browser, {"numbers": page} if page.exists() else {}))
     assert rc == 2 and f"{d / 'summary.json'}: iterations: not a number (got a string" in err, err
     assert not page.exists()
 
 
-def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, sleeve_run, chromium):
+def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, sleeve_run, browser):
     """Markup in every string the page shows (names, status, notes, classes, the scene's name in
     scene.yaml) is HTML-escaped: Chromium shows it as text, runs nothing, injects nothing."""
     d = _copy(sleeve_run, tmp_path / "strings", _hostile_strings)
@@ -168,7 +151,7 @@ def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, 
     assert PAYLOADS[3] in load_scene(scene).name
     rc, err = _main(capsys, "report", str(d))
     assert rc == 0, err
-    got = _open_in_chromium({"strings": d / "report.html"})
+    got = _open_in_chromium(browser, {"strings": d / "report.html"})
     _assert_inert(got)
     got = got["strings"]
     assert got["h1"] == f"clothsim report: sleeve $20_$30 {PAYLOADS[0]}"   # the text, escaped

@@ -383,20 +383,7 @@ def test_sigterm_removes_upload_folder(tmp_path):
 
 
 # --------------------------------------------------------------------------- in Chromium
-@pytest.fixture(scope="module")
-def browser():
-    from browser_util import launch, require_chromium
-
-    require_chromium()
-    pytest.importorskip("playwright")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = launch(p)
-        yield b
-        b.close()
-
-
+# (the `browser` fixture, Debian's Chromium: tests/conftest.py)
 def _status_shown(page, timeout_ms=120_000) -> str:
     from browser_util import status_text
 

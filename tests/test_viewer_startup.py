@@ -91,20 +91,7 @@ def test_view_prints_its_url_before_the_kernels_are_ready():
 
 
 # --------------------------------------------------------------------------- in Chromium
-@pytest.fixture(scope="module")
-def browser():
-    from browser_util import launch, require_chromium
-
-    require_chromium()
-    pytest.importorskip("playwright")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = launch(p)
-        yield b
-        b.close()
-
-
+# (the `browser` fixture, Debian's Chromium: tests/conftest.py)
 @pytest.mark.slow
 def test_browser_shows_compiling_note_until_kernels_ready(browser):
     """Issue 14, item 4 in Chromium: while the (simulated slow) warm-up runs, the page shows the
