@@ -21,7 +21,7 @@ import warnings
 from pathlib import Path
 
 from . import simulation
-from .compression.fit import (FitError, FitInterrupted, FitResult, fit, fit_info, parse_target,
+from .compression.fit import (FitError, FitInterrupted, FitResult, fit, fit_info, fitted_lines, parse_target,
                               parse_vary, write_outputs)
 from .compression.report import ReportError, write_report
 from .config import SceneError, load_scene
@@ -334,7 +334,6 @@ def _cmd_fit(args, stop: list[str], held: contextlib.ExitStack) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(("fitted: " if res.converged else "not fitted: ") + res.message)
-    from .compression.fit import fitted_lines
 
     for line in fitted_lines(res, varies, targets):
         print(line)

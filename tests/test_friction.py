@@ -334,7 +334,7 @@ def test_the_equilibria_check_judges_a_friction_scene_with_its_friction():
     check used it: 0.33 N on the stocking with friction's own reference, e = 1e-7 N)."""
     import importlib.util
 
-    from clothsim.friction import coulomb_residual
+    from clothsim.solvers.friction import coulomb_residual
     from clothsim.simulation import solve as run
     from clothsim.solvers.common import residual
 

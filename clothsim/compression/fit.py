@@ -44,9 +44,13 @@ import yaml
 from pydantic import BaseModel
 
 from .. import simulation
+from ..compile import design_outlines
 from ..config import SceneError, apply_overrides, read_yaml, scene_from_dict
+from ..labels import field_unit
 from ..mold import mold_query_many
 from ..results import atomic_write_bytes
+from ..sizing import default_for, sizing_table, table_lines
+from ..sizingspec import GarmentSpec
 from . import MMHG
 
 
@@ -216,7 +220,6 @@ def _omitted_block(owner, name):
     """The default of an omitted scene block a fit may vary fields of (``garment``: its scale
     is the design's, 1), or None."""
     if (owner, name) == ("Scene", "garment"):
-        from ..sizing import GarmentSpec
 
         return GarmentSpec()
     return None
@@ -239,8 +242,6 @@ def start_value(data: dict, path: str, scene=None) -> float:
     if value is None and (owner, name) in OMITTED_MEANS:
         value = OMITTED_MEANS[(owner, name)]
     if value is None and path == "garment.reduction":
-        from ..compile import design_outlines
-        from ..sizing import default_for
 
         value = default_for(path, scene, *design_outlines(scene))  # the design pattern's own reduction at the first level
     if value is None:
@@ -615,7 +616,6 @@ def fit_info(res: FitResult, varies: list[Vary], targets: list[Target]) -> dict:
     targets_mmhg, readings_mmhg {probe: mmHg}, the number of solves and, for a scene with
     measuring levels (``garment.levels``), levels: per level the body's girth, the fitted
     garment's relaxed circumference and its reduction (clothsim.sizing.sizing_table)."""
-    from ..labels import field_unit
 
     info = {"converged": res.converged, "message": res.message,
             "fields": {v.path: x for v, x in zip(varies, res.values)},
@@ -633,8 +633,6 @@ def fitted_levels(res: FitResult) -> list[dict]:
     """The sizing table (clothsim.sizing.sizing_table) of the fitted scene: [] without levels."""
     if res.result is None or getattr(res.result.scene, "garment", None) is None:
         return []
-    from ..compile import design_outlines
-    from ..sizing import sizing_table
 
     scene = res.result.scene
     return sizing_table(scene, *design_outlines(scene), getattr(res.result.model, "mold", None))
@@ -643,8 +641,6 @@ def fitted_levels(res: FitResult) -> list[dict]:
 def fitted_lines(res: FitResult, varies: list[Vary], targets: list[Target]) -> list[str]:
     """What ``fit`` prints after its verdict: each fitted field with its unit, each probe's
     reading and, with measuring levels, each level's girth, relaxed circumference and reduction."""
-    from ..labels import field_unit
-    from ..sizing import table_lines
 
     out = []
     for v, x in zip(varies, res.values):

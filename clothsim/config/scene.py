@@ -14,7 +14,7 @@ import yaml
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from ..compression.spec import Classes, Probe, Profile, check_compression
-from ..sizing import GarmentSpec
+from ..sizingspec import GarmentSpec
 from ..errors import SceneError
 from ..fileio import fmt_beyond
 from ..material import TENSION_MAX, Table, read_table_csv

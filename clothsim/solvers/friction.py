@@ -16,9 +16,10 @@ import time
 
 import numpy as np
 
-from ..friction import friction_report, lag_friction
+from ..contact import residual_from_forces
+from ..friction import elastic_forces, friction_report, lag_friction, normal_forces
 from .base import Status
-from .common import SolveResult, residual
+from .common import SolveResult, model_mold_args, residual
 from .control import Control
 from .driver import History
 from .newton import NewtonSolver
@@ -154,3 +155,25 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         energy=res.energy, contact_count=int(state.in_contact.sum()), wall_time_s=time.perf_counter() - t0,
         method=res.method, history=hist, best_residual=res.best_residual, friction=report)
     return m, out
+
+
+def coulomb_residual(model, state) -> float:
+    """||V||_inf [N] of ``state`` with the friction Coulomb's law allows, whatever the path: at
+    every contact node without a constrained axis the mold takes, besides its pressing normal
+    force f_n (:func:`normal_forces`), a tangential force of up to mu f_n against the springs',
+    seams' and loads' tangential resultant; what is left is judged as ``common.residual``
+    judges it. The residual of a frictional equilibrium without the load step's anchor (the
+    lagged friction needs it; a converged step's friction lies in the cone, so this is at most
+    the solver's residual). With mu = 0 it is the frictionless residual."""
+    F = elastic_forces(model, state.positions)
+    mu = float(model.friction_mu)
+    if mu > 0 and model.mold is not None:
+        nodes, nrm, lam = normal_forces(model, state)
+        f = F[nodes]
+        ft = f - np.einsum("ij,ij->i", f, nrm)[:, None] * nrm
+        mag = np.linalg.norm(ft, axis=1)
+        take = np.divide(np.minimum(mag, mu * lam), mag, out=np.zeros_like(mag), where=mag > 0)
+        F[nodes] = f - take[:, None] * ft
+    has_mold, margs = model_mold_args(model)
+    return float(residual_from_forces(state.positions, F, model.fixed_axes, state.in_contact, has_mold, margs,
+                                      np.empty(model.node_count)))

@@ -27,6 +27,7 @@ from ..material import MaterialError, check_table, parse_table_csv
 from ..mold import MoldError, cache_mold, load_mold, load_mold_bytes
 from ..patterns import PatternError
 from ..presets import PRESETS
+from ..sizingspec import REDUCTION_RANGE
 from .scenes import bundled_match, check_references, check_scene_files, open_bundled, scrub
 
 ROOT = Path(__file__).resolve().parent.parent.parent
@@ -480,7 +481,6 @@ class SceneDraft:
     def set_reduction(self, value) -> Scene:
         """garment.reduction [%]: the garment's relaxed circumference at every measuring level is
         the body's girth there times (1 - value / 100). Needs the scene's ``garment.levels``."""
-        from ..sizing import REDUCTION_RANGE
 
         if not self.has_levels():
             raise SceneError("garment.levels: the scene has no measuring levels; give them in the scene file")
