@@ -59,7 +59,7 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
                 grain = tuple(piece.grain)
         try:
             geom = panel_geometry(panel.name, outline, grain if grain is not None else (1.0, 0.0),
-                                  panel.spacing, panel.divisions)
+                                  panel.spacing, panel.divisions, panel.row_ends)
         except PanelError as exc:
             raise SceneError(f"panels.{n}: {exc}") from None
         thick = panel.thickness if panel.thickness is not None else fab.thickness
