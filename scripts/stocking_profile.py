@@ -11,9 +11,9 @@ the mean course strain of the springs within 5 mm of the slice, per current widt
 figures issue 30 asks for: the largest difference of neighbouring slices over the smaller, the
 lowest wale strain and the share of slack wale springs. Beside the profile's mean (over the
 slice's contact length) it gives the mean over the whole course (the same integral of pressure
-over the fabric's girth, the length of the plane's cut through the garment: bridged stretches
-count at zero pressure) and its Laplace estimate T 2 pi / that girth (the integral of T kappa round
-a closed course is T 2 pi, however much of it bridges). Writes the plot to the given PNG.
+over the fabric's girth, the length of the plane's cut through the garment: stretches off the leg
+or without reaction count at zero) and its Laplace estimate T 2 pi / that girth (the integral of
+T kappa round a closed course is T 2 pi, however much of it carries no pressure). Writes the plot to the given PNG.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def analyse(r) -> dict:
             "off_laplace_over_10pct": int((np.abs(p / lap - 1) > 0.10).sum()),
             "median_off_laplace": float(np.median(np.abs(p / lap - 1))),
             "course_mean_max_off_laplace": float(np.abs(q / qlap - 1).max()),
-            "bridged_share_max": float(max(1 - x["girth_m"] / x["fabric_girth_m"] for x in rows)),
+            "out_of_contact_share_max": float(max(1 - x["girth_m"] / x["fabric_girth_m"] for x in rows)),
             "min_wale_strain": float(strain[weft].min()),
             "wale_below_minus_10pct": int((strain[weft] < -0.10).sum()),
             "slack_wale_share": float((strain[weft] <= 0).mean()),

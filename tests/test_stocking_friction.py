@@ -49,12 +49,13 @@ def test_stocking_relaxed_with_friction_keeps_its_wales(dressed):
 @pytest.mark.slow
 def test_stocking_with_friction_is_graduated_slice_by_slice(dressed):
     """The 1 cm slices from 13 to 41 cm: the pressure over each whole course (the integral of
-    pressure round the slice over the fabric's girth, bridged stretches at zero) changes by at
+    pressure round the slice over the fabric's girth, stretches without reaction at zero) changes by at
     most 10 % from one slice to the next (measured 5.7 %; before the row ends were on the outline
     137 %) and falls from the ankle to the calf; each slice's mean over its contact length reads
     Laplace's T / r from its course strain and contact length (median within 3 %). The contact
-    mean still steps by up to 16 % where the stocking bridges the hollow at 31-34 cm (up to 13 %
-    of the girth off the leg), so it is held to 20 % here (docs/method/friction.md)."""
+    mean still steps by up to 16 % at 31-34 cm, where 4.5 cm of the girth lies on a flat stretch of
+    the leg without reaction and counts out of the contact length, so it is held to 20 % here
+    (docs/method/friction.md)."""
     from clothsim.compression.probes import _cut, _finite_pressure
 
     r = dressed
