@@ -280,7 +280,8 @@ def _row_ends_on_outline(poly, mask: np.ndarray) -> np.ndarray:
             if SNAP < abs(a - i0) < 1.0:
                 uv[i0, j, 0] = min(a, i0 + 1 - MIN_END_LENGTH)
             if SNAP < abs(b - i1) < 1.0:
-                uv[i1, j, 0] = max(b, i1 - 1 + MIN_END_LENGTH, uv[i0, j, 0] + MIN_END_LENGTH if i1 == i0 + 1 else -np.inf)
+                lo = uv[i0, j, 0] + MIN_END_LENGTH if i1 == i0 + 1 else -np.inf
+                uv[i1, j, 0] = max(b, i1 - 1 + MIN_END_LENGTH, lo)
     return uv
 
 

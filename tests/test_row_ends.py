@@ -197,7 +197,7 @@ def test_a_trapezoid_tube_on_a_cone_follows_laplace_course_by_course():
     strain the course's length over it, and its ring pressure Laplace's T cos(alpha) / r from
     that strain (T per current width; measured within 1.7 %, the facets' scatter), varying
     smoothly up the leg (neighbouring courses within 1.5 %); with whole cells the pressure is a
-    sawtooth (courses differ by up to 13 %, 19 % off Laplace at the rows where a column starts)."""
+    sawtooth (neighbouring courses differ by up to 21 %, up to 19 % off Laplace at the rows where a column starts)."""
     MMHG = 133.322
     res = {}
     for ends in ("outline", "lattice"):
