@@ -61,7 +61,7 @@ def scene_panels(scene: Scene, mold=None) -> list[PanelBuild]:
         outline, grain = outlines[n], grains[n]
         spacing = panel.spacing if outline is design[n] else sized_spacing(panel.spacing, design[n], outline, grain)
         try:
-            geom = panel_geometry(panel.name, outline, grain, spacing, panel.divisions)
+            geom = panel_geometry(panel.name, outline, grain, spacing, panel.divisions, panel.row_ends)
         except PanelError as exc:
             raise SceneError(f"panels.{n}: {exc}") from None
         thick = panel.thickness if panel.thickness is not None else fab.thickness

@@ -79,7 +79,8 @@ def build_model(*, panels: list, constraints=(), shear_stiffness: float | None =
     starts = np.searchsorted(topology.node_panel, np.arange(len(panels) + 1))
     for p, pb in enumerate(panels):
         g = pb.geometry
-        rest[starts[p]:starts[p + 1], :2] = g.to_plane(topology.node_ij[starts[p]:starts[p + 1]])
+        # each node at its material point (the lattice point, or a row end on the outline)
+        rest[starts[p]:starts[p + 1], :2] = g.to_plane(g.material_ij(topology.node_ij[starts[p]:starts[p + 1]]))
         rest[starts[p]:starts[p + 1], 2] = pb.z
         table_ids.append((table_id(pb.warp_table), table_id(pb.weft_table)))
     shear_tid = bend_tid = None

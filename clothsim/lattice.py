@@ -84,24 +84,41 @@ def lattice_springs(topology: Topology, geometries, table_ids, *, shear_table: i
         for p, (g, idx) in enumerate(zip(geometries, topology.index)):
             exists = (idx[:-1, :] >= 0) & (idx[1:, :] >= 0) if fam == SpringFamily.WARP else (idx[:, :-1] >= 0) & (idx[:, 1:] >= 0)
             frac = getattr(g, frac_name)[exists]
-            rest.append(np.full(frac.size, g.spacing[l_axis]))
-            width.append(frac * g.spacing[w_axis])
+            r = np.full(frac.size, g.spacing[l_axis])
+            w = frac * g.spacing[w_axis]
+            step = (1, 0) if fam == SpringFamily.WARP else (0, 1)
+            moved = _material_lengths(g, exists, step)
+            if moved is not None:
+                # row ends on the outline: the length between the material points, the band's
+                # area over it (clothsim.panels)
+                k, length = moved
+                r[k] = length[k]
+                w[k] = frac[k] * (g.spacing[0] * g.spacing[1]) / length[k]
+            rest.append(r)
+            width.append(w)
             table.append(np.full(frac.size, table_ids[p][fam], np.int64))
         sp.add(pairs[:, 0], pairs[:, 1], np.concatenate(rest), np.concatenate(width), np.concatenate(table), fam)
     if shear_table is not None:
         # both diagonals of every cell; stiffness is per width across the diagonal: each diagonal
         # carries half the cell (the part of it inside the outline), across its length
-        l0, w = [], []
+        l0, w = ([], []), ([], [])
         for g, idx in zip(geometries, topology.index):
             dx, dy = g.spacing
             diag = math.hypot(dx, dy)
             have = (idx[:-1, :-1] >= 0) & (idx[1:, :-1] >= 0) & (idx[1:, 1:] >= 0) & (idx[:-1, 1:] >= 0)
-            l0.append(np.full(int(have.sum()), diag))
-            w.append(g.cell_frac[have] * (0.5 * dx * dy / diag))
+            for first, step in (((0, 0), (1, 1)), ((1, 0), (-1, 1))):
+                r = np.full(int(have.sum()), diag)
+                wd = g.cell_frac[have] * (0.5 * dx * dy / diag)
+                moved = _material_lengths(g, have, step, first)
+                if moved is not None:
+                    k, length = moved
+                    r[k] = length[k]
+                    wd[k] = g.cell_frac[have][k] * (0.5 * dx * dy) / length[k]
+                l0[first[0]].append(r)
+                w[first[0]].append(wd)
         c = topology.cells
-        l0, w = np.concatenate(l0), np.concatenate(w)
-        sp.add(c[:, 0], c[:, 2], l0, w, shear_table, SpringFamily.SHEAR)
-        sp.add(c[:, 1], c[:, 3], l0, w, shear_table, SpringFamily.SHEAR)
+        sp.add(c[:, 0], c[:, 2], np.concatenate(l0[0]), np.concatenate(w[0]), shear_table, SpringFamily.SHEAR)
+        sp.add(c[:, 1], c[:, 3], np.concatenate(l0[1]), np.concatenate(w[1]), shear_table, SpringFamily.SHEAR)
     if bend_table is not None:
         # skip-one springs along warp (i, j)-(i+2, j) and weft (i, j)-(i, j+2), with the band
         # width of the warp (weft) spring they span first
@@ -118,12 +135,35 @@ def lattice_springs(topology: Topology, geometries, table_ids, *, shear_table: i
                     continue
                 keep = (a >= 0) & (m >= 0) & (b >= 0)
                 a_.append(a[keep]); b_.append(b[keep]); w_.append(band[keep])
-                l_.append(np.full(int(keep.sum()), 2 * g.spacing[along]))
+                r = np.full(int(keep.sum()), 2 * g.spacing[along])
+                moved = _material_lengths(g, keep, (2, 0) if along == 0 else (0, 2))
+                if moved is not None:
+                    r[moved[0]] = moved[1][moved[0]]
+                l_.append(r)
             if a_:
                 sp.add(np.concatenate(a_), np.concatenate(b_), np.concatenate(l_), np.concatenate(w_), bend_table, fam)
     return sp
 
 
+def _material_lengths(g, keep: np.ndarray, step, first=(0, 0)):
+    """Springs from node (i, j) + ``first`` to (i, j) + ``first`` + ``step`` for the cells or
+    springs ``keep`` selects (in its row-major order): (moved (n,) bool, length (n,) [m]) — which
+    of them join a node whose material point is not its lattice point (a row end on the outline,
+    clothsim.panels) and the distance between their material points; None when the panel's
+    nodes are all at their lattice points."""
+    uv = g.node_uv
+    if uv is None:
+        return None
+    lat = np.stack(np.meshgrid(np.arange(uv.shape[0]), np.arange(uv.shape[1]), indexing="ij"), -1)
+    off = (uv != lat).any(axis=-1)
+    if not off.any():
+        return None
+    i, j = np.nonzero(keep)
+    ia, ja = i + first[0], j + first[1]
+    ib, jb = ia + step[0], ja + step[1]
+    moved = off[ia, ja] | off[ib, jb]
+    d = (uv[ib, jb] - uv[ia, ja]) * np.asarray(g.spacing, float)
+    return moved, np.hypot(d[:, 0], d[:, 1])
 
 
 def _coarse_seams(model, fam, sub, n: int, sp) -> None:

@@ -20,6 +20,20 @@ node of the panel, so nothing is lost.
 
 Quarters wholly inside or outside the outline are classified with shapely's vectorised
 predicates; only the quarters the outline crosses are clipped (shapely intersection).
+
+Row ends on the outline (``row_ends="outline"``, the scene's ``panels.N.row_ends: outline``):
+the rule above gives cut cells their true share of *width*, but every spring keeps the lattice's
+*length*, so a row's rest length is a whole number of cells: where the outline crosses a row
+between two lattice nodes, the row's end node sits up to half a cell inside or outside it, and a
+shaped panel's row lengths follow its outline as a staircase (a course round a leg jumps by a
+cell where the lattice adds a column). With ``outline`` each row's two end nodes stand for the
+points where the outline crosses the row (``node_uv``, their material points): the row's end
+springs take the sliver's length (between half and one and a half cells), so the sum of a row's
+rest lengths is the outline's width at the row's height, continuous from row to row; every
+spring's rest length is the distance between its nodes' material points, and its width is its
+band's area over that length (width x length still sums to the panel's area). Nodes, masks,
+bands and node areas are the same as with ``lattice``; an outline on lattice lines (a rectangle)
+moves no node, and builds the same model bit for bit.
 """
 
 from __future__ import annotations
@@ -33,6 +47,10 @@ import numpy as np
 SNAP = 1e-9
 #: quarter areas below this (cell units) count as empty
 EMPTY = 1e-12
+#: with row ends on the outline, a row's end spring keeps at least this length [cells]
+MIN_END_LENGTH = 0.25
+#: how a row's end nodes stand on a cut outline (see the module docstring)
+ROW_ENDS = ("lattice", "outline")
 
 
 class PanelError(ValueError):
@@ -49,7 +67,8 @@ class PanelGeometry:
     warp_frac (nx, ny+1) and weft_frac (nx+1, ny): band areas in cells (width = warp_frac dy,
     = weft_frac dx); cell_frac (nx, ny): each cell's area inside the outline in cells;
     outline (K, 2) [m] in the panel's plane (counter-clockwise); outline_lattice (K, 2): the same
-    in lattice units."""
+    in lattice units; node_uv (nx+1, ny+1, 2) or None: each node's material point in lattice units
+    (row ends on the outline, see the module docstring; None: the lattice points themselves)."""
 
     name: str
     mask: np.ndarray
@@ -62,6 +81,7 @@ class PanelGeometry:
     cell_frac: np.ndarray
     outline: np.ndarray
     outline_lattice: np.ndarray
+    node_uv: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -74,6 +94,14 @@ class PanelGeometry:
         u = np.asarray(ij, float)[:, 0] * self.spacing[0]
         v = np.asarray(ij, float)[:, 1] * self.spacing[1]
         return self.origin + u[:, None] * g + v[:, None] * gp
+
+    def material_ij(self, ij: np.ndarray) -> np.ndarray:
+        """Lattice indices (n, 2) -> the nodes' material points (n, 2) in lattice units (the
+        indices themselves unless the row ends stand on the outline)."""
+        ij = np.asarray(ij)
+        if self.node_uv is None:
+            return ij.astype(float)
+        return self.node_uv[ij[:, 0], ij[:, 1]]
 
     def node_area(self) -> np.ndarray:
         """(n_nodes,) [m^2] in the mask's row-major order."""
@@ -125,10 +153,15 @@ def check_outline(outline, name: str = "panel") -> np.ndarray:
     return p
 
 
-def panel_geometry(name: str, outline, grain=(1.0, 0.0), spacing=None, divisions=None) -> PanelGeometry:
+def panel_geometry(name: str, outline, grain=(1.0, 0.0), spacing=None, divisions=None,
+                   row_ends: str = "lattice") -> PanelGeometry:
     """The lattice of a panel cut to ``outline`` (K, 2) [m] along ``grain`` (2,), with ``spacing``
-    (dx, dy) [m] or ``divisions`` (nx, ny) of the outline's extent along and across the grain."""
+    (dx, dy) [m] or ``divisions`` (nx, ny) of the outline's extent along and across the grain;
+    ``row_ends`` "lattice" or "outline" (the rows' end nodes on the outline: module docstring)."""
     import shapely
+
+    if row_ends not in ROW_ENDS:
+        raise PanelError(f"{name}: row_ends must be one of {', '.join(ROW_ENDS)} (got {row_ends!r})")
 
     p = check_outline(outline, name)
     g = np.asarray(grain, float)
@@ -192,8 +225,64 @@ def panel_geometry(name: str, outline, grain=(1.0, 0.0), spacing=None, divisions
     warp = _carry_over(w_first, w_second, mask)
     weft = _carry_over(f_first.T, f_second.T, mask.T).T
     origin = lo[0] * g + lo[1] * gp
+    uv = _row_ends_on_outline(poly, mask) if row_ends == "outline" else None
     return PanelGeometry(name, mask, (float(dx), float(dy)), origin, g, np.where(mask, node, 0.0),
-                         warp, weft, quarter.sum(axis=2), p, lat)
+                         warp, weft, quarter.sum(axis=2), p, lat, uv)
+
+
+def _row_crossings(poly, j: int, nx: int) -> list[tuple[float, float]]:
+    """The stretches [u0, u1] (lattice units) of the row v = j inside the polygon ``poly``; a row
+    beyond the polygon's extent in v (its nodes there for the sliver of outline within half a
+    cell) takes the stretches at the middle of that sliver."""
+    import shapely
+
+    _, lo, _, hi = poly.bounds
+    v = float(j)
+    if v > hi:
+        v = 0.5 * (max(v - 0.5, lo) + hi)
+    elif v < lo:
+        v = 0.5 * (lo + min(v + 0.5, hi))
+    cut = shapely.intersection(poly, shapely.LineString([(-1.0, v), (nx + 1.0, v)]))
+    out = []
+    for part in shapely.get_parts(cut):
+        if part.is_empty:
+            continue
+        x0, _, x1, _ = part.bounds
+        out.append((float(x0), float(x1)))
+    return out
+
+
+def _row_ends_on_outline(poly, mask: np.ndarray) -> np.ndarray:
+    """(nx+1, ny+1, 2) material points in lattice units: the lattice points, except each row's
+    (each run of consecutive nodes along i at a given j) two end nodes, moved along the row to
+    where the outline crosses it (the stretch of the row inside the outline that overlaps the run
+    most; for a row beyond the outline's extent, the middle of the sliver it stands for), when
+    that crossing lies within a cell of the node; the end spring keeps at least MIN_END_LENGTH
+    cells. A crossing within SNAP of the node moves nothing. Nodes move along their row only (v
+    stays j): the wales keep their lattice length except where they join a moved end."""
+    nx1, ny1 = mask.shape
+    ii, jj = np.meshgrid(np.arange(nx1, dtype=float), np.arange(ny1, dtype=float), indexing="ij")
+    uv = np.stack([ii, jj], -1)
+    for j in range(ny1):
+        cols = np.nonzero(mask[:, j])[0]
+        if cols.size < 2:
+            continue
+        segs = _row_crossings(poly, j, nx1 - 1)
+        if not segs:
+            continue
+        cut = np.nonzero(np.diff(cols) > 1)[0]
+        for i0, i1 in zip(np.r_[cols[0], cols[cut + 1]], np.r_[cols[cut], cols[-1]]):
+            if i1 == i0:
+                continue
+            a, b = max(segs, key=lambda s: min(s[1], i1) - max(s[0], i0))
+            if min(b, i1) - max(a, i0) <= 0:
+                continue
+            if SNAP < abs(a - i0) < 1.0:
+                uv[i0, j, 0] = min(a, i0 + 1 - MIN_END_LENGTH)
+            if SNAP < abs(b - i1) < 1.0:
+                lo = uv[i0, j, 0] + MIN_END_LENGTH if i1 == i0 + 1 else -np.inf
+                uv[i1, j, 0] = max(b, i1 - 1 + MIN_END_LENGTH, lo)
+    return uv
 
 
 def _carry_over(first: np.ndarray, second: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -9,7 +9,11 @@ Laplace's estimate T / r from the slice's course strain and girth (T the course 
 the mean course strain of the springs within 5 mm of the slice, per current width: divided by
 1 + the wale strain there; r = girth / 2 pi, the girth the slice's contact length), and the
 figures issue 30 asks for: the largest difference of neighbouring slices over the smaller, the
-lowest wale strain and the share of slack wale springs. Writes the plot to the given PNG.
+lowest wale strain and the share of slack wale springs. Beside the profile's mean (over the
+slice's contact length) it gives the mean over the whole course (the same integral of pressure
+over the fabric's girth, the length of the plane's cut through the garment: stretches off the leg
+or without reaction count at zero) and its Laplace estimate T 2 pi / that girth (the integral of
+T kappa round a closed course is T 2 pi, however much of it carries no pressure). Writes the plot to the given PNG.
 """
 
 from __future__ import annotations
@@ -36,6 +40,9 @@ def analyse(r) -> dict:
     mid = 0.5 * (X[m.spring_nodes[:, 0], 2] + X[m.spring_nodes[:, 1], 2])
     warp, weft = m.spring_family == 0, m.spring_family == 1
     tab = m.table_list[int(m.spring_table[warp][0])]
+    from clothsim.compression.probes import _cut, _finite_pressure
+
+    pressure, _ = _finite_pressure(np.asarray(r._f()[3], float))
     rows = []
     for sl in r.summary()["profiles"][0]["slices"]:
         h = sl["height_m"]
@@ -45,13 +52,28 @@ def analyse(r) -> dict:
         ew = float(strain[near_w].mean())
         girth = sl["contact_length_m"]
         T = float(np.interp(ec, tab.strain, tab.tension)) / (1 + ew)
+        ends, (pe,) = _cut(X, m.topology.faces, X[:, 2] - h, [pressure])
+        seg = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        fabric = float(seg.sum())
         rows.append({"height_m": h, "mean_mmhg": sl["mean_mmhg"], "course_strain": ec, "wale_strain": ew,
-                     "girth_m": girth, "laplace_mmhg": T * 2 * np.pi / girth / MMHG if girth > 0 else None})
+                     "girth_m": girth, "laplace_mmhg": T * 2 * np.pi / girth / MMHG if girth > 0 else None,
+                     "fabric_girth_m": fabric, "course_mean_mmhg": float((seg * pe.mean(axis=1)).sum()) / fabric / MMHG,
+                     "course_laplace_mmhg": T * 2 * np.pi / fabric / MMHG})
     p = np.array([x["mean_mmhg"] for x in rows])
     jump = np.abs(np.diff(p)) / np.minimum(p[:-1], p[1:])
+    q = np.array([x["course_mean_mmhg"] for x in rows])
+    qjump = np.abs(np.diff(q)) / np.minimum(q[:-1], q[1:])
+    lap = np.array([x["laplace_mmhg"] for x in rows])
+    qlap = np.array([x["course_laplace_mmhg"] for x in rows])
     s = r.summary()
     return {"slices": rows, "max_neighbour_jump": float(jump.max()),
             "neighbour_jumps_over_10pct": int((jump > 0.10).sum()),
+            "course_mean_max_neighbour_jump": float(qjump.max()),
+            "course_mean_jumps_over_10pct": int((qjump > 0.10).sum()),
+            "off_laplace_over_10pct": int((np.abs(p / lap - 1) > 0.10).sum()),
+            "median_off_laplace": float(np.median(np.abs(p / lap - 1))),
+            "course_mean_max_off_laplace": float(np.abs(q / qlap - 1).max()),
+            "out_of_contact_share_max": float(max(1 - x["girth_m"] / x["fabric_girth_m"] for x in rows)),
             "min_wale_strain": float(strain[weft].min()),
             "wale_below_minus_10pct": int((strain[weft] < -0.10).sum()),
             "slack_wale_share": float((strain[weft] <= 0).mean()),
@@ -66,17 +88,19 @@ def plot(a: dict, b: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 5.2), dpi=110)
-    for d, label, c in ((a, "frictionless", "tab:red"), (b, "with friction (mu = 0.4)", "tab:blue")):
-        h = [100 * x["height_m"] for x in d["slices"]]
-        ax.plot([x["mean_mmhg"] for x in d["slices"]], h, "o-", color=c, label=f"{label}: girth mean")
-        ax.plot([x["laplace_mmhg"] for x in d["slices"]], h, "--", color=c, alpha=0.7,
-                label=f"{label}: Laplace T / r")
-    ax.set_xlabel("pressure [mmHg]")
-    ax.set_ylabel("height above the sole [cm]")
-    ax.set_title("Stocking on the scanned leg: girth-mean pressure, 1 cm slices")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    fig, axes = plt.subplots(1, 2, figsize=(10.4, 5.4), dpi=110, sharey=True)
+    for ax, key, lap, title in ((axes[0], "mean_mmhg", "laplace_mmhg", "mean over the contact length"),
+                                (axes[1], "course_mean_mmhg", "course_laplace_mmhg", "mean over the whole course")):
+        for d, label, c in ((a, "frictionless", "tab:red"), (b, "with friction (mu = 0.4)", "tab:blue")):
+            h = [100 * x["height_m"] for x in d["slices"]]
+            ax.plot([x[key] for x in d["slices"]], h, "o-", color=c, ms=4, label=f"{label}")
+            ax.plot([x[lap] for x in d["slices"]], h, "--", color=c, alpha=0.7, label=f"{label}: Laplace T / r")
+        ax.set_xlabel("pressure [mmHg]")
+        ax.set_title(f"{title}, 1 cm slices", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("height above the sole [cm]")
+    fig.suptitle("Stocking on the scanned leg (row ends on the outline)", fontsize=11)
     fig.tight_layout()
     tmp = path.with_suffix(".tmp.png")
     fig.savefig(tmp)
@@ -95,11 +119,13 @@ def main(out: str) -> None:
         res[key]["seconds"] = time.perf_counter() - t
         print(key, json.dumps({k: v for k, v in res[key].items() if k != "slices"}), flush=True)
     print(f"{'z [cm]':>6} | {'frictionless':>12} {'Laplace':>8} {'course':>7} {'wale':>7} | "
-          f"{'friction':>9} {'Laplace':>8} {'course':>7} {'wale':>7} {'girth':>6}")
+          f"{'friction':>9} {'Laplace':>8} {'course':>7} {'wale':>7} {'contact':>7} {'girth':>6} "
+          f"{'course mean':>11} {'Laplace':>8}")
     for x, y in zip(res["frictionless"]["slices"], res["friction"]["slices"]):
         print(f"{100 * x['height_m']:6.0f} | {x['mean_mmhg']:12.1f} {x['laplace_mmhg']:8.1f} {x['course_strain']:7.3f} "
               f"{x['wale_strain']:7.3f} | {y['mean_mmhg']:9.1f} {y['laplace_mmhg']:8.1f} {y['course_strain']:7.3f} "
-              f"{y['wale_strain']:7.3f} {100 * y['girth_m']:6.1f}")
+              f"{y['wale_strain']:7.3f} {100 * y['girth_m']:7.1f} {100 * y['fabric_girth_m']:6.1f} "
+              f"{y['course_mean_mmhg']:11.1f} {y['course_laplace_mmhg']:8.1f}")
     plot(res["frictionless"], res["friction"], Path(out))
     Path(out).with_suffix(".json").write_text(json.dumps(res, indent=1))
 

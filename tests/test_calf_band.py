@@ -104,3 +104,25 @@ def test_calf_band_pressure_is_laplace_on_the_smooth_scan(band):
     # the 5 % stretch along the leg puts the wale in tension and its share is measurable: without
     # T_weft kappa_f the law is off by a few per cent in aggregate
     assert p.sum() / hoop.sum() - 1 > 0.02
+
+
+@pytest.mark.slow
+def test_calf_band_dressed_with_friction_keeps_the_frictionless_pressure():
+    """configs/garments/calf_band_friction.yaml: the band drawn on at 1.25 x its cut girth and
+    relaxed onto the calf with mu = 0.4, as the stocking is. The band is short (7.2 cm) and
+    held 5 % stretched along the leg, so its frictionless courses did not slide much: friction
+    leaves its pressure where it was (measured: median 14.83 against 14.83 mmHg, p95 21.98
+    against 21.86, peak 28.5 against 26.8), no wale spring slack (lowest +5.2 %, frictionless
+    +3.4 %), almost every contact node sticking (1471 of 1481), the cone held to 6e-5."""
+    r = clothsim.solve(clothsim.load_scene(ROOT / "configs" / "garments" / "calf_band_friction.yaml"))
+    assert r.solve.converged, r.solve.message
+    fr = r.summary()["friction"]
+    assert [st["name"] for st in fr["stages"]] == ["on", "relax"] and fr["mu"] == 0.4
+    assert fr["cuts"] == 0 and fr["cone_violation"] < 1e-3 and fr["stick"] > 10 * fr["slip"]
+    m = r.model
+    strain = r._f()[0]
+    assert strain[m.spring_family == 1].min() > 0.02
+    p = r._f()[3][r.state.in_contact] / MMHG
+    assert np.median(p) == pytest.approx(14.83, abs=0.3)
+    assert np.percentile(p, 95) == pytest.approx(21.9, abs=0.5)
+    assert max_penetration(r.state.positions, m.mold.kernel_args()) <= 1e-9

@@ -1,8 +1,10 @@
 """configs/garments/stocking_friction.yaml (issue 30 item 5): the stocking drawn on 1.25 times its
-cut girth and relaxed onto the leg with skin-knit friction (mu = 0.4). Friction keeps the wales
+cut girth and relaxed onto the leg with skin-knit friction (mu = 0.4), its panels' row ends on the
+outline (each course's rest length the outline's width at its height). Friction keeps the wales
 from sliding along the leg and gathering where it narrows (frictionless: wale strain down to
--49 %, 11 % of the wale springs slack); the pressure stays graduated and every stage's report is
-kept. The profile's residual steps come from the panels' lattice (docs/method/friction.md)."""
+-60 %, 42 wale springs below -10 %); with the row ends on the outline the course strain follows
+the pattern continuously, so the pressure along the leg is graduated without the lattice's steps
+(docs/method/friction.md, The stocking with friction)."""
 
 from __future__ import annotations
 
@@ -37,8 +39,50 @@ def test_stocking_relaxed_with_friction_keeps_its_wales(dressed):
     force = np.empty_like(strain)
     spring_strains_tensions(r.state.positions, *m.spring_args(), strain, force)
     wale = strain[m.spring_family == 1]
-    assert wale.min() > -0.25            # frictionless: -0.49
-    assert (wale <= 0).mean() < 0.05     # frictionless: 11 % slack
+    assert wale.min() > -0.10            # issue 30: none below -10 % (frictionless: -60 %)
+    assert (wale <= 0).mean() < 0.05     # frictionless: 12 % slack
     assert max_penetration(r.state.positions, m.mold.kernel_args()) <= 1e-9
     probes = {p["name"]: p["pressure_mmhg"] for p in s["probes"]}
-    assert 14 < probes["ankle"] < 32 and probes["calf"] < probes["ankle"]
+    assert 12 < probes["ankle"] < 32
+
+
+@pytest.mark.slow
+def test_stocking_with_friction_is_graduated_slice_by_slice(dressed):
+    """The 1 cm slices from 13 to 41 cm: the pressure over each whole course (the integral of
+    pressure round the slice over the fabric's girth, stretches without reaction at zero) changes by at
+    most 10 % from one slice to the next (measured 5.7 %; before the row ends were on the outline
+    137 %) and falls from the ankle to the calf; each slice's mean over its contact length reads
+    Laplace's T / r from its course strain and contact length (median within 3 %). The contact
+    mean still steps by up to 16 % at 31-34 cm, where 4.5 cm of the girth lies on a flat stretch of
+    the leg without reaction and counts out of the contact length, so it is held to 20 % here
+    (docs/method/friction.md)."""
+    from clothsim.compression.probes import _cut, _finite_pressure
+
+    r = dressed
+    m, X = r.model, r.state.positions
+    strain = r._f()[0]
+    p, _ = _finite_pressure(np.asarray(r._f()[3], float))
+    warp, weft = m.spring_family == 0, m.spring_family == 1
+    tab = m.table_list[int(m.spring_table[warp][0])]
+    mid = 0.5 * (X[m.spring_nodes[:, 0], 2] + X[m.spring_nodes[:, 1], 2])
+    course, contact, lap = [], [], []
+    slices = r.summary()["profiles"][0]["slices"]
+    assert [round(x["height_m"], 2) for x in slices] == [round(0.13 + 0.01 * k, 2) for k in range(29)]
+    for sl in slices:
+        h = sl["height_m"]
+        ends, (pe,) = _cut(X, m.topology.faces, X[:, 2] - h, [p])
+        seg = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        course.append((seg * pe.mean(axis=1)).sum() / seg.sum())
+        contact.append(sl["mean_pa"])
+        near = np.abs(mid - h) <= 0.005
+        T = np.interp(strain[warp & near].mean(), tab.strain, tab.tension) / (1 + strain[weft & near].mean())
+        lap.append(T * 2 * np.pi / sl["contact_length_m"])
+    course, contact, lap = (np.array(v) for v in (course, contact, lap))
+
+    def jumps(v):
+        return np.abs(np.diff(v)) / np.minimum(v[:-1], v[1:])
+
+    assert jumps(course).max() <= 0.10
+    assert jumps(contact).max() < 0.20
+    assert course[:5].mean() > 1.2 * course[-5:].mean()      # graduated: ankle above calf
+    assert np.median(np.abs(contact / lap - 1)) < 0.03

@@ -369,7 +369,9 @@ class Panel(_Strict):
     along and across the grain, its own ``warp``/``weft`` tables and ``thickness`` (default: the
     ``fabric``'s), and a ``placement``. Instead of ``outline``, ``pattern`` reads the outline (and
     the grainline, when ``grain`` is omitted) from a DXF or SVG pattern file. The lattice follows the grain and is cut to the outline
-    with exact tributary areas (see clothsim.panels)."""
+    with exact tributary areas (see clothsim.panels). ``row_ends: outline`` puts each lattice row's
+    end nodes where the outline crosses the row, so each row's rest length follows the outline
+    continuously (default ``lattice``: whole cells, a staircase on a shaped outline)."""
 
     name: str
     outline: list[tuple[float, float]] | None = None
@@ -381,6 +383,9 @@ class Panel(_Strict):
     weft: MaterialSpec | None = None
     thickness: float | None = None
     placement: PanelPlacement = Field(default_factory=PanelPlacement)
+    # "outline": each lattice row's end nodes stand where the outline crosses the row, so a row's
+    # rest length is the outline's width there (clothsim.panels); "lattice": whole cells
+    row_ends: Literal["lattice", "outline"] = "lattice"
 
     @field_validator("outline")
     @classmethod
