@@ -277,12 +277,12 @@ def test_the_viewer_edits_the_reduction_through_the_draft():
     (a value out of range refused by name, the draft unchanged), and needs measuring levels."""
     from clothsim.viewer.draft import SceneDraft
 
-    draft = SceneDraft(load_scene(CLASS2, ["garment={hem: -0.04, levels: [{name: B, height: 0.0}]}"]))
+    draft = SceneDraft(load_scene(CLASS2))
     assert draft.has_levels() and draft.reduction() is None
     assert draft.set_reduction(21.5).garment.reduction == 21.5 and draft.reduction() == 21.5
     with pytest.raises(ValueError, match=r"garment reduction \[%\]: must be between -50 and 90"):
         draft.set_reduction(95)
     assert draft.reduction() == 21.5
-    plain = SceneDraft(load_scene(CLASS2))
+    plain = SceneDraft(load_scene(ROOT / "configs" / "sewn_sleeve.yaml"))
     with pytest.raises(SceneError, match="garment.levels: the scene has no measuring levels"):
         plain.set_reduction(20)
