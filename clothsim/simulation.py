@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from .config import Scene, SceneError
-from .compile import compile_model, compile_state
+from .compile import compile_model, compile_state, run_inputs
 from .model import Model, SpringFamily, State
 from .results import Result
 from .solvers import History, SolveResult, pick_method
@@ -366,7 +366,8 @@ class Simulation:
             solve = SolveResult(r.converged, r.status, r.message, self.state.iteration, r.residual,
                                 r.relative_residual, r.energy, r.contact_count, self.total_time, r.method,
                                 hist, r.best_residual, r.friction)
-            return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s)
+            return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s,
+                          inputs=run_inputs(self.scene))
 
     # background thread -------------------------------------------------
     def _worker(self) -> None:
