@@ -22,6 +22,7 @@ import numpy as np
 from .config import Scene, SceneError
 from .compile import compile_model, compile_state, run_inputs
 from .model import Model, SpringFamily, State
+from .records import StageReport
 from .results import Result
 from .solvers import History, SolveResult, pick_method
 from .solvers import solve as run_solver
@@ -340,10 +341,11 @@ class Simulation:
                                                     spring_width=model.spring_width)
             if not res.converged:
                 break
-            self._stage_reports.append({"name": name, "load_steps": len(self._controls),
-                                        **({} if scales is None else {"rest_scale": list(scales[1])}),
-                                        "converged": True, "iterations": int(res.iterations),
-                                        "residual": float(res.residual), "friction": res.friction})
+            self._stage_reports.append(StageReport(
+                name=name, load_steps=len(self._controls),
+                **({} if scales is None else {"rest_scale": list(scales[1])}),
+                converged=True, iterations=int(res.iterations), residual=float(res.residual),
+                friction=res.friction).to_dict())
             self._plan.pop(0)
             self._controls = None
         if self.scene.stages and res is not None:

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..pressure import MMHG, SensorDisc, finite_pressure, mold_closest
+from ..records import ProbeReading
 
 if TYPE_CHECKING:
     from ..model import Model
@@ -55,7 +56,7 @@ def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: n
     if model.mold is None:
         out.update(center=None, offset_m=math.nan, force_n=0.0, pressure_pa=0.0, pressure_mmhg=0.0,
                    contact_fraction=0.0, on_contact=False, note="no mold: nothing to press on")
-        return out
+        return ProbeReading(**out).to_dict()
     cp, sd = mold_closest(model.mold, np.asarray(probe.point, float)[None])
     centre = cp[0]
     out["center"] = [float(x) for x in centre]
@@ -82,7 +83,7 @@ def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: n
                                                 f"({across:.3g} m across): not a local reading (radius in metres?)")
     out.update(force_n=force, pressure_pa=pa, pressure_mmhg=pa / MMHG, contact_fraction=frac, on_contact=on,
                note=note)
-    return out
+    return ProbeReading(**out).to_dict()
 
 
 def _cut(X: np.ndarray, faces: np.ndarray, d: np.ndarray, vals: list[np.ndarray]):

@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from ..friction import friction_report, lag_friction
+from ..records import FrictionReport
 from .base import Status
 from .common import SolveResult, residual
 from .control import Control
@@ -147,6 +148,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
               "cuts": cuts, "refreshes": relags_total, "steps": steps}
     if rep is not None:
         report.update(rep)
+    report = FrictionReport(**report).to_dict()  # the fields summary.json and sweeps read
     msg = res.message if res is not None else "no load step"
     if cuts:
         msg += f"; {cuts} load step(s) cut in half"
