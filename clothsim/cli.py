@@ -262,6 +262,19 @@ def cmd_view(args) -> int:
     return viewer_main(args)
 
 
+def cmd_outputs(args) -> int:
+    """``python app.py outputs``: the field list (clothsim.records) as a table: output, unit, meaning."""
+    from .records import outputs_markdown
+
+    rows = [[c.strip().strip("`").replace("\\|", "|") for c in line.strip("|").split(" | ")]
+            for line in outputs_markdown().splitlines()[2:]]
+    w0, w1 = max(len(r[0]) for r in rows), max(len(r[1]) for r in rows)
+    print(f"{'output':<{w0}}  {'unit':<{w1}}  meaning")
+    for name, unit, doc in rows:
+        print(f"{name:<{w0}}  {unit:<{w1}}  {doc}")
+    return 0
+
+
 def cmd_sweep(args) -> int:
     return sweep_main(args)
 
@@ -302,7 +315,7 @@ def _positive_int(text: str) -> int:
     return v
 
 
-COMMANDS = ("run", "view", "sweep", "bench", "fit", "report")
+COMMANDS = ("run", "view", "sweep", "bench", "fit", "report", "outputs")
 
 
 def cmd_fit(args) -> int:
@@ -466,6 +479,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--skip-errors", action="store_true",
                    help="do not retry runs that ended in status 'error' (they are retried by default)")
     s.set_defaults(func=cmd_sweep)
+
+    o = sub.add_parser("outputs", help="list the outputs a run reports and a sweep accepts, with their units",
+                       description="Every field of a run's results (clothsim.records: summary.json, the "
+                                   "friction report, stages, probes, the sweep worker's extras) with its "
+                                   "unit and meaning: the names a sweep file's outputs: takes.")
+    o.set_defaults(func=cmd_outputs)
 
     b = sub.add_parser("bench", help="speed-against-error benchmark",
                        description="Time every solver against its error on the benchmark scenes.")

@@ -23,7 +23,7 @@ from .errors import SceneError
 from .grid import build_model, rotation_matrix
 from .hullwrap import hull_wrap
 from .initial import initial_state
-from .model import Model, PanelBuild, Placement, State
+from .model import Model, PanelBuild, Placement, RunInputs, State
 from .mold import load_mold, mold_reach_warning, mold_scale_warning
 from .panels import PanelError, panel_geometry, rectangle_geometry
 from .patterns import DEFAULT_TOLERANCE, PatternError
@@ -307,7 +307,7 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
         )
     except SelectionError as exc:
         raise SceneError(str(exc)) from None
-    mu = getattr(scene.mold, "friction", None) if scene.mold is not None else None
+    mu = scene.mold.friction if scene.mold is not None else None
     if mu and mold is not None:
         # Coulomb friction with the mold (clothsim.friction): only a scene that asks pays for it
         model = dataclasses.replace(model, friction_mu=float(mu))
@@ -393,3 +393,12 @@ def compile_scene(scene: Scene, mold=_NO_MOLD) -> tuple[Model, State]:
     """(Model, State) of a scene: the one compile step (see the module docstring)."""
     model = compile_model(scene, mold)
     return model, compile_state(scene, model)
+
+
+def run_inputs(scene: Scene) -> RunInputs:
+    """What the run's Result reports of ``scene`` (its name, C and e, the resolved scene's YAML,
+    the probes, profiles and classes to read): the Result reads these, never the scene."""
+    from .compression.probes import Readings
+
+    return RunInputs(name=scene.name, C=float(scene.solver.C), e=float(scene.solver.e),
+                     scene_yaml=scene.resolved().to_yaml(), readings=Readings.of(scene))

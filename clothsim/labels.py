@@ -8,41 +8,11 @@
 
 from __future__ import annotations
 
-#: summary.json keys (and the sweep worker's extras): (readable name, unit)
-OUTPUTS = {
-    "iterations": ("iterations", ""),
-    "residual": ("residual ||V||inf", "N"),
-    "relative_residual": ("relative residual", "-"),
-    "best_residual": ("best residual", "N"),
-    "energy": ("energy", "J"),
-    "wall_time_s": ("relaxation time", "s"),
-    "startup_s": ("start-up time", "s"),
-    "run_time_s": ("run time", "s"),
-    "C": ("step divisor C", "-"),
-    "e": ("convergence limit e", "N"),
-    "contact_count": ("contact nodes", ""),
-    "node_count": ("nodes", ""),
-    "slack_springs": ("slack springs", ""),
-    "spring_count": ("springs", ""),
-    "undetermined_nodes": ("undetermined nodes", ""),
-    "min_weft_extent_ratio": ("narrowest weft extent / rest width", "-"),
-    "max_strain_warp": ("peak warp strain", "-"),
-    "max_strain_weft": ("peak weft strain", "-"),
-    "max_contact_pressure_pa": ("peak node pressure", "Pa"),
-    "max_contact_pressure_mmhg": ("peak node pressure", "mmHg"),
-    "max_sensor_pressure_pa": ("peak sensor pressure", "Pa"),
-    "max_sensor_pressure_mmhg": ("peak sensor pressure", "mmHg"),
-    "gathered_contact_nodes": ("gathered contact nodes", ""),
-    "max_seam_gap_m": ("largest seam gap", "m"),
-    "max_penetration_m": ("deepest penetration", "m"),
-    "max_z_m": ("highest node z", "m"),
-    "min_z_m": ("lowest node z", "m"),
-    "fit_solves": ("fit solves", ""),
-    "fit_converged": ("fit converged", ""),
-}
+from .records import OUTPUT_FIELDS, split_named
 
-#: a probe output's suffix: (what it reads, unit)
-PROBE = {"mmhg": ("pressure", "mmHg"), "pa": ("pressure", "Pa"), "contact_fraction": ("contact fraction", "-")}
+#: summary.json keys (and the sweep worker's extras): (readable name, unit), from the one field
+#: list (clothsim.records)
+OUTPUTS = {k: (f.label, f.unit) for k, f in OUTPUT_FIELDS.items()}
 
 #: a scene field's unit by its name (the last non-index part of its path; see clothsim.config)
 FIELD_UNITS = {
@@ -106,11 +76,10 @@ def axis_label(name: str) -> str:
     if name in OUTPUTS:
         text, unit = OUTPUTS[name]
         return text + _unit(unit)
-    if name.startswith("probe:"):
-        for key in sorted(PROBE, key=len, reverse=True):
-            if name.endswith("_" + key):
-                text, unit = PROBE[key]
-                return f"probe {name[len('probe:'):-len(key) - 1]} {text}" + _unit(unit)
+    named = split_named(name)
+    if named is not None:  # probe:NAME_SUFFIX, stage:NAME.KEY
+        kind, who, f = named
+        return f"{kind} {who} {f.label}" + _unit(f.unit)
     if name.startswith("fit:"):
         return "fitted " + field_label(name[4:])
     return field_label(name)

@@ -25,6 +25,7 @@ from .topology import Topology
 if TYPE_CHECKING:
     from .friction import FrictionLag
     from .hullwrap import HullWrap
+    from .compression.probes import Readings
     from .mold.record import Mold
     from .panels import PanelGeometry
 
@@ -180,6 +181,23 @@ class SeamInfo:
         """How much longer the longer side is than the shorter [%]."""
         lo, hi = sorted((self.a_length, self.b_length))
         return 100.0 * (hi - lo) / lo if lo > 0 else math.inf
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What a run's :class:`~clothsim.results.Result` reports of its scene, taken from the scene by
+    ``clothsim.compile.run_inputs`` (a Result never reads the scene itself)."""
+
+    #: the scene's name (summary.json ``name``)
+    name: str
+    #: the paper's step divisor C [-] (solver.C)
+    C: float
+    #: the residual limit e [N] (solver.e)
+    e: float
+    #: the fully resolved scene as YAML text (the result folder's scene.yaml)
+    scene_yaml: str
+    #: the probes, profiles and classes to read on the equilibrium (empty: none)
+    readings: Readings
 
 
 def _empty(shape, dtype=float):

@@ -34,14 +34,19 @@ import numpy as np
 from .kernels import spring_strains_tensions
 from .fileio import atomic_write_bytes  # noqa: F401  (re-exported: sweeps and the viewer use it)
 from .model import Model, SpringFamily, State
+# the pressure analysis lives in clothsim.pressure (these names are re-exported for scripts and tests)
+from .pressure import (GATHERED_AREA_RATIO, MMHG, PEAK_SENSOR, SENSOR_RADIUS_M, SENSOR_SEARCH_SHARE,  # noqa: F401
+                       SENSOR_SUBDIVISIONS, SLIVER_FRACTION, contact_reaction, gathered_line_load,
+                       max_sensor_pressure, pressure_area, sensor_pressure, sensor_pressure_at)
+from .pressure import pressure_peaks
+from .records import Diagnostics, RunSummary
 
 if TYPE_CHECKING:
     from .config import Scene
+    from .model import RunInputs
     from .solvers import SolveResult
 
 FAMILY_SEAM = SpringFamily.SEAM  # (the name Result.summary reads)
-
-MMHG = 133.322387415  # Pa per mmHg
 
 #: every file :meth:`Result.save` may write (summary.json first: it is removed first). A save
 #: removes those of them it does not write this time, so an earlier result's files (a scene with
@@ -64,254 +69,6 @@ def strict_json(obj) -> str:
 
     return json.dumps(clean(obj), indent=2, allow_nan=False)
 
-
-#: a contact node whose deformed tributary area is below this fraction of its rest area has
-#: gathered: its pressure is reported as inf (see contact_reaction)
-GATHERED_AREA_RATIO = 1e-2
-#: a node of a cut panel whose rest area is below this fraction of its lattice share (the quarter
-#: cells round it) is a sliver of the outline: its pressure is read over its patch (see
-#: contact_reaction)
-SLIVER_FRACTION = 0.5
-
-
-def pressure_area(model, positions: np.ndarray) -> np.ndarray:
-    """Each node's tributary area [m^2] (N,) on the deformed sheet, the area its contact reaction
-    is spread over: a quarter of each adjacent cell; on a cut panel the node's rest area
-    (model.node_area) times the areal stretch of the cells round it. positions (N, 3) [m]."""
-    topo = model.topology
-    area = topo.deformed_node_area(positions)
-    if not topo.is_grid:
-        # a cut panel's node carries only its share of the cells the outline crosses: its rest
-        # area (model.node_area) times the areal stretch of the cells round it
-        rest = topo.deformed_node_area(model.rest_positions)
-        area = model.node_area * np.divide(area, rest, out=np.ones_like(area), where=rest > 0)
-    return area
-
-
-def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
-    """Per-node normal contact reaction [N] and contact pressure [Pa], both (N,): the reaction is
-    max(0, -R . n), R the resultant of the node's springs and external force, n the mold's outward
-    (pseudo-)normal at the closest point; the pressure divides it by the node's tributary area on
-    the deformed sheet. Zero off contact; inf where a loaded node's area has shrunk below
-    GATHERED_AREA_RATIO of its rest area (the sheet gathered into a rope: a line load).
-    Whole-array kernels (the viewer calls it 25 times a second)."""
-    n = model.node_count
-    force = np.zeros(n)
-    pressure = np.zeros(n)
-    if model.mold is None or not in_contact.any():
-        return force, pressure
-    from .kernels import forces_and_energy
-    from .mold import mold_query_many
-
-    F = np.empty((n, 3))
-    forces_and_energy(positions, *model.spring_args(), model.external_force, F)
-    model.add_seam_forces(positions, F)
-    k = np.nonzero(in_contact)[0]
-    m = len(k)
-    sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
-    mold_query_many(model.mold.kernel_args(), np.ascontiguousarray(positions[k]), sd, cp, nrm,
-                    np.empty((m, 2), np.int64))
-    force[k] = np.maximum(0.0, -np.einsum("ij,ij->i", F[k], nrm))
-    area = pressure_area(model, positions)
-    np.divide(force, area, out=pressure, where=area > 0)
-    _sliver_pressure(model, in_contact, force, area, pressure)
-    # where the sheet has gathered (a band pulled into a rope) its area is gone and the reaction
-    # is a line load: the pressure there is unbounded (inf), not a huge finite number
-    pressure[(force > 0.0) & (area < GATHERED_AREA_RATIO * model.node_area)] = np.inf
-    return force, pressure
-
-
-def _sliver_pressure(model, in_contact, force, area, pressure) -> None:
-    """Where the outline cuts a sliver off a lattice cell, the node there carries a tiny rest area
-    (down to 1e-6 of a full node's) and a reaction that the springs' geometry, not that area,
-    decides: reaction / area then reads thousands of mmHg (49,000 mmHg on the refined stocking,
-    from 3e-4 N on 4e-11 m^2). A contact node of a cut panel whose rest area is below
-    SLIVER_FRACTION of its lattice share reads its patch instead: the reactions of the node and its
-    warp, weft and seam neighbours in contact over their deformed areas (exact for a uniform
-    pressure, like the sensor reading). force, area, pressure (N,) [N], [m^2], [Pa]; pressure updated in place."""
-    topo = model.topology
-    if topo.is_grid:
-        return
-    share = topo.deformed_node_area(model.rest_positions)
-    sliver = in_contact & (model.node_area < SLIVER_FRACTION * share)
-    if not sliver.any():
-        return
-    fam = model.spring_family
-    pairs = model.spring_nodes[(fam == SpringFamily.WARP) | (fam == SpringFamily.WEFT) | (fam == SpringFamily.SEAM)]
-    a, b = pairs[:, 0], pairs[:, 1]
-    # the neighbours in contact only (a neighbour off the mold carries no reaction, and its area
-    # is not pressed)
-    fc = np.where(in_contact, force, 0.0)
-    ac = np.where(in_contact, area, 0.0)
-    fsum, asum = fc.copy(), ac.copy()
-    np.add.at(fsum, a, fc[b])
-    np.add.at(fsum, b, fc[a])
-    np.add.at(asum, a, ac[b])
-    np.add.at(asum, b, ac[a])
-    k = np.nonzero(sliver & (asum > 0))[0]
-    pressure[k] = np.where(np.isinf(pressure[k]), pressure[k], fsum[k] / asum[k])
-
-
-#: radius [m] of the sensor disc over which :func:`sensor_pressure` averages: 5 mm, about the
-#: size of a thin-film interface-pressure sensor (a 9.5 mm sensing disc)
-SENSOR_RADIUS_M = 0.005
-
-
-def _lens_fraction(d: np.ndarray, r: float, rho: np.ndarray) -> np.ndarray:
-    """Fraction [-] of a disc of radius rho [m] (a node's tributary area as a disc) that lies
-    inside a disc of radius r [m] whose centre is d [m] away; d, rho (M,), result (M,). The
-    exact area of the two circles' intersection (a lens) over pi rho^2: 1 inside, 0 apart,
-    continuous and smooth in d in between."""
-    d = np.maximum(d, 1e-300)
-    out = (d <= r - rho).astype(float)
-    part = (d > np.abs(r - rho)) & (d < r + rho)
-    dd, q = d[part], rho[part]
-    lens = (q * q * np.arccos(np.clip((dd * dd + q * q - r * r) / (2 * dd * q), -1, 1))
-            + r * r * np.arccos(np.clip((dd * dd + r * r - q * q) / (2 * dd * r), -1, 1))
-            - 0.5 * np.sqrt(np.maximum((-dd + q + r) * (dd + q - r) * (dd - q + r) * (dd + q + r), 0.0)))
-    out[part] = lens / (np.pi * q * q)
-    out[(d <= rho - r)] = (r * r) / (rho[(d <= rho - r)] ** 2)   # the sensor inside the node's disc
-    return out
-
-
-def sensor_pressure(positions: np.ndarray, force: np.ndarray, area: np.ndarray, centers: np.ndarray,
-                    radius: float = SENSOR_RADIUS_M) -> np.ndarray:
-    """Contact pressure [Pa] a sensor disc of ``radius`` [m] centred on each of ``centers`` reads:
-    the normal contact force on the disc over the sheet's area on it,
-
-        S(c) = sum_k F_k f_k(c) / sum_k A_k f_k(c),
-
-    F_k [N] the nodes' normal contact reactions, A_k [m^2] their deformed tributary areas and
-    f_k(c) the fraction of node k's tributary area (taken as a disc of area A_k round the node)
-    within 3-D distance ``radius`` of c (:func:`_lens_fraction`). positions (N, 3) [m]; force,
-    area (N,); centers (M,) node numbers; returns (M,).
-
-    Why: the node pressure F_k / A_k is a point value. Where the sheet leaves the mold along a
-    lift-off line the pressure drops from its largest value to 0 across one lattice cell, and the
-    node values there sample that drop at a distance from the line that depends on where the line
-    crosses the lattice; their peak converges only at first order under refinement. The force is
-    right in aggregate (the total contact force converges to 4 digits), so an average over a
-    sensor-sized disc converges (docs/method/pressure_convergence.md). Under a uniform pressure it
-    reads that pressure exactly (Laplace's T / r on a cylinder or sphere). Unlike a probe
-    (force over pi r^2), a disc only partly under the sheet reads the covered part's mean."""
-    X = np.asarray(positions, float)
-    centers = np.asarray(centers, np.int64)
-    return sensor_pressure_at(X, force, area, X[centers], radius)
-
-
-def sensor_pressure_at(positions: np.ndarray, force: np.ndarray, area: np.ndarray, points: np.ndarray,
-                       radius: float = SENSOR_RADIUS_M) -> np.ndarray:
-    """:func:`sensor_pressure` for sensor discs centred on any points (M, 3) [m] on the sheet
-    (not only its nodes); positions (N, 3) [m], force, area (N,); returns (M,) [Pa] (0 where no
-    node's area reaches the disc)."""
-    from scipy.spatial import cKDTree
-
-    X = np.asarray(positions, float)
-    F = np.asarray(force, float)
-    A = np.asarray(area, float)
-    P = np.asarray(points, float).reshape(-1, 3)
-    out = np.zeros(P.shape[0])
-    if P.shape[0] == 0:
-        return out
-    rho = np.sqrt(np.maximum(A, 0.0) / np.pi)
-    tree = cKDTree(X)
-    reach = radius + float(rho.max())
-    for s in range(0, P.shape[0], 2048):   # chunks: bounded memory on big lattices
-        c = P[s:s + 2048]
-        pairs = cKDTree(c).sparse_distance_matrix(tree, reach, output_type="ndarray")
-        row, k = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
-        f = _lens_fraction(pairs["v"], radius, rho[k])
-        num = np.bincount(row, F[k] * f, c.shape[0])
-        den = np.bincount(row, A[k] * f, c.shape[0])
-        np.divide(num, den, out=out[s:s + 2048], where=den > 0)
-    return out
-
-
-#: the peak sensor reading is searched between the nodes too: on a SENSOR_SUBDIVISIONS x
-#: SENSOR_SUBDIVISIONS grid of points in each lattice cell that has a corner reading at least
-#: SENSOR_SEARCH_SHARE of the node-centred peak (the calf band's 5 mm sensor peak at 80
-#: divisions round the leg: 25.60 mmHg on the nodes, 25.73 between them; 26.37 / 26.40 at 160)
-SENSOR_SUBDIVISIONS = 4
-SENSOR_SEARCH_SHARE = 0.9
-
-
-def max_sensor_pressure(positions: np.ndarray, force: np.ndarray, area: np.ndarray, centers: np.ndarray,
-                        cells: np.ndarray, radius: float = SENSOR_RADIUS_M) -> float:
-    """The largest reading [Pa] of a sensor disc of ``radius`` [m] (:func:`sensor_pressure`)
-    centred anywhere on the contact ``centers`` (M,) (node numbers; loaded contact nodes): on
-    each of them, and on the bilinear points (i/s, j/s), s = ``SENSOR_SUBDIVISIONS``, of every
-    lattice cell of ``cells`` (C, 4) (``Topology.cells``) whose four corners are all centres and
-    one of which reads at least ``SENSOR_SEARCH_SHARE`` of the node-centred peak. A sensor is
-    placed where the reading is largest, not where the lattice has a node: on a coarse lattice
-    the node-centred peak misses a crest between nodes (by 0.5 % on the calf band at 3.6 mm
-    cells, its change from 80 to 160 divisions 3.04 % -> 2.6 %). positions (N, 3) [m]; force,
-    area (N,). 0.0 when there are no centres."""
-    X = np.asarray(positions, float)
-    centers = np.asarray(centers, np.int64)
-    if centers.size == 0:
-        return 0.0
-    S = sensor_pressure(X, force, area, centers, radius)
-    peak = float(S.max())
-    cells = np.asarray(cells, np.int64).reshape(-1, 4)
-    if not (peak > 0.0) or cells.shape[0] == 0:
-        return peak
-    n = X.shape[0]
-    is_c = np.zeros(n, bool)
-    is_c[centers] = True
-    near = np.zeros(n, bool)
-    near[centers[S >= SENSOR_SEARCH_SHARE * peak]] = True
-    pick = is_c[cells].all(axis=1) & near[cells].any(axis=1)
-    if not pick.any():
-        return peak
-    c = cells[pick]
-    t = np.arange(SENSOR_SUBDIVISIONS + 1) / SENSOR_SUBDIVISIONS
-    u, v = (a.ravel() for a in np.meshgrid(t, t, indexing="ij"))
-    w = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)   # corners 0..3 of a cell
-    pts = np.einsum("qc,mcd->mqd", w, X[c]).reshape(-1, 3)
-    return max(peak, float(sensor_pressure_at(X, force, area, pts, radius).max()))
-
-
-def gathered_line_load(model, positions: np.ndarray, force: np.ndarray, gathered: np.ndarray) -> dict:
-    """The line load [N/m] along a rope the sheet has gathered into (contact nodes with no area
-    left, see contact_reaction), where a pressure is meaningless.
-
-    positions (N, 3) [m]; force (N,) [N] each node's normal contact reaction; gathered (N,)
-    bool. The rope runs along warp or weft: the gathered nodes of one lattice line across it (one
-    station: same panel, same i for a rope along warp) sit together, so the stations' centroids
-    trace the rope. Both directions are tried and the longer trace is the rope. A station's line
-    load is its total reaction over its share of the rope's length (half of each segment to its
-    neighbouring stations). On a ring of total hoop tension T [N] round a cylinder of radius r
-    this is T / r at every station (tested). Returns {"gathered_contact_force_n",
-    "rope_length_m", "max_line_load_n_per_m", "mean_line_load_n_per_m"} (the last three None when
-    the gathered nodes make no rope: one station only)."""
-    k = np.nonzero(gathered)[0]
-    out = {"gathered_contact_force_n": float(force[k].sum()), "rope_length_m": None,
-           "max_line_load_n_per_m": None, "mean_line_load_n_per_m": None}
-    if k.size == 0:
-        return out
-    topo = model.topology
-    best = None
-    for d in (0, 1):
-        key = topo.node_panel[k].astype(np.int64) * (1 << 32) + topo.node_ij[k, d]
-        st, inv = np.unique(key, return_inverse=True)
-        cnt = np.bincount(inv)
-        cen = np.stack([np.bincount(inv, positions[k, c]) for c in range(3)], 1) / cnt[:, None]
-        f = np.bincount(inv, force[k])
-        # segments between consecutive stations of the same panel
-        nb = (np.diff(st) == 1)
-        seg = np.where(nb, np.linalg.norm(np.diff(cen, axis=0), axis=1), 0.0)
-        length = float(seg.sum())
-        trib = np.zeros(st.size)
-        trib[:-1] += 0.5 * seg
-        trib[1:] += 0.5 * seg
-        if best is None or length > best[0]:
-            best = (length, f, trib)
-    length, f, trib = best
-    if length > 0:
-        ok = trib > 0
-        out.update(rope_length_m=length, max_line_load_n_per_m=float((f[ok] / trib[ok]).max()),
-                   mean_line_load_n_per_m=float(f.sum() / length))
-    return out
 
 
 def seam_report(model, positions) -> dict:
@@ -474,16 +231,34 @@ def surface_report(mold) -> dict:
 
 @dataclass
 class Result:
-    """A finished (or stopped) run: the scene, its model, the final state and the solve record."""
+    """A finished (or stopped) run: the scene, its model, the final state and the solve record.
 
+    The Result never reads the scene: what it reports of it (name, C, e, the resolved YAML, the
+    probes and profiles to read) is ``inputs`` (``clothsim.compile.run_inputs``); ``scene`` is
+    kept for callers that go on from the result (a fit, the viewer)."""
+
+    #: the scene that ran (not read here)
     scene: Scene
+    #: the scene's compiled constant arrays
     model: Model
+    #: the final state (positions, contact flags)
     state: State
+    #: the solve record (status, residual, history, friction report)
     solve: SolveResult
+    #: [s] mold loading, model building, kernel compilation
     startup_s: float = 0.0
-    _fields: tuple | None = field(default=None, repr=False)
+    #: what the result reports of its scene (clothsim.compile.run_inputs)
+    inputs: RunInputs | None = None
+    #: per-spring strain (S,) [-] and force (S,) [N], per-node contact force (N,) [N] and pressure (N,) [Pa]
+    _fields: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    #: the probes', profiles' and classes' readings (Readings.evaluate)
     _compression: dict | None = field(default=None, repr=False)
-    _diagnostics: dict | None = field(default=None, repr=False)
+    #: the diagnostics record, worked out once
+    _diagnostics: Diagnostics | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        if self.inputs is None:
+            raise TypeError("Result needs inputs=clothsim.compile.run_inputs(scene) (what it reports of the scene)")
 
     def _f(self):
         if self._fields is None:
@@ -564,120 +339,81 @@ class Result:
 
     def diagnostics(self) -> dict:
         """Numbers that make a degenerate result visible (see :func:`sheet_health`), the peak
-        strains and pressures, and the deepest penetration into the mold. Worked out once per
-        Result (the sensor peak takes seconds on a big sheet, and summary() and save() both need
-        it); a copy is returned."""
+        strains and pressures, and the deepest penetration into the mold (the
+        :class:`~clothsim.records.Diagnostics` record's fields that apply, as a dict). Worked out
+        once per Result (the sensor peak takes seconds on a big sheet, and summary() and save()
+        both need it); a fresh dict is returned."""
+        return copy.deepcopy(self.diagnostics_record().to_dict())
+
+    def diagnostics_record(self) -> Diagnostics:
+        """The :class:`~clothsim.records.Diagnostics` record (worked out once)."""
         if self._diagnostics is None:
             self._diagnostics = self._work_out_diagnostics()
-        return copy.deepcopy(self._diagnostics)
+        return self._diagnostics
 
-    def _work_out_diagnostics(self) -> dict:
-        out = sheet_health(self.model, self.state.positions, self.state.in_contact,
-                           force=self._f()[1], strain=self._f()[0])
-        cf, p = self._f()[2], self._f()[3]
+    def _work_out_diagnostics(self) -> Diagnostics:
+        pos = self.state.positions
+        strain, force, cf, p = self._f()
+        out = sheet_health(self.model, pos, self.state.in_contact, force=force, strain=strain)
         if out["gathered_rows"]:
-            _, _, rows, _ = gathered_rows(self.model, self.state.positions, self._f()[0], self._f()[1])
+            _, _, rows, _ = gathered_rows(self.model, pos, strain, force)
             pr = p[rows & np.isfinite(p) & (cf > 0.0)]
             out["gathered_rows_max_pressure_mmhg"] = float(pr.max()) / MMHG if pr.size else None
-        gathered = np.isinf(p)
-        # the peak over nodes whose pressure is defined (gathered nodes are counted apart); when
-        # every loaded contact node has gathered there is no pressure to report: None (null)
-        # with the reason and the line load, never a 0 that would read as "no pressure"
-        defined = np.isfinite(p) & (cf > 0.0)
-        note = None
-        if defined.any():
-            pmax = float(p[defined].max())
-        elif gathered.any():
-            pmax = None
-            note = (f"no contact pressure: all {int(gathered.sum())} loaded contact nodes sit where the sheet "
-                    f"has gathered into a rope (no area under them); their load is a line load "
-                    f"(contact_line_load_n_per_m)")
-        else:
-            pmax = 0.0  # no loaded contact node: truly no pressure
-        sensor = pmax  # None (all gathered) or 0.0 (no loaded contact node) as the node peak
-        if defined.any():
-            # the peak a sensor-sized disc reads (sensor_pressure): converges under refinement
-            # where the node peak, sitting on a lift-off line, does so only at first order
-            pos = self.state.positions
-            sensor = max_sensor_pressure(pos, np.where(np.isfinite(cf), cf, 0.0), pressure_area(self.model, pos),
-                                         np.nonzero(defined)[0], self.model.topology.cells)
-        out.update({
-            "max_sensor_pressure_pa": sensor,
-            "max_sensor_pressure_mmhg": None if sensor is None else sensor / MMHG,
-            "sensor_radius_m": SENSOR_RADIUS_M,
-            "max_strain_warp": float(self.strain_warp.max()) if self.strain_warp.size else 0.0,
-            "max_strain_weft": float(self.strain_weft.max()) if self.strain_weft.size else 0.0,
-            "max_contact_pressure_pa": pmax,
-            "max_contact_pressure_mmhg": None if pmax is None else pmax / MMHG,
-            "gathered_contact_nodes": int(gathered.sum()),
-        })
-        if note is not None:
-            out["contact_pressure_note"] = note
-        if gathered.any():
-            rope = gathered_line_load(self.model, self.state.positions, cf, gathered)
-            out["gathered_contact_force_n"] = rope["gathered_contact_force_n"]
-            out["contact_line_load_n_per_m"] = rope["max_line_load_n_per_m"]
-            out["contact_line_load_mean_n_per_m"] = rope["mean_line_load_n_per_m"]
+        out.update(pressure_peaks(self.model, pos, cf, p))
+        out["max_strain_warp"] = float(self.strain_warp.max()) if self.strain_warp.size else 0.0
+        out["max_strain_weft"] = float(self.strain_weft.max()) if self.strain_weft.size else 0.0
         seam = self.model.spring_family == FAMILY_SEAM
         if seam.any():
             ab = self.model.spring_nodes[seam]
-            pos = self.state.positions
             out["max_seam_gap_m"] = float(np.linalg.norm(pos[ab[:, 1]] - pos[ab[:, 0]], axis=1).max())
         if self.model.seams:
-            out.update(seam_report(self.model, self.state.positions))
+            out.update(seam_report(self.model, pos))
         if self.model.mold is not None:
             from .contact import max_penetration
 
-            out["max_penetration_m"] = float(max_penetration(self.state.positions, self.model.mold.kernel_args()))
+            out["max_penetration_m"] = float(max_penetration(pos, self.model.mold.kernel_args()))
             out.update(surface_report(self.model.mold))
-        return out
+        return Diagnostics(**out)
 
     def undetermined_nodes(self) -> np.ndarray:
         """(i, j) indices of free nodes held only by slack springs (no unique equilibrium)."""
         und = _undetermined(self.model, self._f()[1], self.state.in_contact)
         return self.model.topology.node_ij[und]
 
-    def summary(self) -> dict:
+    def summary_record(self) -> RunSummary:
+        """The run's :class:`~clothsim.records.RunSummary` record."""
         from . import __version__
-        from .solvers import pick_method
 
-        s = self.solve
-        d = {
-            "name": self.scene.name,
-            "converged": bool(s.converged),
-            "status": s.status,
-            "message": s.message,
-            "iterations": int(s.iterations),
-            "residual": float(s.residual),
-            "relative_residual": float(s.relative_residual),
-            "best_residual": float(s.best_residual),
-            "energy": float(s.energy),
-            "wall_time_s": float(s.wall_time_s),
-            "startup_s": float(self.startup_s),
-            "solver": s.method,
-            "C": float(self.scene.solver.C),
-            "e": float(self.scene.solver.e),
-            "contact_count": int(s.contact_count),
-            "node_count": int(self.model.node_count),
-            "clothsim_version": __version__,
-        }
-        if getattr(s, "friction", None):
+        s, inp = self.solve, self.inputs
+        return RunSummary(
+            name=inp.name, converged=bool(s.converged), status=s.status, message=s.message,
+            iterations=int(s.iterations), residual=float(s.residual), relative_residual=float(s.relative_residual),
+            best_residual=float(s.best_residual), energy=float(s.energy), wall_time_s=float(s.wall_time_s),
+            startup_s=float(self.startup_s), solver=s.method, C=float(inp.C), e=float(inp.e),
+            contact_count=int(s.contact_count), node_count=int(self.model.node_count), clothsim_version=__version__)
+
+    def summary(self) -> dict:
+        """summary.json's content: the :class:`~clothsim.records.RunSummary` fields, ``friction``
+        (a :class:`~clothsim.records.FrictionReport`) when the run went in load steps, the
+        :class:`~clothsim.records.Diagnostics` fields that apply, and the compression readings
+        (``probes``, ``profiles``, ``classes``) when the scene asks for them."""
+        d = self.summary_record().to_dict()
+        if self.solve.friction:
             # the load steps and the Coulomb state at the last one (stick, slip, cone violation)
-            d["friction"] = {k: v for k, v in s.friction.items()}
+            d["friction"] = dict(self.solve.friction)
         d.update(self.diagnostics())
         d.update(self.compression())
         return d
 
     def compression(self) -> dict:
-        """The scene's probes, profiles and classes (clothsim.compression.probes.evaluate):
+        """The scene's probes, profiles and classes (clothsim.compression.probes.Readings):
         {"probes": [...], "profiles": [...], "classes": {...}}, only the keys the scene asks for."""
-        if not (getattr(self.scene, "probes", None) or getattr(self.scene, "profiles", None)):
+        readings = self.inputs.readings
+        if not readings:
             return {}
-        if getattr(self, "_compression", None) is None:
-            from .compression.probes import evaluate
-
-            self._compression = evaluate(self.scene, self.model, self.state.positions, self.state.in_contact,
-                                         self._f()[3])
+        if self._compression is None:
+            self._compression = readings.evaluate(self.model, self.state.positions, self.state.in_contact,
+                                                  self._f()[3])
         return self._compression
 
     def colored_mesh(self, field: str = "strain"):
@@ -731,33 +467,16 @@ class Result:
             "result.npz": self.npz_bytes(),
             "history.csv": self.history_csv().encode(),
             "sheet.ply": self.colored_mesh(ply_field).export(file_type="ply"),
-            "scene.yaml": self.scene.resolved().to_yaml().encode(),
+            "scene.yaml": self.inputs.scene_yaml.encode(),
             **self._compression_files(),
             "summary.json": strict_json(self.summary()).encode(),
         }
 
     def _compression_files(self) -> dict[str, bytes]:
-        """probes.csv, profiles.csv and profiles.png when the scene asks for probes or profiles.
-        A plot that cannot be drawn is a warning and is left out: it never costs the numeric files."""
+        """probes.csv, profiles.csv and profiles.png when the scene asks for probes or profiles
+        (a plot that cannot be drawn is a warning and is left out: Readings.files)."""
         comp = self.compression()
-        out: dict[str, bytes] = {}
-        if comp:
-            from .compression.probes import probes_csv, profile_png, profiles_csv
-
-            if comp.get("probes"):
-                out["probes.csv"] = probes_csv(comp["probes"]).encode()
-            if comp.get("profiles"):
-                out["profiles.csv"] = profiles_csv(comp["profiles"]).encode()
-                try:
-                    out["profiles.png"] = profile_png(comp["profiles"], self.scene.name)
-                except Exception as exc:  # noqa: BLE001 (any plotting failure: the numbers are written)
-                    import warnings
-
-                    from .plottext import failure
-
-                    warnings.warn(f"profiles.png not written ({failure(exc)}); the numbers are in profiles.csv",
-                                  stacklevel=2)
-        return out
+        return self.inputs.readings.files(comp, self.inputs.name) if comp else {}
 
     def save(self, out_dir: str | Path, ply_field: str = "strain") -> Path:
         """Write every output file into out_dir (created); returns out_dir.

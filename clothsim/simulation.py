@@ -21,10 +21,11 @@ from typing import Callable
 import numpy as np
 
 from .config import Scene, SceneError, scene_from_dict, stage_scenes
-from .compile import compile_model, compile_state
+from .compile import compile_model, compile_state, run_inputs
 from .material import MaterialWarning
 from .model import Model, SpringFamily, State
 from .mold import mold_query_many
+from .records import StageReport
 from .results import Result
 from .solvers import History, SolveResult, load_steps, make_solver, pick_method
 from .solvers import solve as run_solver
@@ -334,10 +335,11 @@ class Simulation:
                                                     spring_width=model.spring_width)
             if not res.converged:
                 break
-            self._stage_reports.append({"name": name, "load_steps": len(self._controls),
-                                        **({} if scales is None else {"rest_scale": list(scales[1])}),
-                                        "converged": True, "iterations": int(res.iterations),
-                                        "residual": float(res.residual), "friction": res.friction})
+            self._stage_reports.append(StageReport(
+                name=name, load_steps=len(self._controls),
+                **({} if scales is None else {"rest_scale": list(scales[1])}),
+                converged=True, iterations=int(res.iterations), residual=float(res.residual),
+                friction=res.friction).to_dict())
             self._plan.pop(0)
             self._controls = None
         if self.scene.stages and res is not None:
@@ -358,7 +360,8 @@ class Simulation:
             solve = SolveResult(r.converged, r.status, r.message, self.state.iteration, r.residual,
                                 r.relative_residual, r.energy, r.contact_count, self.total_time, r.method,
                                 hist, r.best_residual, r.friction)
-            return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s)
+            return Result(self.scene, self.model, self.state.copy(), solve, startup_s or self.prepare_s,
+                          inputs=run_inputs(self.scene))
 
     # background thread -------------------------------------------------
     def _worker(self) -> None:

@@ -2,7 +2,7 @@
 (issue 12 item 1; docs/method/pressure_convergence.md).
 
 Per run it prints (JSON lines): iterations, contact nodes, the node pressure's peak and 95th
-percentile over the contact nodes, the same for the sensor reading (results.sensor_pressure, a
+percentile over the contact nodes, the same for the sensor reading (pressure.sensor_pressure, a
 5 mm disc) and a stripe index (below). With --profile it also prints the pressure along the
 lattice line through the node peak, across the lift-off line.
 
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import clothsim
-from clothsim.results import MMHG, SENSOR_RADIUS_M, max_sensor_pressure, pressure_area, sensor_pressure
+from clothsim.pressure import MMHG, SENSOR_RADIUS_M, max_sensor_pressure, pressure_area, sensor_pressure
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,7 +76,7 @@ def band_readings(res, p: np.ndarray, ok: np.ndarray, S: np.ndarray, F: np.ndarr
     p (N,) node pressure [Pa]; ok (N,) bool: contact nodes with a pressure;
     S: the sensor reading [Pa] at each of np.nonzero(ok)[0]; F, A (N,): the node reactions [N]
     and areas [m^2] (the interior sensor peak is searched between the interior's nodes too,
-    results.max_sensor_pressure; its place is the node with the largest node-centred reading)."""
+    pressure.max_sensor_pressure; its place is the node with the largest node-centred reading)."""
     m, x = res.model, res.state.positions
     ly = float(res.scene.fabric.size[1])
     ny = int(res.scene.fabric.divisions[1])

@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from clothsim.compile import compile_model
+from clothsim.compile import compile_model, run_inputs
 from clothsim.config import scene_from_dict
 from clothsim.grid import State
 from clothsim.results import MMHG, Result, strict_json
@@ -58,11 +58,12 @@ class _Solve:  # what Result.summary reads of a solve record
     residual = relative_residual = best_residual = energy = wall_time_s = 0.0
     contact_count = 0
     method = "newton"
+    friction = None
 
 
 def test_gathered_ring_has_no_pressure_and_reports_its_line_load():
     scene, model, state, hoop = _ring()
-    res = Result(scene, model, state, _Solve())
+    res = Result(scene, model, state, _Solve(), inputs=run_inputs(scene))
     cf = res.contact_force.ravel()
     assert (cf > 0).all()                              # every node carries force ...
     assert np.isinf(res.contact_pressure).all()        # ... on no area
@@ -102,7 +103,7 @@ def test_a_partly_gathered_sheet_keeps_the_peak_of_its_defined_nodes():
     nx = int(ij[:, 0].max())
     half = ij[:, 0] < nx // 2
     state.positions[half, 2] = ij[half, 1] * 0.05 / 4
-    res = Result(scene, model, state, _Solve())
+    res = Result(scene, model, state, _Solve(), inputs=run_inputs(scene))
     p = res.contact_pressure.ravel()
     s = res.summary()
     finite = p[np.isfinite(p) & (res.contact_force.ravel() > 0)]
@@ -116,6 +117,6 @@ def test_no_contact_is_a_true_zero():
     scene, model, state, hoop = _ring()
     state.positions[:, 0] *= 2.0     # off the cylinder
     state.in_contact[:] = False
-    s = Result(scene, model, state, _Solve()).summary()
+    s = Result(scene, model, state, _Solve(), inputs=run_inputs(scene)).summary()
     assert s["max_contact_pressure_pa"] == 0.0 and "contact_pressure_note" not in s
     assert "contact_line_load_n_per_m" not in s

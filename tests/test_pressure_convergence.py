@@ -3,7 +3,7 @@
 - on a smooth icosphere (``surface: smooth``) the sphere cap's node peak, 95th percentile and
   sensor peak change by well under 3 % from 24^2 to 48^2, match the analytic sphere's, and the
   apex pressure is Laplace's (T_warp + T_weft) / R with the local tensions;
-- the sensor reading (results.sensor_pressure) is exact for a uniform and for a linear pressure
+- the sensor reading (pressure.sensor_pressure) is exact for a uniform and for a linear pressure
   field, and on the knit band round a cylinder it reads Laplace's T / r like the node pressure;
 - at a lift-off line (the field drops to 0 across one cell) the node peak converges at first
   order only, the sensor peak hardly depends on where the line crosses the lattice.
@@ -14,7 +14,7 @@ import pytest
 import trimesh
 
 import clothsim
-from clothsim.results import SENSOR_RADIUS_M, max_sensor_pressure, sensor_pressure, sensor_pressure_at
+from clothsim.pressure import SENSOR_RADIUS_M, max_sensor_pressure, sensor_pressure, sensor_pressure_at
 
 from conftest import scene_dict
 

@@ -17,7 +17,7 @@ import pytest
 
 from clothsim.config import load_scene, scene_from_dict
 from clothsim.contact import max_penetration
-from clothsim.compile import compile_model, compile_state
+from clothsim.compile import compile_model, compile_state, run_inputs
 
 from clothsim.mold import mold_from_arrays
 from clothsim.results import Result
@@ -87,7 +87,7 @@ def test_slack_regions_report_undetermined_nodes(method):
     assert np.isfinite(state.positions).all()
     assert np.abs(state.positions).max() < 1.0
     assert _pen(model, state) <= 1e-9
-    result = Result(scene, model, state, res, 0.0)
+    result = Result(scene, model, state, res, 0.0, inputs=run_inputs(scene))
     und = result.undetermined_nodes()
     diag = result.diagnostics()
     assert diag["undetermined_nodes"] == len(und) > 0

@@ -9,7 +9,8 @@
   target probe pressure.
 - :mod:`.report`: one self-contained HTML report of a result folder (``python app.py report``).
 
-This package's ``__init__`` imports nothing heavy: ``clothsim.config`` imports :mod:`.spec`.
+This package's ``__init__`` imports nothing heavy (the unit MMHG from :mod:`clothsim.pressure`):
+``clothsim.config`` imports :mod:`.spec`.
 """
 
-MMHG = 133.322387415  # Pa per mmHg (the conventional millimetre of mercury)
+from ..pressure import MMHG  # noqa: E402,F401  (Pa per mmHg; defined once, in clothsim.pressure)

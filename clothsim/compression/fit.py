@@ -38,6 +38,7 @@ import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
@@ -52,6 +53,9 @@ from ..results import atomic_write_bytes
 from ..sizing import default_for, sizing_table, table_lines
 from ..sizingspec import GarmentSpec
 from . import MMHG
+
+if TYPE_CHECKING:
+    from ..results import Result
 
 
 class FitError(ValueError):
@@ -108,7 +112,7 @@ class FitResult:
     readings_mmhg: list[float]
     tries: list[Try] = field(default_factory=list)
     scene_dict: dict | None = None
-    result: object | None = None  # the clothsim Result at the fitted values
+    result: Result | None = None  # the clothsim Result at the fitted values
 
     def tries_csv(self, varies: list[Vary], targets: list[Target]) -> str:
         buf = io.StringIO()

@@ -1,6 +1,6 @@
 """Pressure probes and profiles read from an equilibrium.
 
-Both read the per-node contact pressure p_i [Pa] (:func:`clothsim.results.contact_reaction`:
+Both read the per-node contact pressure p_i [Pa] (:func:`clothsim.pressure.contact_reaction`:
 normal reaction over deformed tributary area) and the contact flags c_i, interpolated linearly
 over the deformed sheet's display triangles (``model.topology.faces``).
 
@@ -29,42 +29,20 @@ from __future__ import annotations
 import csv
 import io
 import math
+import warnings
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..mold import mold_query_many
-from ..plottext import PLAIN, plain_legend
-from . import MMHG
+from ..plottext import PLAIN, failure, plain_legend
+from ..pressure import MMHG, SensorDisc, finite_pressure, mold_closest
+from ..records import ProbeReading
 from .standards import classify_all
 
-
-def _mold_closest(mold, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(closest points (M, 3) [m], signed distances (M,) [m]) of points P (M, 3) on the mold."""
-    P = np.ascontiguousarray(P, dtype=float).reshape(-1, 3)
-    m = len(P)
-    sd, cp, nrm = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
-    if m:
-        mold_query_many(mold.kernel_args(), P, sd, cp, nrm, np.empty((m, 2), np.int64))
-    return cp, sd
-
-
-def _finite_pressure(pressure: np.ndarray) -> tuple[np.ndarray, int]:
-    """Pressure with gathered nodes (inf: a line load) set to 0, and how many there were."""
-    bad = ~np.isfinite(pressure)
-    return np.where(bad, 0.0, pressure), int(bad.sum())
-
-
-def _subdivision(k: int) -> tuple[np.ndarray, float]:
-    """Barycentric centroids (k^2, 3) of the k^2 equal sub-triangles of a triangle; each has
-    1/k^2 of its area."""
-    out = []
-    for a in range(k):
-        for b in range(k - a):
-            out.append(((a + 1 / 3) / k, (b + 1 / 3) / k))        # upward sub-triangle
-            if a + b < k - 1:
-                out.append(((a + 2 / 3) / k, (b + 2 / 3) / k))    # downward one
-    uv = np.array(out)
-    return np.column_stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]]), 1.0 / k ** 2
+if TYPE_CHECKING:
+    from ..model import Model
+    from .spec import Classes, Probe, Profile
 
 
 #: a probe whose disc is wider than this share of the sheet's largest extent says it is no local reading
@@ -81,36 +59,15 @@ def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: n
     if model.mold is None:
         out.update(center=None, offset_m=math.nan, force_n=0.0, pressure_pa=0.0, pressure_mmhg=0.0,
                    contact_fraction=0.0, on_contact=False, note="no mold: nothing to press on")
-        return out
-    cp, sd = _mold_closest(model.mold, np.asarray(probe.point, float)[None])
+        return ProbeReading(**out).to_dict()
+    cp, sd = mold_closest(model.mold, np.asarray(probe.point, float)[None])
     centre = cp[0]
     out["center"] = [float(x) for x in centre]
     out["offset_m"] = float(abs(sd[0]))
-    p, gathered = _finite_pressure(np.asarray(pressure, float))
-    faces = model.topology.faces
-    X = np.asarray(positions, float)
-    tri = X[faces]                                                  # (F, 3, 3)
-    edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-    # triangles that can reach the disc: a vertex's mold point within radius + the triangle size
-    vcp, _ = _mold_closest(model.mold, X)
-    vd = np.linalg.norm(vcp - centre, axis=1)
-    near = np.nonzero(vd[faces].min(axis=1) <= r + 2.0 * edge)[0]
-    force = 0.0
-    contact_area = 0.0
-    if near.size:
-        k = int(min(64, max(4, math.ceil(60.0 * float(edge[near].max()) / r))))
-        bary, share = _subdivision(k)
-        t = tri[near]                                               # (M, 3, 3)
-        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-        S = np.einsum("sv,mvc->msc", bary, t).reshape(-1, 3)        # sample points
-        a = np.repeat(area * share, len(bary))
-        ps = (bary @ p[faces[near]].T).T.reshape(-1)
-        cs = (bary @ in_contact[faces[near]].astype(float).T).T.reshape(-1)
-        scp, _ = _mold_closest(model.mold, S)
-        inside = np.linalg.norm(scp - centre, axis=1) <= r
-        force = float((ps * a)[inside].sum())
-        contact_area = float((cs * a)[inside].sum())
-    disc = math.pi * r * r
+    gathered = int((~np.isfinite(np.asarray(pressure, float))).sum())
+    sensor = SensorDisc(r)
+    force, contact_area = sensor.on_mold(model, positions, in_contact, pressure, centre)
+    disc = sensor.area_m2
     pa = force / disc
     frac = min(1.0, contact_area / disc)
     on = bool(force > 0.0)
@@ -129,7 +86,7 @@ def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: n
                                                 f"({across:.3g} m across): not a local reading (radius in metres?)")
     out.update(force_n=force, pressure_pa=pa, pressure_mmhg=pa / MMHG, contact_fraction=frac, on_contact=on,
                note=note)
-    return out
+    return ProbeReading(**out).to_dict()
 
 
 def _cut(X: np.ndarray, faces: np.ndarray, d: np.ndarray, vals: list[np.ndarray]):
@@ -169,7 +126,7 @@ def read_profile(model, positions: np.ndarray, in_contact: np.ndarray, pressure:
     contact length 0 and pressures None."""
     axis = np.asarray(profile.unit_axis(), float)
     X = np.asarray(positions, float)
-    p, _ = _finite_pressure(np.asarray(pressure, float))
+    p, _ = finite_pressure(np.asarray(pressure, float))
     c = np.asarray(in_contact, float)
     faces = model.topology.faces
     hx = X @ axis
@@ -227,31 +184,61 @@ def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
 NO_READING = "no reading (no contact under the probe)"
 
 
-def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray) -> dict:
-    """The scene's probes, profiles and classes: {"probes": [...], "profiles": [...],
-    "classes": {...}} (only the keys the scene asks for)."""
-    out: dict = {}
-    probes = getattr(scene, "probes", None) or []
-    profiles = getattr(scene, "profiles", None) or []
-    classes = getattr(scene, "classes", None)
-    if probes:
-        out["probes"] = [read_probe(model, positions, in_contact, pressure, pr) for pr in probes]
-    if profiles:
-        out["profiles"] = [read_profile(model, positions, in_contact, pressure, pf) for pf in profiles]
-    if classes is not None and probes:
-        reading = next(r for r in out["probes"] if r["name"] == classes.probe)
-        results = classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)
-        if not reading["contact_fraction"] > 0.0:
-            # a probe off the contact (a garment that slid off, a point off the body) reads no
-            # pressure: it has no class, not "below class I"
-            for c in results:
-                c["class"] = NO_READING
-        out["classes"] = {"probe": classes.probe, "pressure_mmhg": reading["pressure_mmhg"],
-                          "results": results}
-        for r in out["probes"]:
-            if r["name"] == classes.probe:
-                r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}
-    return out
+@dataclass(frozen=True)
+class Readings:
+    """What a scene asks to read on its equilibrium (its ``probes``, ``profiles`` and ``classes``),
+    taken from the scene when it is compiled (``clothsim.compile.run_inputs``): a Result reads and
+    writes them without reading the scene. Falsy when the scene asks for none."""
+
+    probes: tuple[Probe, ...] = ()
+    profiles: tuple[Profile, ...] = ()
+    classes: Classes | None = None
+
+    @classmethod
+    def of(cls, scene) -> "Readings":
+        return cls(tuple(scene.probes), tuple(scene.profiles), scene.classes)
+
+    def __bool__(self) -> bool:
+        return bool(self.probes or self.profiles)
+
+    def evaluate(self, model: Model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray) -> dict:
+        """The probes, profiles and classes: {"probes": [...], "profiles": [...], "classes": {...}}
+        (only the keys asked for). positions (N, 3) [m], in_contact (N,) bool, pressure (N,) [Pa]."""
+        out: dict = {}
+        if self.probes:
+            out["probes"] = [read_probe(model, positions, in_contact, pressure, pr) for pr in self.probes]
+        if self.profiles:
+            out["profiles"] = [read_profile(model, positions, in_contact, pressure, pf) for pf in self.profiles]
+        classes = self.classes
+        if classes is not None and self.probes:
+            reading = next(r for r in out["probes"] if r["name"] == classes.probe)
+            results = classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)
+            if not reading["contact_fraction"] > 0.0:
+                # a probe off the contact (a garment that slid off, a point off the body) reads no
+                # pressure: it has no class, not "below class I"
+                for c in results:
+                    c["class"] = NO_READING
+            out["classes"] = {"probe": classes.probe, "pressure_mmhg": reading["pressure_mmhg"],
+                              "results": results}
+            for r in out["probes"]:
+                if r["name"] == classes.probe:
+                    r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}
+        return out
+
+    def files(self, readings: dict, title: str) -> dict[str, bytes]:
+        """probes.csv, profiles.csv and profiles.png of ``readings`` (:meth:`evaluate`). A plot that
+        cannot be drawn is a warning and is left out: it never costs the numeric files."""
+        out: dict[str, bytes] = {}
+        if readings.get("probes"):
+            out["probes.csv"] = probes_csv(readings["probes"]).encode()
+        if readings.get("profiles"):
+            out["profiles.csv"] = profiles_csv(readings["profiles"]).encode()
+            try:
+                out["profiles.png"] = profile_png(readings["profiles"], title)
+            except Exception as exc:  # noqa: BLE001 (any plotting failure: the numbers are written)
+                warnings.warn(f"profiles.png not written ({failure(exc)}); the numbers are in profiles.csv",
+                              stacklevel=3)
+        return out
 
 
 def probes_csv(readings: list[dict]) -> str:

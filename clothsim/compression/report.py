@@ -272,6 +272,19 @@ def convergence_png(history: tuple[np.ndarray, np.ndarray] | None) -> str | None
     return _png(fig)
 
 
+def summary_table(s: dict) -> str:
+    """Every number and word of summary.json the field list (clothsim.records) names, with its
+    unit: the run's, the diagnostics', the friction report's (friction.KEY) and each stage's
+    (stage:NAME.KEY); the probes have their own table."""
+    from ..records import field_rows, format_value
+
+    rows = ["<table id='summary'><tr><th>output</th><th>value</th><th>unit</th><th>meaning</th></tr>"]
+    rows += [f"<tr id='summary-{_t(name)}'><td><code>{_t(name)}</code></td><td>{_t(format_value(v))}</td>"
+             f"<td>{_t(f.unit)}</td><td>{_t(f.doc)}</td></tr>"
+             for f, name, v in field_rows(s) if not name.startswith("probe:")]
+    return "\n".join(rows + ["</table>"])
+
+
 def probes_table(probes: list[dict]) -> str:
     rows = ["<table id='probes'><tr><th>probe</th><th>centre [m]</th><th>radius [mm]</th><th>pressure [mmHg]</th>"
             "<th>pressure [Pa]</th><th>contact fraction</th><th>classes</th><th>note</th></tr>"]
@@ -511,6 +524,7 @@ def _build(out: Path, s: dict, history) -> str:
     if conv:
         parts += ["<h2>Convergence</h2>", _missing(conv) if isinstance(conv, _Missing) else
                   _img(conv, "convergence plot")]
+    parts += ["<h2>Summary</h2>", summary_table(s)]
     scene_text = read_text(out / "scene.yaml", ReportError, limit=TEXT_LIMIT)
     parts += ["<h2>Scene</h2>", f"<pre id='scene'>{_t(scene_text)}</pre>",
               f"<p>Written by clothsim {_t(s.get('clothsim_version'))}.</p></body></html>"]

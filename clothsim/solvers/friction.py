@@ -18,6 +18,7 @@ import numpy as np
 
 from ..contact import residual_from_forces
 from ..friction import elastic_forces, friction_report, lag_friction, normal_forces
+from ..records import FrictionReport
 from .base import Status
 from .common import SolveResult, model_mold_args, residual
 from .control import Control
@@ -143,6 +144,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
               "cuts": cuts, "refreshes": relags_total, "steps": steps}
     if rep is not None:
         report.update(rep)
+    report = FrictionReport(**report).to_dict()  # the fields summary.json and sweeps read
     msg = res.message if res is not None else "no load step"
     if cuts:
         msg += f"; {cuts} load step(s) cut in half"

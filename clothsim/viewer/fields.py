@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels import spring_strains_tensions
-from ..results import MMHG, contact_reaction
+from ..pressure import MMHG, contact_reaction
 
 
 def contact_pressure(model, positions: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
-    """Contact pressure [Pa] per node (N,) (see clothsim.results.contact_reaction)."""
+    """Contact pressure [Pa] per node (N,) (see clothsim.pressure.contact_reaction)."""
     return contact_reaction(model, positions, in_contact)[1]
 
 #: label -> (unit shown in the legend, short key)

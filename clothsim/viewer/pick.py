@@ -15,9 +15,9 @@ import math
 
 import numpy as np
 
-from ..compression.probes import _mold_closest, evaluate
+from ..compression.probes import Readings
 from ..kernels import spring_strains_tensions
-from ..results import MMHG, contact_reaction
+from ..pressure import MMHG, contact_reaction, mold_closest
 
 
 def ray_hit(positions: np.ndarray, faces: np.ndarray, origin, direction) -> tuple[int, float, np.ndarray] | None:
@@ -96,18 +96,18 @@ def readout_text(r: dict | None) -> str:
 
 
 def probe_readings(scene, model, positions: np.ndarray, in_contact: np.ndarray) -> list[dict]:
-    """The scene's probes read on a frame (clothsim.compression.probes.evaluate), with their
+    """The scene's probes read on a frame (clothsim.compression.probes.Readings), with their
     classes and each disc's mold normal (unit (3,), for drawing); [] without probes."""
-    if not getattr(scene, "probes", None):
+    if not scene.probes:
         return []
 
     pressure = contact_reaction(model, positions, in_contact)[1]
-    out = evaluate(scene, model, positions, in_contact, pressure).get("probes", [])
+    out = Readings.of(scene).evaluate(model, positions, in_contact, pressure).get("probes", [])
     for r in out:
         c = np.asarray(r["center"] if r.get("center") is not None else r["point"], float)
         nrm = np.asarray(r["point"], float) - c
         if model.mold is not None and np.linalg.norm(nrm) < 1e-9:
-            cp, _ = _mold_closest(model.mold, (c + 1e-4 * np.array([0.0, 0.0, 1.0]))[None])
+            cp, _ = mold_closest(model.mold, (c + 1e-4 * np.array([0.0, 0.0, 1.0]))[None])
             nrm = c + 1e-4 * np.array([0.0, 0.0, 1.0]) - cp[0]
         n = np.linalg.norm(nrm)
         r["normal"] = [float(x) for x in (nrm / n if n > 0 else np.array([0.0, 0.0, 1.0]))]

@@ -99,7 +99,7 @@ class ProbesPanel(Panel):
             self.gui["readout"].content = readout_text(self.readout) + \
                 ("" if still else "  \n<small>(running: values of the frame shown)</small>")
         show = bool(self.gui["show_probes"].value)
-        if still and self._key != key and self._job is None and getattr(self.app.sim.scene, "probes", None):
+        if still and self._key != key and self._job is None and self.app.sim.scene.probes:
             self._key = key
             self._job = threading.Thread(target=self._read, name="clothsim-probes", daemon=True,
                                          args=(self.app.sim.scene, model, frame.positions.copy(),
@@ -157,7 +157,7 @@ class ProbesPanel(Panel):
 
     def table(self) -> str:
         scene = self.app.sim.scene
-        if not getattr(scene, "probes", None):
+        if not scene.probes:
             return ("No probes in this scene. Add `probes: [{name, point: [x, y, z], radius}]` to the scene "
                     "file (see docs/guide/compression.md).")
         if not self.readings:
