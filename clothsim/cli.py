@@ -28,6 +28,7 @@ from .config import SceneError, load_scene
 from .fileio import FolderLock, OutputError, atomic_write_bytes, check_out_dir, describe_write_error
 from .material import MaterialError, MaterialWarning
 from .mold import MoldError
+from .records import outputs_markdown
 from .results import gathered_rows_warning, strict_json
 from .sweep import main as sweep_main
 
@@ -264,7 +265,6 @@ def cmd_view(args) -> int:
 
 def cmd_outputs(args) -> int:
     """``python app.py outputs``: the field list (clothsim.records) as a table: output, unit, meaning."""
-    from .records import outputs_markdown
 
     rows = [[c.strip().strip("`").replace("\\|", "|") for c in line.strip("|").split(" | ")]
             for line in outputs_markdown().splitlines()[2:]]

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import patterns
+from .compression.probes import Readings
 from .config import Scene
 from .errors import SceneError
 from .grid import build_model, rotation_matrix
@@ -398,7 +399,6 @@ def compile_scene(scene: Scene, mold=_NO_MOLD) -> tuple[Model, State]:
 def run_inputs(scene: Scene) -> RunInputs:
     """What the run's Result reports of ``scene`` (its name, C and e, the resolved scene's YAML,
     the probes, profiles and classes to read): the Result reads these, never the scene."""
-    from .compression.probes import Readings
 
     return RunInputs(name=scene.name, C=float(scene.solver.C), e=float(scene.solver.e),
                      scene_yaml=scene.resolved().to_yaml(), readings=Readings.of(scene))

@@ -28,9 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels import forces_and_energy
 from .model import SpringFamily
-
-MMHG = 133.322387415  # Pa per mmHg (the conventional millimetre of mercury)
+from .mold import mold_query_many
+from .units import MMHG  # noqa: F401 (Pa per mmHg; defined once, in clothsim.units)
 
 #: a contact node whose deformed tributary area is below this fraction of its rest area has
 #: gathered: its pressure is reported as inf (see contact_reaction)
@@ -67,8 +68,6 @@ def contact_reaction(model, positions: np.ndarray, in_contact: np.ndarray):
     pressure = np.zeros(n)
     if model.mold is None or not in_contact.any():
         return force, pressure
-    from .kernels import forces_and_energy
-    from .mold import mold_query_many
 
     F = np.empty((n, 3))
     forces_and_energy(positions, *model.spring_args(), model.external_force, F)
@@ -164,7 +163,6 @@ SENSOR_RADIUS_M = PEAK_SENSOR.radius_m
 
 def mold_closest(mold, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(closest points (M, 3) [m], signed distances (M,) [m]) of points P (M, 3) on the mold."""
-    from .mold import mold_query_many
 
     P = np.ascontiguousarray(P, dtype=float).reshape(-1, 3)
     m = len(P)

@@ -9,8 +9,8 @@
   target probe pressure.
 - :mod:`.report`: one self-contained HTML report of a result folder (``python app.py report``).
 
-This package's ``__init__`` imports nothing heavy (the unit MMHG from :mod:`clothsim.pressure`):
+This package's ``__init__`` imports nothing heavy (the unit MMHG from :mod:`clothsim.units`):
 ``clothsim.config`` imports :mod:`.spec`.
 """
 
-from ..pressure import MMHG  # noqa: E402,F401  (Pa per mmHg; defined once, in clothsim.pressure)
+from ..units import MMHG  # noqa: E402,F401  (Pa per mmHg; defined once, in clothsim.units)
