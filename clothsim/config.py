@@ -20,7 +20,9 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Fie
                       ValidationError, field_validator, model_validator)
 
 from .defaults import SOLVER_DEFAULTS
+from .compression.levelspec import Levels
 from .compression.spec import Classes, Probe, Profile, check_compression
+from .legspec import LegParams
 from .material import (TENSION_MAX, MaterialError, Table, check_table, read_table_csv,
                        warn_implausible_strain)
 
@@ -854,7 +856,14 @@ class BoxMoldSpec(_MoldFriction):
     box: BoxParams
 
 
-MOLD_PRIMITIVES = ("sphere", "cylinder", "plane", "box")
+class LegMoldSpec(_MoldFriction):
+    """A limb from a size chart's girths at its measuring levels (:mod:`clothsim.legspec`)."""
+
+    kind: ClassVar[str] = "leg"
+    leg: LegParams
+
+
+MOLD_PRIMITIVES = ("sphere", "cylinder", "plane", "box", "leg")
 # pydantic puts the union branch's tag into error locations; format_validation_error drops these
 _MOLD_TAGS = tuple(f"mold:{k}" for k in ("mesh", *MOLD_PRIMITIVES))
 
@@ -881,10 +890,11 @@ MoldSpec = Annotated[
         Annotated[CylinderMoldSpec, Tag("mold:cylinder")],
         Annotated[PlaneMoldSpec, Tag("mold:plane")],
         Annotated[BoxMoldSpec, Tag("mold:box")],
+        Annotated[LegMoldSpec, Tag("mold:leg")],
     ],
     Discriminator(_mold_tag, custom_error_type="mold_kind",
                   custom_error_message="must be a mapping with exactly one of 'path' (a mesh file), "
-                                       "sphere, cylinder, plane, box"),
+                                       "sphere, cylinder, plane, box, leg"),
 ]
 """A mold spec: :class:`MeshMoldSpec` or one primitive (``{sphere: {...}}``, ``{cylinder: ...}``,
 ``{plane: ...}``, ``{box: ...}``)."""
@@ -897,7 +907,7 @@ class _MoldHolder(_Strict):
 def validate_mold_spec(spec: Any) -> Any:
     """A raw mold spec (dict) as its typed model; a typed one is returned as is. Raises
     ValueError with ``mold.field: message`` lines (the same checks as a scene file's)."""
-    if isinstance(spec, (MeshMoldSpec, SphereMoldSpec, CylinderMoldSpec, PlaneMoldSpec, BoxMoldSpec)):
+    if isinstance(spec, (MeshMoldSpec, SphereMoldSpec, CylinderMoldSpec, PlaneMoldSpec, BoxMoldSpec, LegMoldSpec)):
         return spec
     try:
         return _MoldHolder.model_validate({"mold": spec}).mold
@@ -981,6 +991,7 @@ class Scene(_Strict):
     probes: list[Probe] = Field(default_factory=list)
     profiles: list[Profile] = Field(default_factory=list)
     classes: Classes | None = None
+    levels: Levels | None = None   # the measuring levels read on the body (compression/levelspec.py)
     # a loading path in stages (empty: one stage, the scene as it is)
     stages: list[Stage] = Field(default_factory=list)
 

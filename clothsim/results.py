@@ -47,7 +47,7 @@ MMHG = 133.322387415  # Pa per mmHg
 #: removes those of them it does not write this time, so an earlier result's files (a scene with
 #: probes, then one without) never sit beside a newer result.
 RESULT_FILES = ("summary.json", "result.npz", "history.csv", "sheet.ply", "scene.yaml",
-                "probes.csv", "profiles.csv", "profiles.png")
+                "probes.csv", "profiles.csv", "profiles.png", "levels.csv")
 
 
 def strict_json(obj) -> str:
@@ -671,13 +671,16 @@ class Result:
     def compression(self) -> dict:
         """The scene's probes, profiles and classes (clothsim.compression.probes.evaluate):
         {"probes": [...], "profiles": [...], "classes": {...}}, only the keys the scene asks for."""
-        if not (getattr(self.scene, "probes", None) or getattr(self.scene, "profiles", None)):
+        from .compression.levels import wants_levels
+
+        if not (getattr(self.scene, "probes", None) or getattr(self.scene, "profiles", None)
+                or wants_levels(self.scene)):
             return {}
         if getattr(self, "_compression", None) is None:
             from .compression.probes import evaluate
 
             self._compression = evaluate(self.scene, self.model, self.state.positions, self.state.in_contact,
-                                         self._f()[3])
+                                         self._f()[3], self._f()[0][:self.model.topology.warp_count])
         return self._compression
 
     def colored_mesh(self, field: str = "strain"):
@@ -746,6 +749,10 @@ class Result:
 
             if comp.get("probes"):
                 out["probes.csv"] = probes_csv(comp["probes"]).encode()
+            if comp.get("levels", {}).get("levels"):
+                from .compression.levels import levels_csv
+
+                out["levels.csv"] = levels_csv(comp["levels"]).encode()
             if comp.get("profiles"):
                 out["profiles.csv"] = profiles_csv(comp["profiles"]).encode()
                 try:

@@ -226,15 +226,30 @@ def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
 NO_READING = "no reading (no contact under the probe)"
 
 
-def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray) -> dict:
+def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray,
+             strain_warp: np.ndarray | None = None) -> dict:
     """The scene's probes, profiles and classes: {"probes": [...], "profiles": [...],
-    "classes": {...}} (only the keys the scene asks for)."""
+    "classes": {...}} (only the keys the scene asks for), and its measuring levels' readings
+    {"levels": ...} (:mod:`.levels`; ``strain_warp``: the warp springs' strains, for the course
+    strain at each level)."""
+    from .levels import LevelError, level_set, read_levels, wants_levels
+
     out: dict = {}
     probes = getattr(scene, "probes", None) or []
     profiles = getattr(scene, "profiles", None) or []
     classes = getattr(scene, "classes", None)
+    lset, level_error = None, ""
+    if wants_levels(scene) or any(getattr(pr, "point", ()) is None for pr in probes):
+        try:
+            lset = level_set(scene, model.mold)
+        except LevelError as e:
+            level_error = str(e)
     if probes:
-        out["probes"] = [read_probe(model, positions, in_contact, pressure, pr) for pr in probes]
+        out["probes"] = [_read_probe_or_level(model, positions, in_contact, pressure, pr, lset, level_error)
+                         for pr in probes]
+    if wants_levels(scene):
+        out["levels"] = ({"error": level_error} if lset is None else
+                         read_levels(scene, model, positions, in_contact, pressure, strain_warp, lset))
     if profiles:
         out["profiles"] = [read_profile(model, positions, in_contact, pressure, pf) for pf in profiles]
     if classes is not None and probes:
@@ -253,6 +268,27 @@ def evaluate(scene, model, positions: np.ndarray, in_contact: np.ndarray, pressu
             if r["name"] == classes.probe:
                 r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}
     return out
+
+
+def _read_probe_or_level(model, positions, in_contact, pressure, probe, lset, level_error: str) -> dict:
+    """read_probe of a probe at its point, or at its level's side (``.levels``); a level that
+    cannot be placed reads nothing and says why."""
+    from .levels import LevelError, level_point
+
+    if getattr(probe, "point", None) is not None:
+        return read_probe(model, positions, in_contact, pressure, probe)
+    try:
+        if lset is None:
+            raise LevelError(level_error or "no levels on this body")
+        pt = level_point(lset, probe.level, probe.side)
+    except LevelError as e:
+        return {"name": probe.name, "point": [math.nan] * 3, "center": None, "radius_m": float(probe.radius),
+                "offset_m": math.nan, "force_n": 0.0, "pressure_pa": 0.0, "pressure_mmhg": 0.0,
+                "contact_fraction": 0.0, "on_contact": False, "level": probe.level, "side": probe.side,
+                "note": str(e)}
+    r = read_probe(model, positions, in_contact, pressure, probe.model_copy(update={"point": pt}))
+    r.update(level=probe.level, side=probe.side)
+    return r
 
 
 def probes_csv(readings: list[dict]) -> str:

@@ -16,7 +16,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
+from .leg import leg_query
+from .record import MOLD_CYLINDER, MOLD_LEG, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
 
 _BEHIND_REL = 1e-9    # open boundary: "directly behind a face" tolerance (relative lateral offset)
 
@@ -614,6 +615,8 @@ def primitive_query(kind, prm, px, py, pz, out):
         return _cylinder_query(prm, px, py, pz, out)
     if kind == MOLD_PLANE:
         return _plane_query(prm, px, py, pz, out)
+    if kind == MOLD_LEG:
+        return leg_query(prm, px, py, pz, out)
     return _box_query(prm, px, py, pz, out)
 
 
@@ -672,7 +675,7 @@ def primitive_feature_normals(kind, prm, code, idx, normals_out):
     (``is_primitive``; prm: margs.params)."""
     if kind == MOLD_PLANE:
         return _put(normals_out, 0, prm[3], prm[4], prm[5])
-    if kind == MOLD_SPHERE:
+    if kind == MOLD_SPHERE or kind == MOLD_LEG:
         return 0
     if kind == MOLD_CYLINDER:
         if code == 0 and idx == 1:
