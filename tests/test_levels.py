@@ -107,6 +107,14 @@ def test_probe_by_level_and_side_and_levels_csv(tube):
     assert float(rows[1]["girth_cm"]) == pytest.approx(24.5, abs=0.005)
     assert float(rows[0]["mean_mmHg"]) == pytest.approx(b["mean_mmhg"], abs=1e-3)
     assert rows[1]["required_percent_of_B"] == "50-80" and rows[1]["gradient_ok"] == "0"
+    # run's printout: a line per level with its girth, the gradient's verdict and B's classes
+    from clothsim.cli import _print_compression
+
+    lines = []
+    _print_compression(comp, lines.append)
+    text = "\n".join(lines)
+    assert "girth  24.50 cm" in text and "(asked 50-80 %: outside)" in text
+    assert "B's girth mean: RAL-GZ 387:" in text
 
 
 def test_probe_needs_a_point_or_a_level_and_side():
@@ -173,3 +181,21 @@ def test_level_set_of_a_scan_scene_places_the_sides_on_the_body():
         c, s = r["center"], r["sides"]
         assert s["medial"][0] > c[0] > s["lateral"][0]
         assert s["anterior"][1] < c[1] < s["posterior"][1]
+
+
+def test_find_levels_on_a_known_girth_profile():
+    """A girth profile with a foot below, its narrowest at 0.15 m, a calf widest at 0.36 m and
+    the thigh rising above the knee: B, C and D (the narrowest between calf and thigh) are found
+    where the profile has them (to two 2.5 mm slices: they are sought on the girths smoothed
+    over 1 cm); a profile that only rises has B and no C or D."""
+    z = np.arange(0.02, 0.80, 0.0025)
+    g = (0.22 + 0.3 * np.exp(-((z - 0.02) / 0.05) ** 2) + 0.16 * np.exp(-((z - 0.36) / 0.09) ** 2)
+         + 0.6 * np.clip(z - 0.45, 0, None) ** 1.5 - 0.02 * np.exp(-((z - 0.45) / 0.03) ** 2))
+    idx = find_levels(z, g)
+    zb = z[np.argmin(np.where(z < 0.3, g, np.inf))]
+    assert z[idx["B"]] == pytest.approx(zb, abs=1e-9) and abs(zb - 0.15) < 0.02
+    assert z[idx["C"]] == pytest.approx(z[np.argmax(np.where((z > 0.2) & (z < 0.42), g, 0))], abs=0.0051)
+    above = (z > z[idx["C"]]) & (z < 0.7)
+    assert z[idx["D"]] == pytest.approx(z[above][np.argmin(g[above])], abs=0.0051)
+    rising = find_levels(z, 0.2 + 0.1 * z)
+    assert set(rising) == {"B"} and rising["B"] == 0

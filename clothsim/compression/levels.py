@@ -369,6 +369,29 @@ def levels_csv(readings: dict) -> str:
     return buf.getvalue()
 
 
+def levels_lines(lv: dict) -> list[str]:
+    """The levels' readings as ``run`` prints them (one line per level, then the gradient and
+    B's classes)."""
+    if lv.get("error"):
+        return [f"  levels: {lv['error']}"]
+    f = lambda v: "     -" if v is None else f"{v:6.1f}"  # noqa: E731
+    out = ["  levels (girth mean; anterior / posterior / medial / lateral sensors, mmHg):"]
+    for r in lv["levels"]:
+        sides = " / ".join(f(r["sides"].get(s)).strip() for s in SIDES)
+        pct = "" if r["percent_of_b"] is None else f"  {r['percent_of_b']:.0f} % of B"
+        req = r["required_percent"]
+        if req is not None:
+            ok = {True: "ok", False: "outside", None: "not read"}[r["gradient_ok"]]
+            pct += f" (asked {req[0]:g}-{req[1]:g} %: {ok})"
+        out.append(f"    {r['level']:<3} {r['height_m'] * 100:6.2f} cm  girth {r['girth_m'] * 100:6.2f} cm  "
+                   f"mean {f(r['mean_mmhg'])}  sides {sides}{pct}")
+    if lv.get("b_classes"):
+        out.append("    B's girth mean: " + "; ".join(f"{c['standard']}: {c['class']}" for c in lv["b_classes"]))
+    if lv.get("note"):
+        out.append(f"    ({lv['note']})")
+    return out
+
+
 LEVELS_COLUMNS = ["level", "height_cm", "z_m", "girth_cm", "loop_cm", "how", "course_strain", "reduction_pct",
                   "mean_mmHg", "anterior_mmHg", "posterior_mmHg", "medial_mmHg", "lateral_mmHg", "percent_of_B",
                   "required_percent_of_B", "gradient_ok"]
