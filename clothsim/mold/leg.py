@@ -128,6 +128,25 @@ def leg_radius(prm, z, t):
 
 
 @njit(cache=True)
+def leg_r(prm, z, t):
+    """r(z, t) [m] alone: :func:`leg_radius`'s first value, the same sums in the same order
+    (the same bits), without the derivatives (the line search and the inside test)."""
+    M = int(prm[3])
+    mode, i, A, B, h, u = _where(prm, z)
+    r, _, _ = _coef(prm, 0, mode, i, A, B, h, u)
+    c1 = math.cos(t)
+    s1 = math.sin(t)
+    c = 1.0
+    s = 0.0
+    for k in range(1, M + 1):
+        c, s = c * c1 - s * s1, s * c1 + c * s1
+        ya, _, _ = _coef(prm, 2 * k - 1, mode, i, A, B, h, u)
+        yb, _, _ = _coef(prm, 2 * k, mode, i, A, B, h, u)
+        r += ya * c + yb * s
+    return r
+
+
+@njit(cache=True)
 def _frame(prm, z, t):
     """The surface point S, S_z, S_t and the second derivatives at (z, t): 15 numbers."""
     r, rz, rt, rzz, rzt, rtt = leg_radius(prm, z, t)
@@ -144,7 +163,7 @@ def _frame(prm, z, t):
 
 @njit(cache=True)
 def _dist2(prm, px, py, pz, z, t):
-    r, _, _, _, _, _ = leg_radius(prm, z, t)
+    r = leg_r(prm, z, t)
     dx = px - prm[0] - r * math.cos(t)
     dy = py - prm[1] - r * math.sin(t)
     dz = pz - z
@@ -159,8 +178,7 @@ def leg_inside(prm, px, py, pz):
     dy = py - prm[1]
     rho = math.sqrt(dx * dx + dy * dy)
     t = math.atan2(dy, dx) if rho > 0.0 else 0.0
-    r, _, _, _, _, _ = leg_radius(prm, pz, t)
-    return rho - r
+    return rho - leg_r(prm, pz, t)
 
 
 @njit(cache=True)
