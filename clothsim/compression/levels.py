@@ -2,7 +2,8 @@
 standards read it.
 
 **Levels.** On a limb built from a size chart (``mold: {leg: ...}``) the chart's levels are the
-levels: their heights, and their girths exact (the perimeter of the smooth section). On a mesh
+levels: their heights, and their girths exact (the perimeter of the smooth section's convex
+hull, as on a scan; the outline's own length beside it). On a mesh
 (a scan) the chosen leg is cut by horizontal planes every 2.5 mm (trimesh plane sections); at
 each height the closed loop round the leg is the one holding the seed point (``levels.center``,
 then the loop's own centroid below, so the cut follows the leg's axis up), until the loops of
@@ -201,7 +202,7 @@ def level_set(scene, mold) -> dict:
     given = dict(spec.heights) if spec is not None else {}
     out = []
     if leg is not None:
-        from ..mold.leg import leg_girth, leg_radius
+        from ..mold.leg import leg_girth, leg_loop_length, leg_radius
 
         if spec is not None and (spec.center or spec.anterior or spec.medial or spec.find):
             raise LevelError("levels: center, anterior, medial and find come from the leg's chart; "
@@ -218,7 +219,8 @@ def level_set(scene, mold) -> dict:
                 r = leg_radius(prm, z, t)[0]
                 sides[side] = [float(cen[0] + r * d[0]), float(cen[1] + r * d[1]), float(z)]
             g = leg_girth(prm, z)
-            out.append({"name": name, "z_m": float(z), "height_m": float(z - leg.floor), "girth_m": g, "loop_m": g,
+            out.append({"name": name, "z_m": float(z), "height_m": float(z - leg.floor), "girth_m": g,
+                        "loop_m": leg_loop_length(prm, z),
                         "how": how, "center": cen.tolist(), "sides": sides})
         out.sort(key=lambda r: r["z_m"])
         return {"source": "chart", "levels": out, "anterior": a.tolist(), "medial": m.tolist()}

@@ -9,8 +9,9 @@ the surface at height z and polar angle t about the axis lies at radius
 
 Each level's cross-section (a circle, or an ellipse of the given ``aspect`` with an optional
 flatter medial side and a tibial crest, see :func:`section_shape`) is sampled, cut to its first
-M harmonics (M = ``harmonics``, default 16), then scaled so that its perimeter (the girth a tape
-measures round a convex section) is exactly the chart's girth. Each coefficient a_k, b_k is a
+M harmonics (M = ``harmonics``, default 16), then scaled so that its girth as a tape measures
+it (the perimeter of its convex hull: its own perimeter when it is convex) is exactly the
+chart's. Each coefficient a_k, b_k is a
 natural cubic spline in z through the levels (C2; two levels, or levels on a straight line,
 give exactly a straight line: a cone). Beyond the lowest and the highest level each coefficient
 goes on as c(z) = c_end + c'_end L tanh((z - z_end) / L) (L = ``extend`` [m], default 0.05): its
@@ -420,6 +421,7 @@ def leg_params(center, heights, girths, shapes=None, anterior=(0.0, -1.0), media
         raise ValueError("anterior and medial must be perpendicular directions")
     M = int(harmonics)
     t = np.linspace(0.0, 2.0 * np.pi, samples, endpoint=False)
+    t4 = np.linspace(0.0, 2.0 * np.pi, 4096, endpoint=False)   # leg_girth's grid
     d = np.column_stack([np.cos(t), np.sin(t)])
     phi = np.arctan2(d @ a, d @ m)        # local angle: 0 medial, pi/2 anterior
     C = np.empty((2 * M + 1, n))
@@ -429,7 +431,9 @@ def leg_params(center, heights, girths, shapes=None, anterior=(0.0, -1.0), media
         c = _fourier(rho, M)
         if _series(c, t).min() <= 0:
             raise ValueError(f"level {i}: the section's shape has no positive radius everywhere")
-        C[:, i] = c * (g[i] / series_perimeter(c))
+        # the girth a tape measures: the convex hull's perimeter (the outline's own on a convex
+        # section; the hull's share is scale-free, so one scaling makes it exact)
+        C[:, i] = c * (g[i] / (series_perimeter(c) * _hull_share(_series(c, t4), t4)))
     prm = np.zeros(HEADER + n + 2 * n * (2 * M + 1))
     prm[0:2] = center
     prm[2] = n
@@ -455,12 +459,32 @@ def leg_params(center, heights, girths, shapes=None, anterior=(0.0, -1.0), media
     return prm
 
 
-def leg_girth(prm: np.ndarray, z: float, n: int = 4096) -> float:
-    """The perimeter [m] of the limb's section at height z [m] (its girth: a tape round a convex
-    section measures it)."""
+def _hull_share(r: np.ndarray, t: np.ndarray) -> float:
+    """The convex hull's perimeter over the polygon's own, of the polar polygon r(t); exactly 1
+    for a section convex to 1e-9 (the hull's rounding does not move a convex section's scale:
+    a friction equilibrium can be that sensitive)."""
+    from shapely.geometry import MultiPoint
+
+    xy = np.column_stack([r * np.cos(t), r * np.sin(t)])
+    own = float(np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1).sum())
+    share = MultiPoint([tuple(p) for p in xy]).convex_hull.length / own
+    return 1.0 if share > 1.0 - 1e-9 else share
+
+
+def leg_loop_length(prm: np.ndarray, z: float, n: int = 4096) -> float:
+    """The length [m] of the section's own outline at height z [m] (the series' perimeter)."""
     t = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     r, rt = _section(prm, float(z), t)
     return float(np.sqrt(r * r + rt * rt).mean() * 2.0 * np.pi)
+
+
+def leg_girth(prm: np.ndarray, z: float, n: int = 4096) -> float:
+    """The girth [m] of the limb's section at height z [m] as a tape measures it: the perimeter
+    of the section's convex hull (its own perimeter on a convex section; less where a flat
+    medial side or a crest makes it concave: the tape bridges the hollow)."""
+    t = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    r, rt = _section(prm, float(z), t)
+    return float(np.sqrt(r * r + rt * rt).mean() * 2.0 * np.pi) * _hull_share(r, t)
 
 
 @njit(cache=True)
