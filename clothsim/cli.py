@@ -255,6 +255,11 @@ def _print_compression(s: dict, say=print) -> None:
                 + (f"  {cls}" if cls else "") + (f"  ({p['note']})" if p.get("note") else ""))
     for pf in s.get("profiles") or []:
         say(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
+    if s.get("levels"):
+        from .compression.levels import levels_lines
+
+        for line in levels_lines(s["levels"]):
+            say(line)
 
 
 def cmd_view(args) -> int:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import patterns
-from .compression.probes import Readings
+from .compression.readings import Readings
 from .config import Scene
 from .errors import SceneError
 from .grid import build_model, rotation_matrix

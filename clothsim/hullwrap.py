@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import SceneError
-from .mold.record import MESH_KINDS
+from .mold.record import MESH_KINDS, MOLD_LEG
 
 if TYPE_CHECKING:
     from .config import WrapHull
@@ -209,9 +209,11 @@ def hull_wrap(spec, mold, outline_uv: np.ndarray, row_spacing: float, where: str
     ``where`` when there is no mesh mold."""
     if mold is None:
         raise SceneError(f"{where}: needs a mold (the sheet is wrapped round the mold's hull)")
-    if mold.kind not in MESH_KINDS:
-        raise SceneError(f"{where}: needs a mesh mold (a primitive: use wrap, a cylinder)")
-    F = np.asarray(mold.faces, np.int64)
+    if mold.kind not in MESH_KINDS and mold.kind != MOLD_LEG:
+        raise SceneError(f"{where}: needs a mesh mold or a leg (a primitive: use wrap, a cylinder)")
+    # a leg from a size chart: round its drawn mesh (96 sides, rings as fine)
+    V, F = (mold.vertices, mold.faces) if mold.kind in MESH_KINDS else mold.surface_mesh(resolution=96)
+    F = np.asarray(F, np.int64)
     E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     E = np.unique(E, axis=0)
     scale = 1.0
@@ -219,4 +221,4 @@ def hull_wrap(spec, mold, outline_uv: np.ndarray, row_spacing: float, where: str
         span = float(np.ptp(outline_uv[:, 1]))
         scale = abs(spec.heights[1] - spec.heights[0]) / span if span > 0 else 1.0
     dh = max(0.5 * row_spacing * scale, 1e-9)
-    return HullWrap(spec, np.asarray(mold.vertices, float), E, np.asarray(outline_uv, float), dh, where)
+    return HullWrap(spec, np.asarray(V, float), E, np.asarray(outline_uv, float), dh, where)

@@ -25,7 +25,7 @@ from .topology import Topology
 if TYPE_CHECKING:
     from .friction import FrictionLag
     from .hullwrap import HullWrap
-    from .compression.probes import Readings
+    from .compression.readings import Readings
     from .mold.record import Mold
     from .panels import PanelGeometry
 

@@ -52,7 +52,7 @@ FAMILY_SEAM = SpringFamily.SEAM  # (the name Result.summary reads)
 #: removes those of them it does not write this time, so an earlier result's files (a scene with
 #: probes, then one without) never sit beside a newer result.
 RESULT_FILES = ("summary.json", "result.npz", "history.csv", "sheet.ply", "scene.yaml",
-                "probes.csv", "profiles.csv", "profiles.png")
+                "probes.csv", "profiles.csv", "profiles.png", "levels.csv")
 
 
 def strict_json(obj) -> str:
@@ -406,14 +406,14 @@ class Result:
         return d
 
     def compression(self) -> dict:
-        """The scene's probes, profiles and classes (clothsim.compression.probes.Readings):
+        """The scene's probes, profiles and classes (clothsim.compression.readings.Readings):
         {"probes": [...], "profiles": [...], "classes": {...}}, only the keys the scene asks for."""
         readings = self.inputs.readings
         if not readings:
             return {}
         if self._compression is None:
             self._compression = readings.evaluate(self.model, self.state.positions, self.state.in_contact,
-                                                  self._f()[3])
+                                                  self._f()[3], self._f()[0][:self.model.topology.warp_count])
         return self._compression
 
     def colored_mesh(self, field: str = "strain"):

@@ -151,9 +151,9 @@ MOLD_GOOD = GOOD + "mold: {path: m.stl, scale: 0.001}\n"
         (None, GOOD + "mold: {box: {min: [0, 0, 0], max: [1, 0, 1]}}\n",
          "x.yaml:11: mold.box.max: must exceed min on every axis (got min [0.0, 0.0, 0.0], max [1.0, 0.0, 1.0])"),
         (None, GOOD + "mold: {sphere: {center: [0, 0, 0], radius: 1}, path: m.stl}\n",
-         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box"),
+         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box, leg"),
         (None, GOOD + "mold: {sphere: {center: [0, 0, 0], radius: 1}, box: {min: [0, 0, 0], max: [1, 1, 1]}}\n",
-         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box"),
+         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box, leg"),
         (None, GOOD + "mold: {sphere: {center: [1.0e+7, 0, 0], radius: 1}}\n",
          "x.yaml:11: mold.sphere.center: |x| must be at most 1e+06 m (got 1e+07)"),
         (None, GOOD + "mold: {sphere: {center: [0, 0, 0], radius: 1.0e+300}}\n",
@@ -161,9 +161,9 @@ MOLD_GOOD = GOOD + "mold: {path: m.stl, scale: 0.001}\n"
         (["mold.translate=[1e7, 0, 0]"], MOLD_GOOD,
          "--set mold.translate=[1e7, 0, 0]: mold.translate: |x| must be at most 1e+06 m (got 1e+07)"),
         (None, GOOD + "mold: {scale: 2}\n",
-         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box"),
+         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box, leg"),
         (None, GOOD + "mold: m.stl\n",
-         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box"),
+         "x.yaml:11: mold: must be a mapping with exactly one of 'path' (a mesh file), sphere, cylinder, plane, box, leg"),
     ],
 )
 def test_mold_spec_typed_with_file_line(tmp_path, overrides, text, message):

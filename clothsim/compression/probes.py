@@ -29,20 +29,12 @@ from __future__ import annotations
 import csv
 import io
 import math
-import warnings
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..plottext import PLAIN, failure, plain_legend
+from ..plottext import PLAIN, plain_legend
 from ..pressure import MMHG, SensorDisc, finite_pressure, mold_closest
 from ..records import ProbeReading
-from .standards import classify_all
-
-if TYPE_CHECKING:
-    from ..model import Model
-    from .spec import Classes, Probe, Profile
 
 
 #: a probe whose disc is wider than this share of the sheet's largest extent says it is no local reading
@@ -182,63 +174,6 @@ def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
 
 #: the class of a probe with no contact under its disc
 NO_READING = "no reading (no contact under the probe)"
-
-
-@dataclass(frozen=True)
-class Readings:
-    """What a scene asks to read on its equilibrium (its ``probes``, ``profiles`` and ``classes``),
-    taken from the scene when it is compiled (``clothsim.compile.run_inputs``): a Result reads and
-    writes them without reading the scene. Falsy when the scene asks for none."""
-
-    probes: tuple[Probe, ...] = ()
-    profiles: tuple[Profile, ...] = ()
-    classes: Classes | None = None
-
-    @classmethod
-    def of(cls, scene) -> "Readings":
-        return cls(tuple(scene.probes), tuple(scene.profiles), scene.classes)
-
-    def __bool__(self) -> bool:
-        return bool(self.probes or self.profiles)
-
-    def evaluate(self, model: Model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray) -> dict:
-        """The probes, profiles and classes: {"probes": [...], "profiles": [...], "classes": {...}}
-        (only the keys asked for). positions (N, 3) [m], in_contact (N,) bool, pressure (N,) [Pa]."""
-        out: dict = {}
-        if self.probes:
-            out["probes"] = [read_probe(model, positions, in_contact, pressure, pr) for pr in self.probes]
-        if self.profiles:
-            out["profiles"] = [read_profile(model, positions, in_contact, pressure, pf) for pf in self.profiles]
-        classes = self.classes
-        if classes is not None and self.probes:
-            reading = next(r for r in out["probes"] if r["name"] == classes.probe)
-            results = classify_all(reading["pressure_mmhg"], classes.standards, classes.extra)
-            if not reading["contact_fraction"] > 0.0:
-                # a probe off the contact (a garment that slid off, a point off the body) reads no
-                # pressure: it has no class, not "below class I"
-                for c in results:
-                    c["class"] = NO_READING
-            out["classes"] = {"probe": classes.probe, "pressure_mmhg": reading["pressure_mmhg"],
-                              "results": results}
-            for r in out["probes"]:
-                if r["name"] == classes.probe:
-                    r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}
-        return out
-
-    def files(self, readings: dict, title: str) -> dict[str, bytes]:
-        """probes.csv, profiles.csv and profiles.png of ``readings`` (:meth:`evaluate`). A plot that
-        cannot be drawn is a warning and is left out: it never costs the numeric files."""
-        out: dict[str, bytes] = {}
-        if readings.get("probes"):
-            out["probes.csv"] = probes_csv(readings["probes"]).encode()
-        if readings.get("profiles"):
-            out["profiles.csv"] = profiles_csv(readings["profiles"]).encode()
-            try:
-                out["profiles.png"] = profile_png(readings["profiles"], title)
-            except Exception as exc:  # noqa: BLE001 (any plotting failure: the numbers are written)
-                warnings.warn(f"profiles.png not written ({failure(exc)}); the numbers are in profiles.csv",
-                              stacklevel=3)
-        return out
 
 
 def probes_csv(readings: list[dict]) -> str:

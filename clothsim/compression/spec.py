@@ -39,10 +39,22 @@ class Probe(_Strict):
     by the disc's area (pi radius^2)."""
 
     name: str = Field(min_length=1)
-    point: tuple[float, float, float]
+    point: tuple[float, float, float] | None = None
     radius: float = DEFAULT_PROBE_RADIUS
+    # instead of point: a measuring level (B, C, ... of the scene's levels or its leg's chart)
+    # and a side of it; the point is then that side's surface point at the level (.levels)
+    level: str | None = None
+    side: Literal["anterior", "posterior", "medial", "lateral"] | None = None
 
-    _point = field_validator("point")(classmethod(lambda cls, v: _finite_tuple(v)))
+    _point = field_validator("point")(classmethod(lambda cls, v: v if v is None else _finite_tuple(v)))
+
+    @model_validator(mode="after")
+    def _where(self):
+        if self.point is None and (self.level is None or self.side is None):
+            raise ValueError("give point [x, y, z], or level and side (e.g. {level: B, side: medial})")
+        if self.point is not None and (self.level is not None or self.side is not None):
+            raise ValueError("give point, or level and side, not both")
+        return self
 
     @field_validator("radius")
     @classmethod

@@ -21,7 +21,7 @@ from .fields import (COORD_MAX, DENSITY_MAX, G_MAX, MOLD_PRIMITIVES, SEAM_STIFFN
 from .load import (dump_scene, load_scene, read_yaml, scene_from_dict, stage_scenes,  # noqa: F401
                    validate_mold_spec)
 from .molds import (FRICTION_MAX, BoxMoldSpec, BoxParams, CylinderMoldSpec, CylinderParams,  # noqa: F401
-                    MeshMoldSpec, MoldSpec, PlaneMoldSpec, PlaneParams, SphereMoldSpec, SphereParams,
+                    LegMoldSpec, MeshMoldSpec, MoldSpec, PlaneMoldSpec, PlaneParams, SphereMoldSpec, SphereParams,
                     _mold_tag, _MoldFriction, _MoldHolder)
 from .overrides import _set_path, apply_overrides, parse_overrides  # noqa: F401
 from .scene import REST_SCALE_RANGE, STAGE_FIELDS, Scene, Stage  # noqa: F401

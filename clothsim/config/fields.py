@@ -91,6 +91,6 @@ def _nonzero3(v):
 
 
 
-MOLD_PRIMITIVES = ("sphere", "cylinder", "plane", "box")
+MOLD_PRIMITIVES = ("sphere", "cylinder", "plane", "box", "leg")
 # pydantic puts the union branch's tag into error locations; format_validation_error drops these
 _MOLD_TAGS = tuple(f"mold:{k}" for k in ("mesh", *MOLD_PRIMITIVES))

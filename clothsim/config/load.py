@@ -13,7 +13,8 @@ from pydantic import ValidationError
 
 from ..errors import SceneError
 from ..fileio import load_yaml, read_text
-from .molds import BoxMoldSpec, CylinderMoldSpec, MeshMoldSpec, PlaneMoldSpec, SphereMoldSpec, _MoldHolder
+from .molds import (BoxMoldSpec, CylinderMoldSpec, LegMoldSpec, MeshMoldSpec, PlaneMoldSpec, SphereMoldSpec,
+                    _MoldHolder)
 from .overrides import _set_path, parse_overrides
 from .scene import Scene, Stage
 from .sourcelines import format_validation_error
@@ -21,7 +22,7 @@ from .sourcelines import format_validation_error
 def validate_mold_spec(spec: Any) -> Any:
     """A raw mold spec (dict) as its typed model; a typed one is returned as is. Raises
     ValueError with ``mold.field: message`` lines (the same checks as a scene file's)."""
-    if isinstance(spec, (MeshMoldSpec, SphereMoldSpec, CylinderMoldSpec, PlaneMoldSpec, BoxMoldSpec)):
+    if isinstance(spec, (MeshMoldSpec, SphereMoldSpec, CylinderMoldSpec, PlaneMoldSpec, BoxMoldSpec, LegMoldSpec)):
         return spec
     try:
         return _MoldHolder.model_validate({"mold": spec}).mold

@@ -9,6 +9,7 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import BaseModel, Discriminator, StrictBool, Tag, field_validator, model_validator
 
+from ..legspec import LegParams
 from ..strict import Strict as _Strict
 from .fields import COORD_MAX, MOLD_PRIMITIVES, _coords, _finite3, _nonzero3, _positive, _short
 
@@ -198,6 +199,13 @@ class BoxMoldSpec(_MoldFriction):
     box: BoxParams
 
 
+class LegMoldSpec(_MoldFriction):
+    """A limb from a size chart's girths at its measuring levels (:mod:`clothsim.legspec`)."""
+
+    kind: ClassVar[str] = "leg"
+    leg: LegParams
+
+
 
 def _mold_tag(v: Any) -> str | None:
     """Which branch of MoldSpec a raw spec is: 'path' makes it a mesh file, else the primitive
@@ -221,13 +229,14 @@ MoldSpec = Annotated[
         Annotated[CylinderMoldSpec, Tag("mold:cylinder")],
         Annotated[PlaneMoldSpec, Tag("mold:plane")],
         Annotated[BoxMoldSpec, Tag("mold:box")],
+        Annotated[LegMoldSpec, Tag("mold:leg")],
     ],
     Discriminator(_mold_tag, custom_error_type="mold_kind",
                   custom_error_message="must be a mapping with exactly one of 'path' (a mesh file), "
-                                       "sphere, cylinder, plane, box"),
+                                       "sphere, cylinder, plane, box, leg"),
 ]
 """A mold spec: :class:`MeshMoldSpec` or one primitive (``{sphere: {...}}``, ``{cylinder: ...}``,
-``{plane: ...}``, ``{box: ...}``)."""
+``{plane: ...}``, ``{box: ...}``, ``{leg: ...}``)."""
 
 
 class _MoldHolder(_Strict):

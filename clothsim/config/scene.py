@@ -13,6 +13,7 @@ import numpy as np
 import yaml
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from ..compression.levelspec import Levels
 from ..compression.spec import Classes, Probe, Profile, check_compression
 from ..sizingspec import GarmentSpec
 from ..errors import SceneError
@@ -105,6 +106,7 @@ class Scene(_Strict):
     probes: list[Probe] = Field(default_factory=list)
     profiles: list[Profile] = Field(default_factory=list)
     classes: Classes | None = None
+    levels: Levels | None = None   # the measuring levels read on the body (compression/levelspec.py)
     # a loading path in stages (empty: one stage, the scene as it is)
     stages: list[Stage] = Field(default_factory=list)
     # sizing the garment: panel scale, reduction at measuring levels, grading (clothsim.sizing)

@@ -9,7 +9,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, Mold,
+from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_LEG, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, Mold,
                      MoldError, _ro)
 from .smooth import FACE_LIST_MAX_ENTRIES, face_vertex_lists, smooth_phi
 
@@ -533,12 +533,37 @@ def _unit(v: np.ndarray, key: str, src: str) -> np.ndarray:
     return v / n
 
 
+def leg_mold(spec: Mapping) -> Mold:
+    """A limb from a size chart (``MOLD_LEG``, :mod:`clothsim.mold.leg`) from the fields of
+    :class:`clothsim.legspec.LegParams` (a dict; validated there)."""
+    from ..legspec import LegParams
+    from .leg import leg_params
+
+    try:
+        p = LegParams.model_validate(dict(spec))
+    except Exception as e:  # pydantic's message, one line per field
+        raise MoldError(f"leg mold: {e}") from None
+    names = list(p.levels)
+    lv = [p.levels[k] for k in names]
+    try:
+        prm = leg_params(p.center, [x.height_cm / 100 for x in lv], [x.girth_cm / 100 for x in lv],
+                         [dict(aspect=x.aspect, medial_flat=x.medial_flat, crest=x.crest) for x in lv],
+                         p.anterior, p.medial, p.harmonics, p.extend, p.floor)
+    except ValueError as e:
+        raise MoldError(f"leg mold: {e}") from None
+    desc = ", ".join(f"{k} {x.girth_cm:g} cm at {x.height_cm:g} cm" for k, x in zip(names, lv))
+    m = _primitive(MOLD_LEG, [], f"leg({desc})")
+    return dataclasses.replace(m, params=_ro(prm, np.float64))
+
+
 def mold_primitive(kind: str, spec: Mapping) -> Mold:
     """Analytic mold: kind 'sphere' {center, radius}, 'cylinder' {center, axis, radius, length},
     'plane' {point, normal} (the mold is the half-space behind the normal), 'box' {min, max}."""
     src = f"{kind} mold"
     if not isinstance(spec, Mapping):
         raise MoldError(f"{src}: expected a mapping of parameters, got {spec!r}")
+    if kind == "leg":
+        return leg_mold(spec)
     allowed = {"sphere": {"center", "radius"}, "cylinder": {"center", "axis", "radius", "length"},
                "plane": {"point", "normal"}, "box": {"min", "max"}}
     if kind not in allowed:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .queries import mold_query_many
-from .record import MESH_KINDS, MOLD_BOX, MOLD_CYLINDER, MOLD_PLANE, MOLD_SPHERE, Mold
+from .record import MESH_KINDS, MOLD_BOX, MOLD_CYLINDER, MOLD_LEG, MOLD_PLANE, MOLD_SPHERE, Mold
 
 #: a mold this many times larger (or smaller) than the sheet gets a units warning: a file in
 #: millimetres read as metres is 1000x too large, one in centimetres 100x
@@ -26,8 +26,9 @@ def mold_size(mold: Mold) -> float | None:
         return 2.0 * float(p[3])
     if mold.kind == MOLD_CYLINDER:
         return max(2.0 * float(p[6]), float(p[7]))
-    if mold.kind == MOLD_BOX:
-        return float(np.linalg.norm(p[3:6] - p[0:3]))
+    if mold.kind in (MOLD_BOX, MOLD_LEG):
+        lo, hi = mold.bounds
+        return float(np.linalg.norm(hi - lo))
     assert mold.kind == MOLD_PLANE
     return None
 

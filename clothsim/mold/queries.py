@@ -19,7 +19,8 @@ import numpy as np
 from numba import njit
 
 from .closest import _box_query, _cylinder_query, _mesh_query, _plane_query, _sphere_query
-from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
+from .leg import leg_query
+from .record import MOLD_CYLINDER, MOLD_LEG, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
 from .smooth import _smooth_query
 
 
@@ -72,6 +73,8 @@ def primitive_query(kind, prm, px, py, pz, out):
         return _cylinder_query(prm, px, py, pz, out)
     if kind == MOLD_PLANE:
         return _plane_query(prm, px, py, pz, out)
+    if kind == MOLD_LEG:
+        return leg_query(prm, px, py, pz, out)
     return _box_query(prm, px, py, pz, out)
 
 
@@ -130,7 +133,7 @@ def primitive_feature_normals(kind, prm, code, idx, normals_out):
     (``is_primitive``; prm: margs.params)."""
     if kind == MOLD_PLANE:
         return _put(normals_out, 0, prm[3], prm[4], prm[5])
-    if kind == MOLD_SPHERE:
+    if kind == MOLD_SPHERE or kind == MOLD_LEG:
         return 0
     if kind == MOLD_CYLINDER:
         if code == 0 and idx == 1:

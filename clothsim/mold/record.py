@@ -17,6 +17,8 @@ MOLD_PLANE = 4
 MOLD_BOX = 5
 #: a triangle mesh queried through its smooth (G1) blended surface (see :mod:`clothsim.mold.smooth`)
 MOLD_SMOOTH = 6
+#: a limb from a size chart's girths (see :mod:`clothsim.mold.leg`): an analytic surface
+MOLD_LEG = 7
 
 FEATURE_FACE = 0
 FEATURE_EDGE = 1
@@ -26,7 +28,7 @@ FEATURE_VERTEX = 2
 QUERY_OUT_SIZE = 8
 
 _KIND_NAMES = {MOLD_MESH: "mesh", MOLD_SPHERE: "sphere", MOLD_CYLINDER: "cylinder",
-               MOLD_PLANE: "plane", MOLD_BOX: "box", MOLD_SMOOTH: "smooth mesh"}
+               MOLD_PLANE: "plane", MOLD_BOX: "box", MOLD_SMOOTH: "smooth mesh", MOLD_LEG: "leg"}
 #: the kinds that carry a triangle mesh (drawn, exported and sized as that mesh)
 MESH_KINDS = (MOLD_MESH, MOLD_SMOOTH)
 
@@ -122,6 +124,7 @@ class Mold:
     sphere: center[0:3], radius[3]; cylinder: center[0:3], unit axis[3:6], radius[6], length[7]
     (the cylinder spans center +- axis*length/2); plane: point[0:3], unit outward normal[3:6]
     (the mold is the half-space below); box: min corner[0:3], max corner[3:6];
+    leg: see :mod:`clothsim.mold.leg` (longer than 16);
     mesh: params[15] = bounding-box diagonal [m]; smooth mesh: also params[14] = the median
     smoothing radius [m], params[13] = the largest blending radius [m] (points farther from the
     mesh get the faceted answer), params[12] = the smoothing asked for (0: adaptive)
@@ -228,6 +231,9 @@ class Mold:
             return np.array([c - ext, c + ext])
         if self.kind == MOLD_BOX:
             return np.array([p[0:3], p[3:6]])
+        if self.kind == MOLD_LEG:
+            # the drawn extent: one ``extend`` beyond the end levels (the surface goes on)
+            return np.array([[p[0] - p[5], p[1] - p[5], p[6] - p[4]], [p[0] + p[5], p[1] + p[5], p[7] + p[4]]])
         b = np.array([[-np.inf] * 3, [np.inf] * 3])
         n = p[3:6]
         for ax in range(3):
@@ -273,6 +279,10 @@ class Mold:
             T[:3, 3] = p[0:3]
             m = trimesh.creation.cylinder(radius=p[6], height=p[7], sections=res, transform=T)
             return np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
+        if self.kind == MOLD_LEG:
+            from .leg import leg_mesh
+
+            return leg_mesh(p, res)
         if self.kind == MOLD_BOX:
             T = np.eye(4)
             T[:3, 3] = 0.5 * (p[0:3] + p[3:6])

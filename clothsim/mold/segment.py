@@ -14,7 +14,8 @@ import numpy as np
 from numba import njit
 
 from .closest import _mesh_query
-from .record import MOLD_CYLINDER, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
+from .leg import leg_segment_hit
+from .record import MOLD_CYLINDER, MOLD_LEG, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE
 from .smooth import _smooth_query_flag
 
 _BARY_EPS = 1e-9      # barycentric slack of a ray hit; hits closer to an edge are confirmed by a probe
@@ -365,6 +366,8 @@ def primitive_segment_hit(kind, prm, p0, p1):
     dz = p1[2] - p0[2]
     if dx == 0.0 and dy == 0.0 and dz == 0.0:
         return -1.0
+    if kind == MOLD_LEG:
+        return leg_segment_hit(prm, p0, p1)
     if kind == MOLD_PLANE:
         nx, ny, nz = prm[3], prm[4], prm[5]
         s0 = (p0[0] - prm[0]) * nx + (p0[1] - prm[1]) * ny + (p0[2] - prm[2]) * nz

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..compression.probes import Readings
+from ..compression.readings import Readings
 from ..kernels import spring_strains_tensions
 from ..pressure import MMHG, contact_reaction, mold_closest
 
@@ -96,7 +96,7 @@ def readout_text(r: dict | None) -> str:
 
 
 def probe_readings(scene, model, positions: np.ndarray, in_contact: np.ndarray) -> list[dict]:
-    """The scene's probes read on a frame (clothsim.compression.probes.Readings), with their
+    """The scene's probes read on a frame (clothsim.compression.readings.Readings), with their
     classes and each disc's mold normal (unit (3,), for drawing); [] without probes."""
     if not scene.probes:
         return []
