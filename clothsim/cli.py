@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 from . import simulation
+from .compression.levels import levels_lines
 from .compression.fit import (FitError, FitInterrupted, FitResult, fit, fit_info, fitted_lines, parse_target,
                               parse_vary, write_outputs)
 from .compression.report import ReportError, write_report
@@ -256,8 +257,6 @@ def _print_compression(s: dict, say=print) -> None:
     for pf in s.get("profiles") or []:
         say(f"  profile {pf['name']}: {pf['gradient'].get('note', '')}")
     if s.get("levels"):
-        from .compression.levels import levels_lines
-
         for line in levels_lines(s["levels"]):
             say(line)
 

@@ -19,24 +19,22 @@ Per level: girth_cm and height_cm (above the floor) in centimetres, as charts gi
 section's shape (all optional): aspect (medio-lateral over antero-posterior width, 1 a circle),
 medial_flat (the share by which the medial side is flattened, 0 to 0.5) and crest (a tibial
 crest standing out anteriorly by this share of the radius, 0 to 0.3). Levels' heights must rise
-in the order given. Imports nothing from clothsim (``clothsim.config`` imports it).
+in the order given. Imports nothing from clothsim but the pydantic base (``clothsim.config`` imports it).
 """
 
 from __future__ import annotations
 
 import math
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
+
+from .strict import Strict as _Strict
 
 #: the measuring levels of a leg as the standards name them, from the ankle up (RAL-GZ 387/1;
 #: docs/guide/levels.md: B the smallest girth above the ankle bone, B1 where the Achilles tendon
 #: meets the calf muscle, C the calf's largest, D the smallest below the knee, E, F, G the knee
 #: and the thigh)
 LEG_LEVELS = ("B", "B1", "C", "D", "E", "F", "G")
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
 
 
 def _finite(v, what="finite"):

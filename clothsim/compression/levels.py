@@ -42,10 +42,11 @@ import math
 
 import numpy as np
 
-from . import MMHG
+from ..mold.leg import leg_girth, leg_loop_length, leg_radius
 from .levelspec import SIDES
 from .probes import read_probe, read_profile
 from .spec import Probe, Profile
+from .standards import classify_all
 
 #: slices of a scan's leg [m]
 SCAN_STEP = 0.0025
@@ -204,7 +205,6 @@ def level_set(scene, mold) -> dict:
     given = dict(spec.heights) if spec is not None else {}
     out = []
     if leg is not None:
-        from ..mold.leg import leg_girth, leg_loop_length, leg_radius
 
         if spec is not None and (spec.center or spec.anterior or spec.medial or spec.find):
             raise LevelError("levels: center, anterior, medial and find come from the leg's chart; "
@@ -338,7 +338,6 @@ def read_levels(scene, model, positions, in_contact, pressure, strain_warp=None,
     out = {"source": lset["source"], "levels": rows, "gradient_ok": ok, "note": note, "sensor_radius_m": radius}
     if b is not None and b["mean_mmhg"] is not None:
         # the class of B's girth mean under every known standard (and the scene's own)
-        from .standards import classify_all
 
         cl = getattr(scene, "classes", None)
         out["b_classes"] = classify_all(b["mean_mmhg"], cl.standards if cl else None, cl.extra if cl else None)

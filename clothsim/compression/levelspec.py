@@ -14,7 +14,7 @@ read a stocking (:mod:`.levels`).
 
 On a limb built from a size chart (``mold: {leg: ...}``) the chart's levels, axis and directions
 are used and ``center``, ``anterior``, ``medial`` and ``find`` must be left out; ``heights`` adds
-levels. Imports nothing from clothsim.
+levels. Imports nothing from clothsim but the pydantic base.
 """
 
 from __future__ import annotations
@@ -22,16 +22,14 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
+
+from ..strict import Strict as _Strict
 
 #: the levels :mod:`.levels` can find on a body's girths
 FINDABLE = ("B", "C", "D")
 #: the four sides a stocking's pressure is read on
 SIDES = ("anterior", "posterior", "medial", "lateral")
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
 
 
 def _pair(v):

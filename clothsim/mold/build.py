@@ -11,6 +11,8 @@ import numpy as np
 
 from .record import (MOLD_BOX, MOLD_CYLINDER, MOLD_LEG, MOLD_MESH, MOLD_PLANE, MOLD_SMOOTH, MOLD_SPHERE, Mold,
                      MoldError, _ro)
+from ..legspec import LegParams
+from .leg import leg_params
 from .smooth import FACE_LIST_MAX_ENTRIES, face_vertex_lists, smooth_phi
 
 
@@ -536,8 +538,6 @@ def _unit(v: np.ndarray, key: str, src: str) -> np.ndarray:
 def leg_mold(spec: Mapping) -> Mold:
     """A limb from a size chart (``MOLD_LEG``, :mod:`clothsim.mold.leg`) from the fields of
     :class:`clothsim.legspec.LegParams` (a dict; validated there)."""
-    from ..legspec import LegParams
-    from .leg import leg_params
 
     try:
         p = LegParams.model_validate(dict(spec))

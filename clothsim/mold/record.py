@@ -10,6 +10,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .leg import leg_mesh
+
 MOLD_MESH = 1
 MOLD_SPHERE = 2
 MOLD_CYLINDER = 3
@@ -280,7 +282,6 @@ class Mold:
             m = trimesh.creation.cylinder(radius=p[6], height=p[7], sections=res, transform=T)
             return np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
         if self.kind == MOLD_LEG:
-            from .leg import leg_mesh
 
             return leg_mesh(p, res)
         if self.kind == MOLD_BOX:
