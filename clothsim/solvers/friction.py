@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from ..friction import friction_report, lag_friction
+from ..friction import elastic_forces, friction_report, lag_friction, normal_forces
 from .base import Status
 from .common import SolveResult, residual
 from .control import Control
@@ -79,6 +79,31 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
         tuning.max_relags, None
 
 
+def coulomb_residual(model, state) -> float:
+    """||V||_inf [N] of ``state`` with the friction Coulomb's law allows, whatever the path: at
+    every contact node without a constrained axis the mold takes, besides its pressing normal
+    force f_n (``clothsim.friction.normal_forces``), a tangential force of up to mu f_n against the springs',
+    seams' and loads' tangential resultant; what is left is judged as ``common.residual``
+    judges it. The residual of a frictional equilibrium without the load step's anchor (the
+    lagged friction needs it; a converged step's friction lies in the cone, so this is at most
+    the solver's residual). With mu = 0 it is the frictionless residual."""
+    from ..contact import residual_from_forces
+    from .common import model_mold_args
+
+    F = elastic_forces(model, state.positions)
+    mu = float(model.friction_mu)
+    if mu > 0 and model.mold is not None:
+        nodes, nrm, lam = normal_forces(model, state)
+        f = F[nodes]
+        ft = f - np.einsum("ij,ij->i", f, nrm)[:, None] * nrm
+        mag = np.linalg.norm(ft, axis=1)
+        take = np.divide(np.minimum(mag, mu * lam), mag, out=np.zeros_like(mag), where=mag > 0)
+        F[nodes] = f - take[:, None] * ft
+    has_mold, margs = model_mold_args(model)
+    return float(residual_from_forces(state.positions, F, model.fixed_axes, state.in_contact, has_mold, margs,
+                                      np.empty(model.node_count)))
+
+
 def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None,
                 model_scale=(1.0, 1.0), tuning: FrictionTuning = FrictionTuning()):
     """Solve ``state`` in place through the load steps ``controls`` (Controls, from the model's
@@ -108,6 +133,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         target, scale = queue.pop(0)
         snap = state.copy()
         ts = time.perf_counter()
+        its = state.iteration
         if frictional:
             ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target, scale), limits, callback,
                                                               hist, tuning)
@@ -118,7 +144,8 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         relags_total += relags
         if ok:
             m, rep, prev, prev_scale, cut_run = m_new, rep_new, target, scale, 0
-            steps.append({"iterations": int(res.iterations), "refreshes": int(relags),
+            # the step's Newton iterations over all its solves (a refresh's solve counts too)
+            steps.append({"iterations": int(state.iteration - its), "refreshes": int(relags),
                           "seconds": time.perf_counter() - ts, **(rep_new or {}),
                           **({} if scale is None else {"rest_scale": [float(v) for v in scale]})})
             continue
