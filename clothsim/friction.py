@@ -78,31 +78,6 @@ def normal_forces(model, state):
     return nodes, nrm, lam
 
 
-def coulomb_residual(model, state) -> float:
-    """||V||_inf [N] of ``state`` with the friction Coulomb's law allows, whatever the path: at
-    every contact node without a constrained axis the mold takes, besides its pressing normal
-    force f_n (:func:`normal_forces`), a tangential force of up to mu f_n against the springs',
-    seams' and loads' tangential resultant; what is left is judged as ``solvers.common.residual``
-    judges it. The residual of a frictional equilibrium without the load step's anchor (the
-    lagged friction needs it; a converged step's friction lies in the cone, so this is at most
-    the solver's residual). With mu = 0 it is the frictionless residual."""
-    from .contact import residual_from_forces
-    from .solvers.common import model_mold_args
-
-    F = elastic_forces(model, state.positions)
-    mu = float(model.friction_mu)
-    if mu > 0 and model.mold is not None:
-        nodes, nrm, lam = normal_forces(model, state)
-        f = F[nodes]
-        ft = f - np.einsum("ij,ij->i", f, nrm)[:, None] * nrm
-        mag = np.linalg.norm(ft, axis=1)
-        take = np.divide(np.minimum(mag, mu * lam), mag, out=np.zeros_like(mag), where=mag > 0)
-        F[nodes] = f - take[:, None] * ft
-    has_mold, margs = model_mold_args(model)
-    return float(residual_from_forces(state.positions, F, model.fixed_axes, state.in_contact, has_mold, margs,
-                                      np.empty(model.node_count)))
-
-
 def lag_friction(model, state, anchor) -> FrictionLag:
     """The friction frozen at ``state``: its contact nodes' normals and normal forces
     (:func:`normal_forces`), each node anchored at ``anchor`` (n, 3) [m] (the previous load

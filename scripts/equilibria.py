@@ -83,13 +83,13 @@ def reference_residual(scene: str, positions: np.ndarray) -> tuple[float, float]
     nodes within 1e-9 m of the mold's surface count as in contact (a converged solve leaves its
     contact nodes on the surface, its free nodes off it or touching it without force). A staged
     scene is judged by its last stage's model (its friction, gravity, mold and rest scale); with
-    friction the residual is the full one, friction included (``clothsim.friction.coulomb_residual``:
+    friction the residual is the full one, friction included (``clothsim.solvers.friction.coulomb_residual``:
     each contact node's tangential force up to mu times its normal force is the mold's, as at any
     frictional equilibrium; the frictionless residual would count it as out of balance)."""
     import clothsim
     from clothsim.compile import compile_scene
     from clothsim.config import stage_scenes
-    from clothsim.friction import coulomb_residual
+    from clothsim.solvers.friction import coulomb_residual
     from clothsim.mold import mold_query
     from clothsim.solvers.control import scale_rest
 
