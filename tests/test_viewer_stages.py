@@ -78,7 +78,8 @@ def test_the_run_keeps_each_stage_and_pauses_at_a_stage_end():
     try:
         rows = sim.stage_list()
         assert [r["name"] for r in rows] == ["drape", "pull"] and [r["state"] for r in rows] == ["to do", "to do"]
-        assert rows[1]["changes"] == "mold.friction = 0.3; constraints.1.displacement = [0, 0, -0.16]" and rows[1]["steps"] == 20
+        assert rows[1]["changes"] == "mold.friction = 0.3; constraints.1.displacement = [0, 0, -0.16]"
+        assert rows[1]["steps"] == 20
         sim.run_stage()
         assert sim.wait(120) == "paused", sim.message
         assert "stage 'drape' done" in sim.message
@@ -190,7 +191,8 @@ def test_viewer_stages_tab_replays_and_mu_applies():
             not app.panels["stages"].replaying and app.pushed_positions is ends[2].positions), 20)
         assert {0, 1, 2} <= set(seen)
         app.panels["stages"]._ask("Live")
-        assert wait_for(lambda: app.panels["stages"].shown is None and app.pushed_positions is not ends[2].positions, 10)
+        assert wait_for(lambda: app.panels["stages"].shown is None
+                        and app.pushed_positions is not ends[2].positions, 10)
         assert np.array_equal(app.pushed_positions, app.sim.state.positions)
         app.gui["field"].value = "stick / slip"
         assert wait_for(lambda: "red = slip" in app.panels["view"].legend, 10)

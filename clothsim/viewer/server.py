@@ -461,9 +461,9 @@ class ViewerApp:
         p["view"].build_legend(gui)
         p["probes"].build_readout(gui)
         tabs = gui.add_tab_group()
-        for key, title in (("view", "View"), ("stages", "Stages"), ("solver", "Solver"), ("constraints", "Constraints"),
-                           ("material", "Material"), ("fabric", "Fabric & mold"), ("probes", "Probes"),
-                           ("files", "Files")):
+        for key, title in (("view", "View"), ("stages", "Stages"), ("solver", "Solver"),
+                           ("constraints", "Constraints"), ("material", "Material"), ("fabric", "Fabric & mold"),
+                           ("probes", "Probes"), ("files", "Files")):
             with tabs.add_tab(title):
                 p[key].build(gui)
                 if key == "fabric":  # the Garment section: panels, placements, pattern uploads
