@@ -284,6 +284,10 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    if getattr(args, "friction", False):
+        from .bench_friction import main as friction_main
+
+        return friction_main(args)
     from .bench import main as bench_main
 
     return bench_main(args)
@@ -508,6 +512,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --garments: rounds of fresh processes, each running every scene once; the best "
                         "and the median of the rounds' ratios to the square reported (default: "
                         "bench.GARMENT_REPEAT, 5)")
+    b.add_argument("--friction", action="store_true",
+                   help="only the friction benchmark: a frictional load step against the frictionless solve "
+                        "(capstan, tube on a cone, the stocking with friction; --quick leaves the stocking "
+                        "out) and the capstan's error against the lattice size: writes benchmarks_friction.md")
     b.set_defaults(func=cmd_bench)
     add_compression_commands(sub)
     return p

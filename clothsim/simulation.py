@@ -112,6 +112,21 @@ class Snapshot:
     message: str = ""
 
 
+@dataclass
+class StageEnd:
+    """The state a staged run reached at a stage's end (or, named "start", where it began): what
+    the viewer replays. positions [m] (N, 3), in_contact (N,), the iteration, the Model then (its
+    ``friction`` the friction refreshed at that equilibrium, anchored at the step before: the
+    stick/slip state) and the stage's report (None for the start)."""
+
+    name: str
+    positions: np.ndarray
+    in_contact: np.ndarray
+    iteration: int
+    model: Model
+    report: dict | None = None
+
+
 class Simulation:
     """A scene being solved. Thread-safe controls: start, pause, step, reset, stop, edit.
 
@@ -161,6 +176,12 @@ class Simulation:
         self._stage_model = None
         self._steps_done = 0
         self._stage_reports = []
+        # what a staged run went through: [(iteration, name)] where each stage began, the state at
+        # the start and at each finished stage's end (StageEnd), and whether the run pauses at the
+        # current stage's end (run_stage)
+        self.stage_marks: list[tuple[int, str]] = []
+        self.stage_ends: list[StageEnd] = []
+        self._stage_once = False
         self.version += 1
 
     @property
@@ -307,6 +328,9 @@ class Simulation:
         if self._plan is None:
             self._plan = self._stages()
             self._stage_reports = []
+            self.stage_ends = [StageEnd("start", self.state.positions.copy(), self.state.in_contact.copy(),
+                                        self.state.iteration, self.model)]
+            self.stage_marks = []
         res = None
         while self._plan:
             name, model, steps, stage_solver, scales = self._plan[0]
@@ -319,6 +343,7 @@ class Simulation:
                 self._controls = load_steps(start, model.prescribed_positions, steps, scales)
                 self._stage_model = dataclasses.replace(model, prescribed_positions=start)
                 self._steps_done = 0
+                self.stage_marks = self.stage_marks + [(int(self.state.iteration), name)]
             todo = self._controls[self._steps_done:]
             # a stage's own solver fields (its set may change e), the run's limits otherwise
             s = settings if stage_solver is None else stage_solver.model_copy(
@@ -340,8 +365,20 @@ class Simulation:
                 **({} if scales is None else {"rest_scale": list(scales[1])}),
                 converged=True, iterations=int(res.iterations), residual=float(res.residual),
                 friction=res.friction).to_dict())
+            # a new list, so that a reader in another thread holds a consistent one
+            self.stage_ends = self.stage_ends + [StageEnd(name, self.state.positions.copy(),
+                                                          self.state.in_contact.copy(), int(self.state.iteration),
+                                                          m, self._stage_reports[-1])]
             self._plan.pop(0)
             self._controls = None
+            if self._plan and self._stage_once:  # run_stage: pause here, between two stages
+                self._stage_once = False
+                with self._lock:
+                    self._pause_requested = True
+                nxt = self._plan[0][0]
+                res = dataclasses.replace(res, converged=False, status=Status.STOPPED,
+                                          message=f"stage '{name}' done; Start goes on with '{nxt}'")
+                break
         if self.scene.stages and res is not None:
             rep = dict(res.friction or {})
             rep["stages"] = list(self._stage_reports)
@@ -382,15 +419,41 @@ class Simulation:
             self._thread = threading.Thread(target=self._worker, name="clothsim-solver", daemon=True)
             self._thread.start()
 
-    def start(self) -> None:
-        """Start (or resume) relaxing in the background thread."""
+    def start(self, stage_once: bool = False) -> None:
+        """Start (or resume) relaxing in the background thread (``stage_once``: see run_stage)."""
         with self._lock:
             self._ensure_thread()
             if self.status != "running":
+                self._stage_once = stage_once
                 self._pause_requested = False
                 self._command = "run"
                 self.status = "running"
                 self._wake.notify_all()
+
+    def run_stage(self) -> None:
+        """Run (in the background thread) until the current stage of a staged scene ends, then
+        pause (the last stage: until the run ends). A scene without stages runs as start() does."""
+        self.start(stage_once=True)
+
+    def stage_list(self) -> list[dict]:
+        """The loading path as the viewer lists it: per stage, name, steps, the changes it makes
+        (``set`` and ``rest_scale`` as text), its state ("done", "current" or "to do") and, when
+        done, its report (iterations, residual, friction). A scene without stages that is solved
+        in load steps (friction, ``solver.load_steps``) is one stage; otherwise empty."""
+        if not self.scene.stages and not self._staged():
+            return []
+        if self.scene.stages:
+            rows = [{"name": st.name or f"stage {n + 1}", "steps": int(st.steps),
+                     "changes": "; ".join([f"{k} = {v}" for k, v in (st.set or {}).items()]
+                                          + ([f"rest_scale = {st.rest_scale}"] if st.rest_scale is not None else []))}
+                    for n, st in enumerate(self.scene.stages)]
+        else:
+            rows = [{"name": "load steps", "steps": int(self.settings.load_steps), "changes": ""}]
+        done = len(self._stage_reports)
+        for n, row in enumerate(rows):
+            row["state"] = "done" if n < done else "current" if n == done and self._plan is not None else "to do"
+            row["report"] = self._stage_reports[n] if n < done else None
+        return rows
 
     def step(self) -> None:
         """One iteration in the background thread (when not running)."""

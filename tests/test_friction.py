@@ -241,6 +241,8 @@ def test_stages_drape_then_pull_reach_the_capstan_and_keep_every_stage():
     assert [x["load_steps"] for x in st] == [1, 20]
     assert st[0]["friction"]["mu"] == 0.0 and st[1]["friction"]["mu"] == 0.3
     assert s["friction"]["slip"] > 0 and s["friction"]["stick"] == 0
+    # each step's iterations count all its solves (on main only the last refresh's: 97 of 304)
+    assert [sum(x["iterations"] for x in t["friction"]["steps"]) for t in st] == [t["iterations"] for t in st]
     (tl, dl), (tr, dr) = _end_tensions(r.model, r.state.positions)
     phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
     assert abs(tr / tl / math.exp(MU * phi) - 1) < 2e-3

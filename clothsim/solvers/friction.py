@@ -109,6 +109,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         target, scale = queue.pop(0)
         snap = state.copy()
         ts = time.perf_counter()
+        its = state.iteration
         if frictional:
             ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target, scale), limits, callback,
                                                               hist, tuning)
@@ -119,7 +120,8 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         relags_total += relags
         if ok:
             m, rep, prev, prev_scale, cut_run = m_new, rep_new, target, scale, 0
-            steps.append({"iterations": int(res.iterations), "refreshes": int(relags),
+            # the step's Newton iterations over all its solves (a refresh's solve counts too)
+            steps.append({"iterations": int(state.iteration - its), "refreshes": int(relags),
                           "seconds": time.perf_counter() - ts, **(rep_new or {}),
                           **({} if scale is None else {"rest_scale": [float(v) for v in scale]})})
             continue

@@ -63,6 +63,10 @@ PATTERN_DEFAULT_DIVISIONS = 24
 ROTATE_MAX = 3600.0  # [deg]
 
 
+#: largest friction coefficient a scene takes (config's mold.friction bound)
+FRICTION_MAX = 10.0
+
+
 def parse_table_text(text: str) -> tuple[list[float], list[float]]:
     """A material table typed as one ``strain, value`` pair per line (comma, semicolon or spaces
     between; ``#`` starts a comment). Raises MaterialError naming the line."""
@@ -384,9 +388,34 @@ class SceneDraft:
                     prm[key] = [a + b for a, b in zip(prm[key], off)]
         return spec
 
+    def friction(self) -> float:
+        """The draft's friction coefficient mu between the fabric and the mold (0: frictionless)."""
+        return float((self.data.get("mold") or {}).get("friction") or 0.0)
+
+    def set_friction(self, mu) -> Scene:
+        """``mold.friction``: Coulomb's mu between the fabric and the mold, 0 to 10 (0 leaves the
+        field out: the frictionless scene, bit for bit). A stage that sets ``mold.friction``
+        overrides it from that stage on."""
+        v = as_float(mu, "friction mu", 0.0, FRICTION_MAX)
+        if self.data.get("mold") is None:
+            if v == 0.0:
+                return self.validate()
+            raise ValueError("friction mu: the scene has no mold to have friction with")
+
+        def mutate(d):
+            if v > 0:
+                d["mold"]["friction"] = v
+            else:
+                d["mold"].pop("friction", None)
+
+        return self.edit("friction", mutate)
+
     def set_mold(self, spec: dict | None):
-        """Make ``spec`` the draft's mold; returns the loaded Mold (parsed now, so that a broken
-        file is refused here) or None for no mold."""
+        """Make ``spec`` the draft's mold (with the draft's friction coefficient); returns the
+        loaded Mold (parsed now, so that a broken file is refused here) or None for no mold."""
+        mu = self.friction()
+        if spec is not None:
+            spec = {k: v for k, v in spec.items() if k != "friction"} | ({"friction": mu} if mu > 0 else {})
         scene = self.validate({**self.data, "mold": spec})  # field-level check first
         mold = load_mold(spec, scene.base_dir) if spec is not None else None
         self.edit("mold", lambda d: d.__setitem__("mold", spec) if spec is not None else d.pop("mold", None))

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import Model, SpringFamily
-from .fields import FIELDS, node_field
-from .glb import GlbMeshWriter, colormap, vertex_normals
+from .fields import FIELDS, FRICTION_COLOURS, FRICTION_STATES, node_field
+from .glb import GlbMeshWriter, colormap, srgb_to_linear, vertex_normals
 
 MOLD_GREY = (150, 150, 160)
 MOLD_PENDING = (235, 140, 50)  # a mold shown before it is applied
@@ -86,6 +86,8 @@ def field_range(values: np.ndarray, key: str, view: ViewSettings) -> tuple[float
     finite = values[np.isfinite(values)]
     if key == "contact":
         return 0.0, 1.0
+    if key == "friction":
+        return 0.0, float(len(FRICTION_STATES) - 1)
     if not len(finite):
         return 0.0, 1.0
     lo, hi = float(finite.min()), float(finite.max())
@@ -104,20 +106,41 @@ def field_range(values: np.ndarray, key: str, view: ViewSettings) -> tuple[float
 def is_uniform(values: np.ndarray, key: str) -> bool:
     """True if the finite values spread less than the field's floor."""
     finite = values[np.isfinite(values)]
-    if not len(finite) or key == "contact":
+    if not len(finite) or key in ("contact", "friction"):
         return False
     lo, hi = float(finite.min()), float(finite.max())
     return hi - lo <= range_floor(key, lo, hi)
 
 
+#: the stick/slip categories' colours as linear RGB (glTF vertex colours), one row per category
+FRICTION_LINEAR = srgb_to_linear(np.asarray(FRICTION_COLOURS, np.float64) / 255.0).astype(np.float32)
+FRICTION_NAMES = ("blue", "amber", "green", "red")
+
+
+def friction_colours(values: np.ndarray) -> np.ndarray:
+    """(N,) stick/slip categories (fields.friction_state) -> (N, 3) linear RGB."""
+    idx = np.clip(np.nan_to_num(values).round().astype(np.int64), 0, len(FRICTION_STATES) - 1)
+    return FRICTION_LINEAR[idx]
+
+
+def friction_legend(values: np.ndarray | None) -> str:
+    """The stick/slip legend: each category's colour, name and node count."""
+    counts = (np.bincount(np.clip(np.nan_to_num(values).round().astype(np.int64), 0, 3), minlength=4)
+              if values is not None else np.zeros(4, np.int64))
+    parts = [f"{c} = {name} ({int(n)})" for c, name, n in zip(FRICTION_NAMES, FRICTION_STATES, counts)]
+    return "**stick / slip** (nodes, last load step): " + " · ".join(parts)
+
+
 def legend_text(label: str, key: str, lo: float, hi: float, uniform: bool = False,
-                value: float | None = None) -> str:
+                value: float | None = None, values: np.ndarray | None = None) -> str:
     """The markdown under the colour bar: the range's ends and middle, or for a uniform field its
     ``value`` (default: the range's middle): "0 everywhere" for a field that is zero (rounding
     noise included: an all-zero pressure field is not "uniform (0.5)" of its widened range), else
-    "uniform (3)"."""
+    "uniform (3)"; the stick/slip field counts its ``values`` per category."""
     if key == "contact":
         return "**in contact**: dark = free, yellow = touching the mold"
+    if key == "friction":
+        return friction_legend(values)
     unit = FIELDS[label][0]
     head = f"**{label}**{f' [{unit}]' if unit else ''}"
     tiny = 1e-9 * max(abs(lo), abs(hi))
@@ -274,7 +297,8 @@ class SceneRenderer:
         finite = vals[np.isfinite(vals)]
         value = float(np.median(finite)) if uniform and len(finite) else None
         self.range = (lo, hi)
-        glb = self.glb.build(f.positions, colormap(vals, lo, hi), vertex_normals(f.positions, f.model.topology),
+        colours = friction_colours(vals) if self.field_key == "friction" else colormap(vals, lo, hi)
+        glb = self.glb.build(f.positions, colours, vertex_normals(f.positions, f.model.topology),
                              opacity=float(view.sheet_opacity))
         self.h_cloth.glb_data = glb
         if self.h_fixed is not None:
@@ -285,7 +309,7 @@ class SceneRenderer:
         if self.h_outlines is not None:
             self.h_outlines.points = f.positions[self.outline_ab].astype(np.float32)
             self.h_outlines.visible = bool(view.show_outlines)
-        return legend_text(view.field, self.field_key, lo, hi, uniform, value)
+        return legend_text(view.field, self.field_key, lo, hi, uniform, value, vals)
 
 
 #: the camera's view holds the framed box grown by this share of its size on every side (issue 28,

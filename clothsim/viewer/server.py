@@ -67,6 +67,7 @@ from .panels.material import MaterialPanel
 from .panels.probes import ProbesPanel
 from .panels.run import RunPanel
 from .panels.solver import SolverPanel
+from .panels.stages import StagesPanel
 from .panels.view import ViewPanel
 from .plot import PLOT_POINTS, ResidualPlot
 from .render import Frame, SceneRenderer, camera_box, frame_camera, needs_reframe
@@ -217,7 +218,8 @@ class ViewerApp:
         self.panels.update({"run": RunPanel(self), "view": ViewPanel(self), "solver": SolverPanel(self),
                             "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
                             "fabric": FabricPanel(self), "files": FilesPanel(self),
-                            "probes": ProbesPanel(self), "garment": GarmentPanel(self)})
+                            "probes": ProbesPanel(self), "garment": GarmentPanel(self),
+                            "stages": StagesPanel(self)})
         self.plot = self._build_gui()
         self.server.scene.on_click()(self.panels["probes"].on_scene_click)  # records the ray only
         self.sync_widgets()
@@ -301,6 +303,10 @@ class ViewerApp:
 
     def step(self, wait: bool = False) -> None:
         self._control(self._do_step, wait)
+
+    def run_stage(self, wait: bool = False) -> None:
+        """Run until the current stage of a staged scene ends, then pause."""
+        self._control(self._do_stage, wait)
 
     def reset(self, wait: bool = False) -> None:
         """Back to the initial deformation, with the edited scene if there are unapplied edits."""
@@ -449,13 +455,14 @@ class ViewerApp:
         p = self.panels
         p["run"].build(gui)
         plot = ResidualPlot(gui, self.sim.settings.e, self.min_period)
+        plot.atomic = self.server.atomic
         self.gui["plot"] = plot.handle
         p["view"].build_legend(gui)
         p["probes"].build_readout(gui)
         tabs = gui.add_tab_group()
-        for key, title in (("view", "View"), ("solver", "Solver"), ("constraints", "Constraints"),
-                           ("material", "Material"), ("fabric", "Fabric & mold"), ("probes", "Probes"),
-                           ("files", "Files")):
+        for key, title in (("view", "View"), ("stages", "Stages"), ("solver", "Solver"),
+                           ("constraints", "Constraints"), ("material", "Material"), ("fabric", "Fabric & mold"),
+                           ("probes", "Probes"), ("files", "Files")):
             with tabs.add_tab(title):
                 p[key].build(gui)
                 if key == "fabric":  # the Garment section: panels, placements, pattern uploads
@@ -465,7 +472,7 @@ class ViewerApp:
     def sync_widgets(self) -> None:
         """Show the draft's values in every editor (not counted as edits)."""
         with self.quiet():
-            for key in ("solver", "fabric", "material", "constraints", "garment", "run"):
+            for key in ("solver", "fabric", "material", "constraints", "garment", "run", "stages"):
                 self.panels[key].sync()
         for group in ("warp_table", "weft_table"):  # the tables show the draft's again
             self._set_error(group, "")
@@ -578,6 +585,12 @@ class ViewerApp:
         self._begin_segment()
         self.sim.start()
 
+    def _do_stage(self) -> None:
+        if self.pending:
+            self._do_apply(reset=False, resume=False)
+        self._begin_segment()
+        self.sim.run_stage()
+
     def _do_step(self) -> None:
         if self.pending:
             self._do_apply(reset=False, resume=False)
@@ -623,9 +636,11 @@ class ViewerApp:
         self.scene_draft.reset_to(self.sim.scene)
         self.panels["run"].sync()
         self.panels["probes"].reset()
-        with self.quiet():  # the panel list and table of the applied model
+        self.panels["stages"].reset()
+        with self.quiet():  # the panel list and table of the applied model, its friction
             self.panels["fabric"].sync_panels()
             self.panels["garment"].sync()
+            self.panels["stages"].sync()
 
     # ------------------------------------------------------------------ uploads
     def _upload_refused(self, client_id, message, filename: str, reason: str) -> None:
@@ -715,9 +730,17 @@ class ViewerApp:
                 if sim.model is model:
                     frame = Frame(snap.positions, snap.in_contact, snap.iteration, model)
                     self._still_key = key
+        view_dirty = self._view_dirty
         if frame is None and self._view_dirty and self._last_frame is not None:
             frame = self._last_frame
         self._view_dirty = False
+        # a finished stage's end state shown instead of the live one (the Stages tab)
+        staged = self.panels["stages"].frame()
+        if staged is not None:
+            frame = staged if (staged is not self._last_frame or view_dirty) else None
+        elif self._last_frame is not None and self._last_frame is self.panels["stages"].last_shown:
+            frame = self._live_frame(sim, model)  # back to the live state
+        self.panels["stages"].last_shown = staged
         if frame is not None:
             self.panels["view"].set_legend(r.push_frame(frame, view))
             self.panels["view"].set_colorbar(*r.range, r.field_key)
@@ -726,12 +749,19 @@ class ViewerApp:
             self.pushed_iteration = frame.iteration
             self.frames_pushed += 1
             self._last_frame = frame
-            self._auto_frame(frame)
+            if staged is None:
+                self._auto_frame(frame)
         self.panels["run"].update_status(running, self._last_frame)
         self.panels["probes"].update(self._last_frame, still=not running)
         self._update_plot(running)
         if sim.model is model:
             self.shown = shown
+
+    @staticmethod
+    def _live_frame(sim, model) -> Frame | None:
+        """The simulation's state now, as a frame of ``model`` (None if the model changed)."""
+        snap = sim.snapshot()
+        return Frame(snap.positions, snap.in_contact, snap.iteration, model) if sim.model is model else None
 
     def _update_plot(self, running: bool) -> None:
         if not self.plot.due(running):
@@ -743,7 +773,7 @@ class ViewerApp:
             self._hist_version = sim.version
         with self._lock:
             live = (np.asarray(self._live_it, np.float64), np.asarray(self._live_res, np.float64))
-        self.plot.update(self._hist, live, float(sim.settings.e), self.initial_residual, running)
+        self.plot.update(self._hist, live, float(sim.settings.e), self.initial_residual, running, sim.stage_marks)
 
 
 def _other(handle, value):

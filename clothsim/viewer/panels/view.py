@@ -3,7 +3,9 @@ which helpers are shown. These are display settings, not edits: they only mark t
 
 from __future__ import annotations
 
-from ..fields import FIELDS
+import numpy as np
+
+from ..fields import FIELDS, FRICTION_COLOURS
 from ..glb import colorbar_image, colorbar_with_ticks, nice_ticks, tick_x
 from ..render import DEFAULT_SHEET_OPACITY, ViewSettings
 from . import Panel
@@ -11,6 +13,13 @@ from . import Panel
 
 #: the colour bar's width [pixels]
 BAR_WIDTH = 256
+
+
+def friction_bar(width: int, height: int = 12) -> np.ndarray:
+    """The stick/slip colour bar: one block per category, in their order (uint8 RGB)."""
+    cols = np.asarray(FRICTION_COLOURS, np.uint8)
+    idx = np.minimum((np.arange(width) * len(cols)) // width, len(cols) - 1)
+    return np.repeat(cols[idx][None, :, :], height, axis=0)
 
 
 class ViewPanel(Panel):
@@ -77,6 +86,11 @@ class ViewPanel(Panel):
         """The colour bar with tick marks and values for the range [lo, hi] of field ``key``
         (glb.colorbar_with_ticks; the bare bar for the in-contact field, whose legend names its two
         colours); the image is sent again only when its ticks change."""
+        if key == "friction":  # categorical: one block per category
+            if self.bar_key != "friction":
+                self.bar_key = "friction"
+                self.gui["legend_img"].image = friction_bar(BAR_WIDTH)
+            return
         ticks = [] if key == "contact" else nice_ticks(lo, hi)
         cols = tuple(tick_x(ticks, lo, hi, BAR_WIDTH).tolist()) if ticks else ()
         bar_key = (tuple(ticks), cols)
