@@ -285,7 +285,7 @@ def cmd_sweep(args) -> int:
 
 def cmd_bench(args) -> int:
     if getattr(args, "friction", False):
-        from .bench_friction import main as friction_main
+        from .bench.friction import main as friction_main
 
         return friction_main(args)
     from .bench import main as bench_main

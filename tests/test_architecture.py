@@ -152,6 +152,7 @@ LAZY_CLOTHSIM = {
     ("clothsim.cli", "clothsim.viewer"): "viser: loaded by the view command only",
     ("clothsim.cli", "clothsim.bench"): "the benchmark: a developer's command (numba kernels of its own, "
                                         "the Unix-only resource module)",
+    ("clothsim.cli", "clothsim.bench.friction"): "the friction benchmark (bench --friction): as clothsim.bench",
     ("clothsim.viewer", "clothsim.viewer.server"): "viser: the viewer package's lazy attributes",
     ("clothsim.viewer", "clothsim.viewer.command"): "viser: the viewer package's lazy attributes",
 }

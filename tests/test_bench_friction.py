@@ -1,4 +1,4 @@
-"""The friction benchmark's rows (clothsim/bench_friction.py, ``python app.py bench --friction``):
+"""The friction benchmark's rows (clothsim/bench/friction.py, ``python app.py bench --friction``):
 a capstan row measures a frictional load step and the frictionless solve in seconds and work
 units and the tension ratio's error against e^(mu phi); the table shows both and their ratio."""
 
@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from clothsim.bench_friction import capstan_table, capstan_row, table
+from clothsim.bench.friction import capstan_table, capstan_row, table
 from clothsim.cli import build_parser
 
 

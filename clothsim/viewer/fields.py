@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels import spring_strains_tensions
+from ..friction import slides
 from ..pressure import MMHG, contact_reaction
 
 
@@ -38,7 +39,6 @@ def friction_state(model, positions: np.ndarray, in_contact: np.ndarray) -> np.n
     (``clothsim.friction.friction_report``): ``model.friction``, the friction refreshed at the
     last load step's equilibrium, names the pressed nodes, and one that slid at least the slip
     eps from its anchor (where the step began) slipped."""
-    from ..friction import slides
 
     out = in_contact.astype(np.float64)
     lag = model.friction

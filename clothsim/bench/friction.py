@@ -29,7 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+from ..compile import compile_model, compile_state
+from ..config import load_scene
+from ..fileio import atomic_write_bytes
+from ..kernels import spring_strains_tensions
+from ..model import SpringFamily
+from ..simulation import Simulation
+from ..solvers import Control, load_steps, solve
+from ..solvers.friction import solve_steps
+from . import machine_info, reference_pass_time
+
+ROOT = Path(__file__).resolve().parents[2]
 MU_CAPSTAN = 0.3
 CAPSTAN_DIVISIONS = (20, 40, 80, 160)
 CAPSTAN_PULL = 0.06  # [m]
@@ -41,8 +51,6 @@ TARGET_RATIO = 3.0
 def end_tensions(model, pos):
     """[(T, d)] for the strip's first and last columns of warp springs: their summed force [N] and
     mean unit direction (the straight free ends of the capstan)."""
-    from .kernels import spring_strains_tensions
-    from .model import SpringFamily
 
     s = np.empty(model.spring_count)
     f = np.empty(model.spring_count)
@@ -72,11 +80,6 @@ def _wu(seconds: float, ref: float) -> float:
 
 def capstan_row(nx: int) -> dict:
     """The capstan at ``nx`` divisions along the strip (see the module docstring)."""
-    from .bench import reference_pass_time
-    from .compile import compile_model, compile_state
-    from .config import load_scene
-    from .solvers import load_steps, solve
-    from .solvers.friction import solve_steps
 
     over = [f"fabric.divisions=[{nx},{max(2, nx // 20)}]", "solver.method=newton", "solver.e=1e-7"]
     sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml", over)
@@ -125,11 +128,6 @@ def capstan_row(nx: int) -> dict:
 
 def cone_row() -> dict:
     """The tube on the leg cone (see the module docstring)."""
-    from .bench import reference_pass_time
-    from .compile import compile_model, compile_state
-    from .config import load_scene
-    from .solvers import Control, solve
-    from .solvers.friction import solve_steps
 
     sc = load_scene(ROOT / "configs" / "tube_on_leg_cone.yaml",
                     ["constraints.1.displacement=[0,0,0]", "fabric.divisions=[34,16]", "solver.e=3e-6",
@@ -154,9 +152,6 @@ def cone_row() -> dict:
 
 def stocking_row() -> dict:
     """The stocking with friction's relax stage against the frictionless stocking's solve."""
-    from .bench import reference_pass_time
-    from .config import load_scene
-    from .simulation import Simulation
 
     for _ in range(2):  # the first of each warms the kernels of the leg's surface
         free = Simulation(load_scene(ROOT / "configs" / "garments" / "stocking.yaml"))
@@ -216,7 +211,6 @@ def capstan_table(rows: list[dict]) -> list[str]:
 
 def run(out: str | Path, log=None, stocking: bool = True) -> list[dict]:
     """Measure every row, write ``benchmarks_friction.md`` and ``.json`` into ``out``."""
-    from .bench import machine_info
 
     t0 = time.perf_counter()
     rows = []
@@ -241,7 +235,6 @@ def run(out: str | Path, log=None, stocking: bool = True) -> list[dict]:
              "of the same scene. See `clothsim/bench_friction.py` for what each row solves.", ""]
     lines += table(rows) + ["", "The capstan's tension ratio against Euler-Eytelwein's e^(mu phi), mu = 0.3, "
                                 "pulled past slip:", ""] + capstan_table(rows) + [""]
-    from .fileio import atomic_write_bytes
 
     atomic_write_bytes(out / "benchmarks_friction.md", "\n".join(lines).encode())
     atomic_write_bytes(out / "benchmarks_friction.json", json.dumps({"machine": info, "rows": rows}, indent=1).encode())
