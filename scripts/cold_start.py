@@ -274,11 +274,6 @@ def main() -> int:
                         report[f"view_{kind}"] = r
                         print(f"view {kind}: " + ", ".join(f"{k} {v:.1f}" for k, v in r.items() if k != "kernels"),
                               flush=True)
-                        if "frame_s" in r:  # what compiled before the first frame (first compile times)
-                            before = [(k, v) for k, v in rows if v["first_at_s"] is not None
-                                      and v["first_at_s"] < r["frame_s"]]
-                            print(f"  compiled before the first frame (about): "
-                                  f"{sum(v['self_cpu_s'] for _, v in before):.1f} s CPU in {len(before)} kernels")
                         print_table(rows, args.top)
                 finally:
                     browser.close()

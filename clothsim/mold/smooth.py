@@ -542,7 +542,7 @@ def smooth_shape_operator(margs, px, py, pz, h, n_out, S_out):
         margin = max(_GATHER_MARGIN * margs.params[14], 4.0 * h)
         cand, nc = _gather(margs, px, py, pz, margin, stack, cand)
     if nc < 0 or not (h <= 0.5 * margin):
-        return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, -1)
+        nc = -1  # a variable, not a literal -1 in the call: that compiled this and two callees twice
     return _shape_operator_blend(margs, px, py, pz, h, n_out, S_out, g0, g1, g2, stack, cand, nc)
 
 

@@ -47,15 +47,15 @@ def main(args) -> int:
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     app = None
     try:
-        # the page is served at once; the model is built and the kernels compiled (about 30 s on
-        # a fresh install, from numba's cache afterwards) in the background, then the run starts
+        # the page is served at once; the model is built and the kernels compiled (a minute and a
+        # half on a fresh install, from numba's cache afterwards) in the background, then the run starts
         app = ViewerApp(scene, host=host, port=args.port, upload_limit_mb=args.upload_limit_mb, verbose=True,
                         background=True, autostart=True)
         if app.port != args.port and args.port != 0:
             print(f"note: port {args.port} is busy; using {app.port}", file=sys.stderr)
         print(f"clothsim viewer: {app.url}  (scene {args.scene}; Ctrl+C stops)", flush=True)
         print("loading the compiled kernels from numba's cache..." if kernels_cached() else
-              "compiling kernels (first start after an install or update: about a minute)...",
+              "compiling kernels (first start after an install or update: a minute or two)...",
               file=sys.stderr, flush=True)
         if not args.no_browser:
             try:
