@@ -176,6 +176,19 @@ def test_levels_csv_read_tolerantly_and_refused_when_not_numbers(tmp_path, capsy
     assert re.findall(r"<td class='n'>([^<]*)</td>", row_c)[:8] == ["0.350", "37.6", "28.0", "n/a", "18.0", "15.0",
                                                                       "19.0", "70"]
     assert "RAL-GZ 387: class II" in page.split("<td>B</td>", 1)[1].split("</tr>", 1)[0]   # 24.5 at B
+    # the columns the leg's measuring levels write (clothsim.compression.levels.LEVELS_COLUMNS)
+    (d / "levels.csv").write_text(
+        "level,height_cm,z_m,girth_cm,loop_cm,how,course_strain,reduction_pct,mean_mmHg,anterior_mmHg,"
+        "posterior_mmHg,medial_mmHg,lateral_mmHg,percent_of_B,required_percent_of_B,gradient_ok\n"
+        "B,12.00,0.12000,22.80,23.10,found,0.3012,23.15,28.100,39.600,25.000,20.100,27.000,100.0,100-100,1\n"
+        "C,35.00,0.35000,37.60,38.00,found,0.2500,20.00,14.300,15.000,14.000,13.000,15.500,50.9,50-80,1\n")
+    assert _main(capsys, "report", str(d))[0] == 0
+    page = (d / "report.html").read_text()
+    assert _cells(page, "levels", "mean") == ["28.1", "14.3"]
+    row_b = page.split("<td>B</td>", 1)[1].split("</tr>", 1)[0]
+    assert re.findall(r"<td class='n'>([^<]*)</td>", row_b) == ["0.120", "22.8", "23.1", "39.6", "25.0", "20.1",
+                                                                "27.0", "100"]
+    assert "RAL-GZ 387: class II" in row_b and "<span id='girth-mean-b'>28.1</span>" in page
     (d / "levels.csv").write_text("level,height,girth,mean,anterior\nB,0.12,0.228,<i>24</i>,25\n")
     rc, err = _main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'levels.csv'}:2: mean is not a number" in err, err

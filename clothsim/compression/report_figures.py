@@ -300,16 +300,19 @@ def profile_png(profiles: list[dict], band: dict | None, levels: list[dict] | No
         if ref > 0:
             ag.plot(100.0 * m / ref, h, "o-", ms=3, color=line.get_color(), label=f"{pf['name']}: % of B")
     if levels:
-        lv = [x for x in levels if x.get("mean") is not None and x.get("height") is not None]
+        def at(x):   # where the level sits on the profile's axis (levels.csv's z, else its height)
+            return x["z"] if x.get("z") is not None else x.get("height")
+
+        lv = [x for x in levels if x.get("mean") is not None and at(x) is not None]
         if lv:
-            ax.plot([x["mean"] for x in lv], [x["height"] for x in lv], "s", color="black", ms=5, label="levels")
+            ax.plot([x["mean"] for x in lv], [at(x) for x in lv], "s", color="black", ms=5, label="levels")
             for x in lv:
-                ax.annotate(str(x["level"]), (x["mean"], x["height"]), xytext=(5, -3), textcoords="offset points",
+                ax.annotate(str(x["level"]), (x["mean"], at(x)), xytext=(5, -3), textcoords="offset points",
                             fontsize=8, **PLAIN)
                 top = max(top, x["mean"])
             b = b_mmhg or lv[0]["mean"]
             if b > 0:
-                ag.plot([100.0 * x["mean"] / b for x in lv], [x["height"] for x in lv], "s-", color="black", ms=5,
+                ag.plot([100.0 * x["mean"] / b for x in lv], [at(x) for x in lv], "s-", color="black", ms=5,
                         label="levels: % of B")
     ax.set_xlim(0.0, 1.1 * top if top > 0 else 1.0)
     ax.set_xlabel("contact pressure [mmHg]")

@@ -251,8 +251,9 @@ def build_html(s: dict, history, f, levels, pmax: float | None = None) -> str:
     above = (f" {scale['above']} node{'s' if scale['above'] != 1 else ''} read more (up to {scale['peak']:.1f} mmHg) "
              f"and {'are' if scale['above'] != 1 else 'is'} drawn in the top colour." if scale["above"] else "")
     caption = (f"Contact pressure on the body, colour scale <span id='pmax'>{scale['lo']:g} to {scale['hi']:g}</span> "
-               f"mmHg ({_t(scale['how'])}{', rounded up' if pmax is None else ''}).{above} Probes: rings of their "
-               f"sensor discs, with their readings. Choose the scale with 'report --pmax'.")
+               f"mmHg ({_t(scale['how'])}{', rounded up' if pmax is None else ''}).{above}"
+               f"{' Probes: rings of their sensor discs, with their readings.' if probes else ''} "
+               f"Choose the scale with 'report --pmax'.")
     maps = [("pressure", "pressure map", f.pressure_mmhg, "contact pressure [mmHg]", "viridis", scale, caption)]
     for key, title, v in (("warp-strain", "warp strain map", f.strain_warp), ("weft-strain", "weft strain map",
                                                                              f.strain_weft)):

@@ -4,7 +4,9 @@ With ``levels.csv`` in the result folder (written by the leg's measuring levels:
 with its name, height, girth, the garment's reduction there and the pressure's girth mean and
 four sides, anterior, posterior, medial and lateral, in mmHg) the table is that file, read
 tolerantly: columns in any order, names in any case with or without a unit (``girth``,
-``girth_m``, ``girth [cm]``, ``mean_mmhg``, ``Anterior (mmHg)``), extra columns ignored, empty or
+``girth_m``, ``girth_cm``, ``girth [cm]``, ``mean_mmHg``, ``Anterior (mmHg)``, ``reduction_pct``;
+``height_cm`` the height the standard measures from, ``z_m`` the level's coordinate), extra
+columns ignored, empty or
 ``n/a`` cells shown as n/a. A cell that is neither empty nor a number is refused naming the file,
 line and column (the report never pastes it into the page). Girths in cm or mm (by the header, or
 a value above 3 without a unit) are turned into metres; a reduction of at most 1 everywhere is a
@@ -50,7 +52,9 @@ def _key(header: str) -> tuple[str | None, str]:
         return "level", unit
     if "mean" in name:
         return "mean", unit
-    if "height" in name or name in ("z", "z_m"):
+    if name in ("z", "z_m"):
+        return "z", unit
+    if "height" in name:
         return "height", unit
     if "girth" in name or "circumference" in name:
         return "girth", unit
@@ -60,8 +64,9 @@ def _key(header: str) -> tuple[str | None, str]:
 
 
 def read_levels(path: Path, error=ValueError) -> list[dict] | None:
-    """levels.csv's rows as [{level, height, girth [m], reduction [%], mean, anterior, ...}]
-    (None where a cell is empty), or None when the folder has no levels.csv. ``error``: the
+    """levels.csv's rows as [{level, height [m], z [m], girth [m], reduction [%], mean,
+    anterior, ...}] (None where a cell is empty; height: the file's height, else its z; z: the
+    level's coordinate along the limb's axis, ``z_m``, where the profile is drawn), or None when the folder has no levels.csv. ``error``: the
     exception class raised (``file:line: ...``)."""
     if not os.path.lexists(path):
         return None
@@ -80,7 +85,7 @@ def read_levels(path: Path, error=ValueError) -> list[dict] | None:
     rows = []
     for n, ln in lines[1:]:
         cells = next(csv.reader([ln]))
-        row: dict = {"level": None, "height": None, "girth": None, "reduction": None, "mean": None,
+        row: dict = {"level": None, "height": None, "z": None, "girth": None, "reduction": None, "mean": None,
                      **{s: None for s in SIDES}}
         for (key, unit), h, cell in zip(cols, header, cells):
             if key is None or row.get(key) is not None:
@@ -97,7 +102,7 @@ def read_levels(path: Path, error=ValueError) -> list[dict] | None:
                 v = math.nan
             if not math.isfinite(v):
                 raise error(f"{path}:{n}: {excerpt(h.strip(), 40, quote=False)} is not a number ({excerpt(cell)})")
-            if key in ("girth", "height"):
+            if key in ("girth", "height", "z"):
                 v = v / 100.0 if unit == "cm" else v / 1000.0 if unit == "mm" else v
             row[key] = v
             row.setdefault("_units", {})[key] = unit
@@ -114,6 +119,8 @@ def read_levels(path: Path, error=ValueError) -> list[dict] | None:
             r["reduction"] *= 100.0
     for r in rows:
         r.pop("_units", None)
+        if r["height"] is None:
+            r["height"] = r["z"]
     return rows
 
 
