@@ -221,3 +221,23 @@ def test_an_old_folder_or_a_damaged_scene_summary_refused(tmp_path, capsys, limb
     rc, err = _main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'result.npz'}: faces names a node outside" in err, err
     assert not (d / "report.html").exists()
+
+
+def test_body_near_the_garment_is_cropped_and_decimated():
+    """The body the folder carries: a sphere's triangles within the garment's box grown by the
+    margin, merged onto a coarser grid when more than max_faces (vertices stay near the surface)."""
+    import trimesh
+
+    from clothsim.compression.folder import body_near
+    from clothsim.mold import mold_from_arrays
+
+    s = trimesh.creation.icosphere(subdivisions=5, radius=0.1)
+    mold = mold_from_arrays(s.vertices, s.faces)
+    garment = np.array([[-0.05, -0.12, 0.0], [0.05, 0.12, 0.12]])
+    v, f = body_near(mold, garment, margin=0.01)
+    assert 1000 < len(f) < len(s.faces) and v.dtype == np.float32 and f.dtype == np.int32
+    assert v[:, 0].min() > -0.08 and v[:, 2].min() > -0.03     # the far side of the box is cut away
+    v, f = body_near(mold, garment, margin=0.01, max_faces=500)
+    assert 50 < len(f) <= 500 and f.max() < len(v)
+    assert np.abs(np.linalg.norm(v, axis=1) - 0.1).max() < 0.003
+    assert body_near(None, garment)[1].shape == (0, 3)
