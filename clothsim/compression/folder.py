@@ -286,4 +286,6 @@ def scene_summary(scene, model) -> dict:
 
 
 def scene_summary_json(scene, model) -> str:
-    return json.dumps(scene_summary(scene, model), allow_nan=False)
+    """scene_summary as JSON text (a value JSON has no type for written as its str: the summary
+    never costs the run's files)."""
+    return json.dumps(scene_summary(scene, model), default=str)
