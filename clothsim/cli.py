@@ -395,7 +395,7 @@ def _fit_interrupted(args, exc, varies, targets) -> int:
 
 def cmd_report(args) -> int:
     try:
-        path = write_report(args.result_dir, args.out)
+        path = write_report(args.result_dir, args.out, pmax=args.pmax)
     except (ReportError, SceneError, MoldError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -429,11 +429,15 @@ def add_compression_commands(sub) -> None:
     f.set_defaults(func=cmd_fit)
 
     r = sub.add_parser("report", help="write a self-contained HTML report of a result folder",
-                       description="Write a self-contained HTML report (pressure map, probes, profiles, "
-                                   "run summary) of a folder written by run --out or fit --out; it opens "
-                                   "in any browser without a server.")
+                       description="Write a self-contained HTML report (pressure map on the body, probes, "
+                                   "levels, profile and gradient, material, assumptions, run summary) of a "
+                                   "folder written by run --out or fit --out, from the folder alone (it can "
+                                   "be moved or mailed); the page opens in any browser without a server.")
     r.add_argument("result_dir", help="a folder written by run --out or fit --out")
     r.add_argument("--out", help="HTML file to write (default RESULT_DIR/report.html)")
+    r.add_argument("--pmax", type=_positive_float, default=None,
+                   help="top of the pressure map's colour scale [mmHg], positive and finite (default: the 98th "
+                        "percentile of the contact nodes' pressure, rounded up; the report states it)")
     r.set_defaults(func=cmd_report)
 
 

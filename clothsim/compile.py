@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import patterns
+from .compression.folder import portable_scene_yaml, scene_brief
 from .compression.readings import Readings
 from .config import Scene
 from .errors import SceneError
@@ -401,4 +402,5 @@ def run_inputs(scene: Scene) -> RunInputs:
     the probes, profiles and classes to read): the Result reads these, never the scene."""
 
     return RunInputs(name=scene.name, C=float(scene.solver.C), e=float(scene.solver.e),
-                     scene_yaml=scene.resolved().to_yaml(), readings=Readings.of(scene))
+                     scene_yaml=portable_scene_yaml(scene), readings=Readings.of(scene),
+                     scene_brief=scene_brief(scene))

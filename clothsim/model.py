@@ -194,10 +194,14 @@ class RunInputs:
     C: float
     #: the residual limit e [N] (solver.e)
     e: float
-    #: the fully resolved scene as YAML text (the result folder's scene.yaml)
+    #: the scene as YAML text with its files named without their paths, each file's SHA-256 in
+    #: a header (the result folder's scene.yaml; clothsim.compression.folder.portable_scene_yaml)
     scene_yaml: str
     #: the probes, profiles and classes to read on the equilibrium (empty: none)
     readings: Readings
+    #: the scene in short for the report (clothsim.compression.folder.scene_brief: garment, body,
+    #: friction, stages, solver, files by name and SHA-256, standards)
+    scene_brief: dict
 
 
 def _empty(shape, dtype=float):

@@ -7,14 +7,16 @@ so a folder is complete exactly when it holds summary.json):
 - ``result.npz``: positions (nx+1, ny+1, 3) [m]; in_contact (nx+1, ny+1) bool; strain_warp
   (nx, ny+1); strain_weft (nx+1, ny); tension_warp / tension_weft [N per spring]; contact_force
   (nx+1, ny+1) [N] (normal reaction); contact_pressure (nx+1, ny+1) [Pa]; residual_history [N];
-  energy_history [J].
+  energy_history [J]; and what ``report`` draws (faces, node strains, the body near the garment,
+  the scene in short: clothsim.compression.folder).
 - ``summary.json``: converged, status, message, iterations, residual [N], relative_residual,
   energy [J], wall_time_s (the relaxation), startup_s (mold loading, model building, JIT
   compilation), solver, contact_count, diagnostics, clothsim version. Strict JSON: a
   non-finite number (a diverged run's NaN residual) is written as null.
 - ``history.csv``: iteration, residual [N], energy [J], elapsed [s].
 - ``sheet.ply``: the deformed grid as triangles with per-vertex colours (strain or pressure).
-- ``scene.yaml``: the fully resolved scene.
+- ``scene.yaml``: the scene as run, its file references by name with their SHA-256 (no machine
+  paths: clothsim.compression.folder.portable_scene_yaml).
 - ``probes.csv``, ``profiles.csv``, ``profiles.png``: when the scene has ``probes`` / ``profiles``
   (clothsim.compression.probes); summary.json then holds ``probes``, ``profiles`` and ``classes``.
   A plot that cannot be drawn is a warning and is left out; the numeric files are written.
@@ -31,6 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .compression.folder import body_near, scene_summary_json
 from .kernels import spring_strains_tensions
 from .fileio import atomic_write_bytes  # noqa: F401  (re-exported: sweeps and the viewer use it)
 from .model import Model, SpringFamily, State
@@ -455,11 +458,24 @@ class Result:
             contact_pressure=self.contact_pressure,
             residual_history=self.solve.history.get("residual", np.zeros(0)),
             energy_history=self.solve.history.get("energy", np.zeros(0)),
+            **self._report_arrays(),
             **({} if self.model.topology.is_grid else {
                 "node_panel": self.model.topology.node_panel, "node_ij": self.model.topology.node_ij,
                 "panel_names": np.array(self.model.topology.names)}),
         )
         return buf.getvalue()
+
+    def _report_arrays(self) -> dict:
+        """What ``report`` draws, so that it reads the folder alone (clothsim.compression.folder):
+        the sheet's faces, each node's warp and weft strain, the body near the garment and the
+        scene in short."""
+        topo = self.model.topology
+        wc, fc = topo.warp_count, topo.weft_count
+        strain = self._f()[0]
+        body_v, body_f = body_near(self.model.mold, self.state.positions)
+        return {"faces": np.asarray(topo.faces, np.int64), "node_strain_warp": topo.spread(strain[:wc], "warp"),
+                "node_strain_weft": topo.spread(strain[wc:wc + fc], "weft"), "body_vertices": body_v,
+                "body_faces": body_f, "scene_summary": np.array(scene_summary_json(self.inputs.scene_brief, self.model))}
 
     def files(self, ply_field: str = "strain") -> dict[str, bytes]:
         """Every output file's name and bytes, in writing order (summary.json last)."""

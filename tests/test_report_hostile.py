@@ -82,6 +82,22 @@ def _hostile_strings(s):
         pf["gradient"]["note"] = p2
 
 
+def _hostile_scene_summary(d):
+    """Markup in the strings of result.npz's scene summary (the report's Scene section)."""
+    import numpy as np
+
+    with np.load(d / "result.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    scene = json.loads(str(arrays["scene_summary"]))
+    scene["name"], scene["garment"], scene["body"] = PAYLOADS[3], PAYLOADS[0], PAYLOADS[1]
+    scene["stages"] = [PAYLOADS[2]]
+    scene["files"] = [{"field": PAYLOADS[0], "file": PAYLOADS[1], "sha256": PAYLOADS[2]}]
+    scene["materials"][0]["direction"] = PAYLOADS[3]
+    scene["standards"][0]["classes"][0]["name"] = PAYLOADS[2]
+    arrays["scene_summary"] = np.array(json.dumps(scene))
+    np.savez_compressed(d / "result.npz", **arrays)
+
+
 def _hostile_numbers(s):
     """The issue's case: markup where the status line's numbers belong."""
     s["iterations"] = "<script>alert(1)</script>"
@@ -143,12 +159,11 @@ def test_markup_in_number_fields_never_runs_in_chromium(tmp_path, capsys, sleeve
 
 
 def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, sleeve_run, browser):
-    """Markup in every string the page shows (names, status, notes, classes, the scene's name in
-    scene.yaml) is HTML-escaped: Chromium shows it as text, runs nothing, injects nothing."""
+    """Markup in every string the page shows (names, status, notes, classes, the scene summary in
+    result.npz: its name, garment, body, stages, files, materials and class names) is HTML-escaped:
+    Chromium shows it as text, runs nothing, injects nothing."""
     d = _copy(sleeve_run, tmp_path / "strings", _hostile_strings)
-    scene = d / "scene.yaml"
-    scene.write_text(scene.read_text().replace("name: class2-sleeve", f"name: {json.dumps(PAYLOADS[3])}", 1))
-    assert PAYLOADS[3] in load_scene(scene).name
+    _hostile_scene_summary(d)
     rc, err = _main(capsys, "report", str(d))
     assert rc == 0, err
     got = _open_in_chromium(browser, {"strings": d / "report.html"})
@@ -156,7 +171,7 @@ def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, 
     got = got["strings"]
     assert got["h1"] == f"clothsim report: sleeve $20_$30 {PAYLOADS[0]}"   # the text, escaped
     assert got["probe"] == PAYLOADS[1]
-    assert f"name: {json.dumps(PAYLOADS[3])}" in got["scene"]
+    assert PAYLOADS[3] in got["scene"] and PAYLOADS[0] in got["scene"] and PAYLOADS[1] in got["scene"]
 
 
 @pytest.mark.parametrize("key, value", [

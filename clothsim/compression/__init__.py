@@ -7,7 +7,9 @@
   read from an equilibrium; CSV and plot outputs.
 - :mod:`.fit`: inverse sizing (``python app.py fit``): the value of a scene field that gives a
   target probe pressure.
-- :mod:`.report`: one self-contained HTML report of a result folder (``python app.py report``).
+- :mod:`.report`: one self-contained HTML report of a result folder (``python app.py report``),
+  drawn by :mod:`.report_html`, :mod:`.report_figures` and :mod:`.report_levels` from what
+  :mod:`.folder` puts in the folder (the body near the garment, the scene in short).
 
 This package's ``__init__`` imports nothing heavy (the unit MMHG from :mod:`clothsim.units`):
 ``clothsim.config`` imports :mod:`.spec`.

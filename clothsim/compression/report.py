@@ -1,44 +1,45 @@
-"""``python app.py report RESULT_DIR``: one self-contained HTML file of a result folder.
+"""``python app.py report RESULT_DIR``: one self-contained HTML file of a result folder, to send a client.
 
 The file opens offline with no server: every image is a base64-embedded PNG (matplotlib, Agg),
-the styles are inline, and nothing is fetched from a URL. It holds the run's status line, the
-contact pressure [mmHg], warp strain and weft strain maps of the deformed sheet, each from three
-views (front, side, top: one image each) with its colour bar and ticks, the probes table with
-classes, the profile plot and gradient check, the convergence plot (residual against iteration),
-the scene as run and the clothsim version.
+the styles are inline, and nothing is fetched from a URL. It holds the dates and clothsim versions,
+the run's status line, the headline figures (the classed probe's reading and class, the girth mean
+at B, the gradient, the greatest sensor reading; the single-node peak for reference), the contact
+pressure map with the body in three views (front, side, top) with the probes marked and a colour
+scale chosen or stated (``--pmax``), the table per measuring level (levels.csv, or the profile's
+slices), the profile with the class band and the gradient, the warp and weft strain maps, the
+probes and classes, the material curves, the model's assumptions, the scene in short and the
+convergence plot (:mod:`.report_html`, :mod:`.report_figures`, :mod:`.report_levels`).
 
-The maps are recomputed from ``result.npz`` (positions, contact) and ``scene.yaml`` (the
-compiled model's springs and ``model.topology.faces``), the same fields ``clothsim run`` writes;
-every number in the tables is read from ``summary.json``.
+The report is built from the folder alone (issue 31 item 5): ``result.npz`` carries the faces,
+the node fields, the body near the garment and the scene in short (:mod:`.folder`), so a folder
+moved or mailed, or whose body file has moved, is reported all the same. Nothing is recompiled
+and ``scene.yaml`` is not read.
 
 A result folder is something people mail each other, so it is read as untrusted input: its files
 pass the same checks as scene files (:func:`clothsim.fileio.check_input_file`: regular files
-under a size cap, no link out of the folder), summary.json's numbers must be JSON numbers (a
-string, list or object where a number belongs is refused naming the file and key; see
-:func:`check_summary`), and every string that reaches the page is HTML-escaped. Figures draw user
-text literally (never as mathtext), and a figure that cannot be drawn leaves a note in its place
-and a warning; it never costs the report.
+under a size cap, no link out of the folder), result.npz's arrays are held to the run's node count
+before they are decompressed, summary.json's and the scene summary's numbers must be JSON numbers
+(a string, list or object where a number belongs is refused naming the file and key; see
+:func:`check_summary`), levels.csv's numeric cells must be numbers, and every string that reaches
+the page is HTML-escaped. Figures draw user text literally (never as mathtext), and a figure that
+cannot be drawn leaves a note in its place and a warning; it never costs the report.
 """
 
 from __future__ import annotations
 
-import base64
-import html
 import io
 import json
-import math
 import os
-import warnings
 import zipfile
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from . import MMHG
 from ..fileio import TEXT_LIMIT, check_input_file, excerpt, open_input, read_input_bytes, read_text
-
-VIEWS = (("front", 0.0, -90.0), ("side", 0.0, 0.0), ("top", 90.0, -90.0))  # (name, elev, azim) [deg]
-
+from .folder import BODY_MAX_FACES
+from .report_levels import LEVELS_LIMIT, read_levels
 
 class ReportError(ValueError):
     pass
@@ -53,161 +54,127 @@ HISTORY_LIMIT = 256 * 2**20
 NPZ_LIMIT = 4 * 2**30
 
 
-def _t(v) -> str:
-    """Any value as HTML text: str() of it, escaped (quotes too: safe in attributes)."""
-    return html.escape(str(v), quote=True)
+class Fields(NamedTuple):
+    """What result.npz holds for the report (see clothsim.compression.folder)."""
+
+    pos: np.ndarray             #: (N, 3) [m] the deformed garment's nodes
+    faces: np.ndarray           #: (F, 3) its display triangles
+    pressure_mmhg: np.ndarray   #: (N,) contact pressure (inf where the sheet gathered into a rope)
+    in_contact: np.ndarray      #: (N,) bool
+    strain_warp: np.ndarray     #: (N,) each node's mean warp spring strain
+    strain_weft: np.ndarray     #: (N,)
+    body_v: np.ndarray          #: (V, 3) [m] the body near the garment
+    body_f: np.ndarray          #: (B, 3)
+    scene: dict                 #: the scene in short (scene_summary)
 
 
-def _figure(what: str, draw, *args):
-    """draw(*args), or a _Missing note with a warning when the figure cannot be drawn (any error:
-    the report is still written, with the note in the figure's place)."""
-    from ..plottext import failure
-
-    try:
-        return draw(*args)
-    except Exception as exc:  # noqa: BLE001
-        msg = f"{what} not drawn ({failure(exc)})"
-        warnings.warn(f"report: {msg}", stacklevel=2)
-        return _Missing(msg)
+#: each array the report reads from result.npz: its largest uncompressed size [bytes] per node of
+#: the run (summary.json's node_count), or, for the body and the scene summary, in all
+_PER_NODE = {"positions": 24, "in_contact": 1, "contact_pressure": 8, "node_strain_warp": 8, "node_strain_weft": 8,
+             "faces": 8 * 3 * 4}
+_FIXED = {"body_vertices": 12 * 3 * BODY_MAX_FACES, "body_faces": 4 * 3 * BODY_MAX_FACES,
+          "scene_summary": 4 * SUMMARY_LIMIT}
 
 
-class _Missing(str):
-    """The note of a figure that could not be drawn (a str: what the page shows instead)."""
-
-
-def _missing(m: _Missing) -> str:
-    return f"<p class='missing'>{_t(m)}</p>"
-
-
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _img(b64: str, alt: str, cls: str = "") -> str:
-    c = f' class="{cls}"' if cls else ""
-    return f'<img{c} alt="{_t(alt)}" src="data:image/png;base64,{b64}">'
-
-
-def _fields(out: Path):
-    """(scene, positions (N, 3), faces (F, 3), node pressure [mmHg] (N,), node warp strain (N,),
-    node weft strain (N,)); a node's strain in one direction is that of its springs in that
-    direction (topology.spread), engineering strain [-]."""
-    from ..config import load_scene
-    from ..compile import compile_model
-    from ..model import State
-    from ..results import node_fields
-
-    scene = load_scene(out / "scene.yaml")
-    model = compile_model(scene)
-    topo = model.topology
+def read_fields(out: Path, s: dict) -> Fields:
+    """result.npz's arrays (read as untrusted input: each array's declared size is held to what
+    the run's node count needs before anything is decompressed; shapes, kinds and node ids are
+    checked) and its scene summary (numbers checked as in summary.json). ReportError naming the
+    file for anything else; a folder written before the report read folders alone (no faces)
+    is refused with what to do."""
     path = out / "result.npz"
-    n = topo.node_count
+    n = s.get("node_count")
+    if n is None or n < 1:
+        raise ReportError(f"{out / 'summary.json'}: node_count: missing; not a run summary 'clothsim run --out' wrote")
+    caps = {k: v * n + 4096 for k, v in _PER_NODE.items()} | {k: v + 4096 for k, v in _FIXED.items()}
+    arrays = {}
     try:
         with open_input(path, ReportError, limit=NPZ_LIMIT, what="result file") as fh, np.load(fh) as d:
-            # the arrays' sizes are what the archive declares (a small file can declare gigabytes):
-            # held to what the scene's nodes need before anything is decompressed
-            for key, per_node in (("positions", 24), ("in_contact", 1)):
+            for key, cap in caps.items():
+                if f"{key}.npy" not in d.zip.namelist():
+                    continue
                 size = d.zip.getinfo(f"{key}.npy").file_size
-                if size > per_node * n + 4096:
+                if size > cap:
                     raise ReportError(f"{path}: {key} holds {size:,} bytes, more than the scene's {n:,} nodes "
-                                      f"need; not the result of this scene.yaml")
-            pg, cg = d["positions"], d["in_contact"]
+                                      f"need; not the result of this summary.json")
+            for key in caps:
+                if f"{key}.npy" in d.zip.namelist():
+                    arrays[key] = d[key]
     except (OSError, ValueError, KeyError, EOFError, AttributeError, zipfile.BadZipFile) as exc:
         if isinstance(exc, ReportError):
             raise
         raise ReportError(f"{path}: cannot be read ({type(exc).__name__}: {excerpt(exc, 80, quote=False)})") from None
+    for key in ("positions", "in_contact"):
+        if key not in arrays:
+            raise ReportError(f"{path}: no {key}; not a result file clothsim wrote")
+    pg, cg = arrays["positions"], arrays["in_contact"]
     if pg.dtype.kind not in "fiu" or cg.dtype.kind not in "biu":
         raise ReportError(f"{path}: positions / in_contact are not numbers")
     if pg.size != 3 * n or cg.size != n:
         raise ReportError(f"{path}: positions {pg.shape} and in_contact {cg.shape} do not hold the scene's "
-                          f"{n:,} nodes; not the result of this scene.yaml")
-    # result.npz keeps a full rectangle's arrays as (nx+1, ny+1, ...) and a panel scene's flat
-    # (N, ...) in node order
-    pos = np.ascontiguousarray(pg.reshape(-1, 3), dtype=float)
-    con = np.ascontiguousarray(cg.reshape(-1), dtype=bool)
-    strain, _, _, pressure = node_fields(model, State(pos, con, 0))
-    wc, fc = topo.warp_count, topo.weft_count
-    return (scene, pos, topo.faces, pressure / MMHG, topo.spread(strain[:wc], "warp"),
-            topo.spread(strain[wc:wc + fc], "weft"))
+                          f"{n:,} nodes; not the result of this summary.json")
+    for key in ("faces", "contact_pressure", "node_strain_warp", "node_strain_weft", "scene_summary"):
+        if key not in arrays:
+            raise ReportError(f"{path}: no {key}: written by a clothsim older than the report that reads the folder "
+                              f"alone; run the scene again with 'clothsim run --out'")
+    node = {}
+    for key in ("contact_pressure", "node_strain_warp", "node_strain_weft"):
+        a = arrays[key]
+        if a.dtype.kind not in "fiu" or a.size != n:
+            raise ReportError(f"{path}: {key} {a.shape} does not hold the scene's {n:,} nodes as numbers")
+        node[key] = np.asarray(a, float).reshape(-1)
+    faces = _index_array(path, "faces", arrays["faces"], n)
+    bv = arrays.get("body_vertices", np.zeros((0, 3)))
+    if bv.dtype.kind not in "fiu" or bv.ndim != 2 or bv.shape[1] != 3:
+        raise ReportError(f"{path}: body_vertices {bv.shape} is not a list of points (V, 3)")
+    bf = _index_array(path, "body_faces", arrays.get("body_faces", np.zeros((0, 3), np.int32)), len(bv))
+    return Fields(np.ascontiguousarray(pg.reshape(-1, 3), dtype=float), faces, node["contact_pressure"] / MMHG,
+                  np.ascontiguousarray(cg.reshape(-1), dtype=bool), node["node_strain_warp"],
+                  node["node_strain_weft"], np.asarray(bv, float), bf,
+                  check_scene_summary(arrays["scene_summary"], f"{path}: scene_summary"))
 
 
-def _map_scale(faces, values):
-    """(face values (F,), lo, hi) of a node field: a face's value is the mean of its corners;
-    the scale runs from min(0, least) so a uniform field reads as uniform, not as noise."""
-    v = np.where(np.isfinite(values), values, np.nan)
-    with np.errstate(invalid="ignore"):
-        fv = np.nanmean(v[faces], axis=1) if faces.size else np.zeros(0)
-    finite = fv[np.isfinite(fv)]
-    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
-    lo = min(lo, 0.0)
-    if hi <= lo:
-        hi = lo + (abs(lo) * 1e-3 or 1.0)
-    return fv, lo, hi
+def _index_array(path: Path, key: str, a: np.ndarray, n: int) -> np.ndarray:
+    if a.dtype.kind not in "iu" or a.ndim != 2 or a.shape[1] != 3:
+        raise ReportError(f"{path}: {key} {a.shape} is not a list of triangles (F, 3) of node ids")
+    if a.size and (a.min() < 0 or a.max() >= n):
+        raise ReportError(f"{path}: {key} names a node outside 0..{n - 1}")
+    return np.asarray(a, np.int64)
 
 
-def map_pngs(pos, faces, values, label: str, cmap: str) -> tuple[list[tuple[str, str]], str]:
-    """A node field ``values`` (N,) on the deformed sheet (positions (N, 3) [m], faces (F, 3)):
-    ([(view name, base64 PNG)] for the front, side and top views (each with its axes and ticks
-    in metres), base64 PNG of the colour bar with ticks, labelled ``label``). Every view shares
-    the one colour scale."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib import colormaps
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
-    from matplotlib.ticker import MaxNLocator
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    fv, lo, hi = _map_scale(faces, values)
-    norm = Normalize(lo, hi)
-    cm = colormaps[cmap]
-    colors = cm(norm(np.nan_to_num(fv, nan=hi)))
-    tri = pos[faces]
-    c = pos.mean(axis=0)
-    half = 0.5 * float(np.ptp(pos, axis=0).max()) or 1.0
-    views = []
-    for name, elev, azim in VIEWS:
-        fig = Figure(figsize=(4.2, 4.2), dpi=90)
-        fig.subplots_adjust(left=0.0, right=0.95, bottom=0.04, top=0.93)
-        ax = fig.add_subplot(1, 1, 1, projection="3d")
-        ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolors="none", linewidths=0))
-        for setter, ci in ((ax.set_xlim, c[0]), (ax.set_ylim, c[1]), (ax.set_zlim, c[2])):
-            setter(ci - half, ci + half)
-        ax.set_box_aspect((1, 1, 1))
-        ax.view_init(elev=elev, azim=azim)
-        ax.set_title(f"{name} view")
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_zlabel("z [m]")
-        ax.tick_params(labelsize=7)
-        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-            axis.set_major_locator(MaxNLocator(4))
-        views.append((name, _png(fig)))
-    fig = Figure(figsize=(1.5, 4.2), dpi=90)
-    cax = fig.add_axes((0.12, 0.06, 0.22, 0.86))
-    fig.colorbar(ScalarMappable(norm=norm, cmap=cm), cax=cax).set_label(label)
-    cax.yaxis.set_major_locator(MaxNLocator(6))
-    return views, _png(fig)
-
-
-def map_figure(key: str, title: str, pos, faces, values, label: str, cmap: str) -> str:
-    """A ``<figure class='map' id='map-KEY'>``: the three views of a node field (``img.view``,
-    alt 'TITLE: front view' ...) and its colour bar (``img.colorbar``, alt 'TITLE colour bar');
-    a note in their place when they cannot be drawn."""
-    drawn = _figure(title, map_pngs, pos, faces, values, label, cmap)
-    if isinstance(drawn, _Missing):
-        return f"<figure class='map' id='map-{_t(key)}'>{_missing(drawn)}</figure>"
-    views, bar = drawn
-    imgs = "".join(_img(b64, f"{title}: {name} view", "view") for name, b64 in views)
-    return (f"<figure class='map' id='map-{_t(key)}'><div class='views'>{imgs}"
-            f"{_img(bar, f'{title} colour bar', 'colorbar')}</div>"
-            f"<figcaption>{html.escape(title)}: {html.escape(label)}, front, side and top views</figcaption>"
-            "</figure>")
-
+def check_scene_summary(a: np.ndarray, where: str) -> dict:
+    """result.npz's scene_summary (JSON text) as a dict, its numbers checked: the materials'
+    strains and tensions, friction_mu, the standards' class limits (a string or a list where a
+    number belongs is refused naming the key; strings are escaped by the page)."""
+    if a.dtype.kind != "U" or a.size != 1:
+        raise ReportError(f"{where}: not text")
+    try:
+        d = json.loads(str(a.reshape(-1)[0]))
+    except (json.JSONDecodeError, RecursionError, ValueError):
+        raise ReportError(f"{where}: not valid JSON") from None
+    c = _Check(where)
+    c.obj(d, "scene_summary")
+    c.number(d, "friction_mu", "friction_mu")
+    c.number(d, "node_count", "node_count", integer=True)
+    for i, m in enumerate(c.items(d.get("materials"), "materials")):
+        c.obj(m, f"materials[{i}]")
+        for name in ("strain", "tension_n_per_m"):
+            vals = c.items(m.get(name), f"materials[{i}].{name}")
+            coords = dict(enumerate(vals))
+            for j in range(len(vals)):
+                vals[j] = c.number(coords, j, f"materials[{i}].{name}[{j}]", null=False)
+        if len(m.get("strain") or []) != len(m.get("tension_n_per_m") or []):
+            c.fail(f"materials[{i}]", "strain and tension_n_per_m differ in length")
+    for i, st in enumerate(c.items(d.get("standards"), "standards")):
+        c.obj(st, f"standards[{i}]")
+        for j, cl in enumerate(c.items(st.get("classes"), f"standards[{i}].classes")):
+            c.obj(cl, f"standards[{i}].classes[{j}]")
+            c.number(cl, "min", f"standards[{i}].classes[{j}].min", null=False)
+            c.number(cl, "max", f"standards[{i}].classes[{j}].max")
+    for i, f in enumerate(c.items(d.get("files"), "files")):
+        c.obj(f, f"files[{i}]")
+    c.items(d.get("stages"), "stages")
+    return d
 
 HISTORY_COLUMNS = ("iteration", "residual_N")
 
@@ -247,69 +214,16 @@ def read_history(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     return np.frombuffer(cols[0][2]), np.frombuffer(cols[1][2])
 
 
-def convergence_png(history: tuple[np.ndarray, np.ndarray] | None) -> str | None:
-    """The convergence plot (residual against iteration, log scale) of read_history's columns;
-    None without a history."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
-
-    if history is None:
-        return None
-    it, res = history
-    if it.size > 20_000:   # a long run: every k-th point and the last one are drawn
-        keep = np.unique(np.r_[np.arange(0, it.size, it.size // 10_000), it.size - 1])
-        it, res = it[keep], res[keep]
-    fig = Figure(figsize=(6.0, 3.6), dpi=90)
-    ax = fig.add_subplot(1, 1, 1)
-    ax.semilogy(it, np.maximum(res, 1e-300), "-o", ms=2)
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("residual ||V||inf [N]")
-    ax.set_title("convergence")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    return _png(fig)
-
-
-def summary_table(s: dict) -> str:
-    """Every number and word of summary.json the field list (clothsim.records) names, with its
-    unit: the run's, the diagnostics', the friction report's (friction.KEY) and each stage's
-    (stage:NAME.KEY); the probes have their own table."""
-    from ..records import field_rows, format_value
-
-    rows = ["<table id='summary'><tr><th>output</th><th>value</th><th>unit</th><th>meaning</th></tr>"]
-    rows += [f"<tr id='summary-{_t(name)}'><td><code>{_t(name)}</code></td><td>{_t(format_value(v))}</td>"
-             f"<td>{_t(f.unit)}</td><td>{_t(f.doc)}</td></tr>"
-             for f, name, v in field_rows(s) if not name.startswith("probe:")]
-    return "\n".join(rows + ["</table>"])
-
-
-def probes_table(probes: list[dict]) -> str:
-    rows = ["<table id='probes'><tr><th>probe</th><th>centre [m]</th><th>radius [mm]</th><th>pressure [mmHg]</th>"
-            "<th>pressure [Pa]</th><th>contact fraction</th><th>classes</th><th>note</th></tr>"]
-    for p in probes:
-        c = p.get("center") or p["point"]
-        cls = "<br>".join(f"{_t(k)}: {_t(v)}" for k, v in (p.get("classes") or {}).items()) or "-"
-        rows.append(
-            f"<tr><td>{_t(p['name'])}</td><td>({c[0]:.4f}, {c[1]:.4f}, {c[2]:.4f})</td>"
-            f"<td>{p['radius_m'] * 1e3:.1f}</td><td class='mmhg'>{p['pressure_mmhg']:.2f}</td>"
-            f"<td class='pa'>{p['pressure_pa']:.1f}</td><td class='frac'>{p['contact_fraction']:.3f}</td>"
-            f"<td>{cls}</td><td>{_t(p.get('note', ''))}</td></tr>")
-    rows.append("</table>")
-    return "\n".join(rows)
-
-
-REPORT_NEEDS = ("summary.json", "result.npz", "scene.yaml")
+REPORT_NEEDS = ("summary.json", "result.npz")
 #: each file of a result folder the report reads: (size cap [bytes], what it is in messages)
 RESULT_INPUTS = {"summary.json": (SUMMARY_LIMIT, "run summary"), "result.npz": (NPZ_LIMIT, "result file"),
-                 "scene.yaml": (TEXT_LIMIT, "scene file"), "history.csv": (HISTORY_LIMIT, "history file")}
+                 "history.csv": (HISTORY_LIMIT, "history file"), "levels.csv": (LEVELS_LIMIT, "levels file")}
 
 
 def check_result_dir(result_dir: str | Path) -> Path:
-    """The result folder, checked: it exists, is a folder and holds summary.json, result.npz and
-    scene.yaml (what ``clothsim run --out`` and ``fit --out`` write), each (and history.csv when
-    there is one) a regular file under its size cap and no link out of the folder
+    """The result folder, checked: it exists, is a folder and holds summary.json and result.npz
+    (what ``clothsim run --out`` and ``fit --out`` write), each (and history.csv and levels.csv
+    when there are) a regular file under its size cap and no link out of the folder
     (:func:`clothsim.fileio.check_input_file`, the check scene files pass: a FIFO or a link to
     ``/dev/zero`` is refused, not read). Raises ReportError naming the folder or file and what is
     wrong."""
@@ -448,87 +362,21 @@ def check_summary(s: dict, path: Path) -> dict:
     return s
 
 
-def build_report(result_dir: str | Path) -> str:
+def build_report(result_dir: str | Path, pmax: float | None = None) -> str:
     """The report's HTML text for a result folder (see the module docstring). Raises ReportError
     (naming the file) for a folder that is not a result folder or holds a damaged file."""
     out = check_result_dir(result_dir)
     s = check_summary(read_summary(out / "summary.json"), out / "summary.json")
     history = read_history(out / "history.csv")
+    fields = read_fields(out, s)
+    levels = read_levels(out / "levels.csv", ReportError)
+    from .report_html import build_html
+
     try:
-        return _build(out, s, history)
+        return build_html(s, history, fields, levels, pmax)
     except (KeyError, TypeError, AttributeError, IndexError) as exc:
         raise ReportError(f"{out / 'summary.json'}: not a run summary clothsim wrote "
                           f"({type(exc).__name__}: {excerpt(exc, 80, quote=False)})") from None
-
-
-def _num(v, fmt: str) -> str:
-    """v (a number or None: check_summary) formatted with fmt, or "n/a" when it is missing or not
-    finite (a run stopped before its residual was evaluated writes null)."""
-    if v is None or not math.isfinite(v):
-        return "n/a"
-    return format(v, fmt)
-
-
-def _count(v) -> str:
-    return "n/a" if v is None else str(v)
-
-
-def _build(out: Path, s: dict, history) -> str:
-    scene, pos, faces, p_mmhg, strain_warp, strain_weft = _fields(out)
-    name = _t(s.get("name", ""))
-    peak = s.get("max_contact_pressure_mmhg")
-    parts = [
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>clothsim report: {name}</title>",
-        "<style>body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;"
-        "margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:left;font-size:14px}"
-        "img{max-width:100%}.views{display:flex;flex-wrap:wrap;align-items:center}.views img.view{width:31%}"
-        ".views img.colorbar{width:6%;min-width:60px}figure{margin:.5em 0}figcaption{font-size:13px;color:#444}"
-        "pre{background:#f4f4f4;padding:8px;overflow:auto;font-size:12px}.missing{color:#a00}</style></head><body>",
-        f"<h1>clothsim report: {name}</h1>",
-        f"<p id='status'>{_t(s.get('status'))}: {_count(s.get('iterations'))} iterations, residual "
-        f"<span id='residual'>{_num(s.get('residual'), '.3e')}</span> N, solver {_t(s.get('solver'))}, "
-        f"{_count(s.get('contact_count'))} contact nodes of {_count(s.get('node_count'))}; peak contact pressure "
-        + (f"<span id='peak'>{_num(peak, '.2f')}</span> mmHg. clothsim " if peak is not None else
-           f"<span id='peak'>none</span> ({_t(s.get('contact_pressure_note', ''))}). clothsim ")
-        + f"<span id='version'>{_t(s.get('clothsim_version'))}</span>.</p>",
-        "<h2>Contact pressure [mmHg]</h2>",
-        map_figure("pressure", "pressure map", pos, faces, p_mmhg, "contact pressure [mmHg]", "viridis"),
-        "<h2>Warp strain</h2>",
-        map_figure("warp-strain", "warp strain map", pos, faces, strain_warp, "warp strain (engineering) [-]",
-                   "plasma"),
-        "<h2>Weft strain</h2>",
-        map_figure("weft-strain", "weft strain map", pos, faces, strain_weft, "weft strain (engineering) [-]",
-                   "plasma"),
-    ]
-    if s.get("probes"):
-        parts += ["<h2>Probes</h2>", "<p>A probe reads the normal contact force on the sheet within its disc "
-                  "divided by the disc's area (pi radius^2), as a pressure sensor does.</p>", probes_table(s["probes"])]
-    if s.get("classes"):
-        c = s["classes"]
-        parts.append(f"<h3>Classes of probe {_t(c.get('probe'))} ({c['pressure_mmhg']:.2f} mmHg)</h3><table id='classes'>"
-                     "<tr><th>standard</th><th>class</th><th>source</th></tr>"
-                     + "".join(f"<tr><td>{_t(r.get('standard'))}</td><td>{_t(r.get('class'))}</td>"
-                               f"<td>{_t(r.get('source'))}</td></tr>" for r in c.get("results") or []) + "</table>")
-    if s.get("profiles"):
-        from .probes import profile_png
-
-        parts.append("<h2>Profiles</h2>")
-        png = _figure("profile plot", profile_png, s["profiles"], str(s.get("name", "")))
-        parts.append(_missing(png) if isinstance(png, _Missing) else
-                     _img(base64.b64encode(png).decode("ascii"), "profile plot"))
-        for pf in s["profiles"]:
-            g = pf.get("gradient") or {}
-            parts.append(f"<p class='gradient'><b>{_t(pf.get('name'))}</b>: {_t(g.get('note', ''))}</p>")
-    conv = _figure("convergence plot", convergence_png, history)
-    if conv:
-        parts += ["<h2>Convergence</h2>", _missing(conv) if isinstance(conv, _Missing) else
-                  _img(conv, "convergence plot")]
-    parts += ["<h2>Summary</h2>", summary_table(s)]
-    scene_text = read_text(out / "scene.yaml", ReportError, limit=TEXT_LIMIT)
-    parts += ["<h2>Scene</h2>", f"<pre id='scene'>{_t(scene_text)}</pre>",
-              f"<p>Written by clothsim {_t(s.get('clothsim_version'))}.</p></body></html>"]
-    return "\n".join(parts)
 
 
 def check_report_path(target: Path, flag: str = "--out") -> None:
@@ -549,7 +397,7 @@ def check_report_path(target: Path, flag: str = "--out") -> None:
         raise ReportError(f"{flag} {target}: cannot write in {parent} ({exc.strerror or exc})") from None
 
 
-def write_report(result_dir: str | Path, path: str | Path | None = None) -> Path:
+def write_report(result_dir: str | Path, path: str | Path | None = None, pmax: float | None = None) -> Path:
     """Write the report (default RESULT_DIR/report.html); returns its path. Raises ReportError
     (naming the file and the problem) for a bad result folder or a path that cannot be written."""
     from ..fileio import describe_write_error
@@ -559,7 +407,7 @@ def write_report(result_dir: str | Path, path: str | Path | None = None) -> Path
     target = Path(path) if path else Path(result_dir) / "report.html"
     flag = "--out" if path else "report"
     check_report_path(target, flag)
-    text = build_report(result_dir)
+    text = build_report(result_dir, pmax)
     try:
         atomic_write_bytes(target, text.encode("utf-8"))
     except OSError as exc:
