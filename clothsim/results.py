@@ -43,6 +43,7 @@ from .pressure import (GATHERED_AREA_RATIO, MMHG, PEAK_SENSOR, SENSOR_RADIUS_M, 
                        max_sensor_pressure, pressure_area, sensor_pressure, sensor_pressure_at)
 from .pressure import pressure_peaks
 from .records import Diagnostics, RunSummary
+from .version import __version__
 
 if TYPE_CHECKING:
     from .config import Scene
@@ -385,8 +386,6 @@ class Result:
 
     def summary_record(self) -> RunSummary:
         """The run's :class:`~clothsim.records.RunSummary` record."""
-        from . import __version__
-
         s, inp = self.solve, self.inputs
         return RunSummary(
             name=inp.name, converged=bool(s.converged), status=s.status, message=s.message,

@@ -29,6 +29,11 @@ from datetime import datetime, timezone
 from pathlib import Path, PurePath
 
 import numpy as np
+import yaml
+
+from ..model import SpringFamily
+from ..version import __version__
+from .standards import STANDARDS, standard
 
 #: the body is kept this far [m] beyond the garment's bounding box (the pictures' context)
 BODY_MARGIN_M = 0.03
@@ -166,8 +171,6 @@ def portable_scene(scene) -> tuple[dict, list[dict]]:
 def portable_scene_yaml(scene) -> str:
     """``scene.yaml`` of a result folder: a header naming each file the scene read with its
     SHA-256, then the scene with those references by name only (see the module docstring)."""
-    import yaml
-
     d, files = portable_scene(scene)
     head = ["# The scene as run. File references are by name only (no path of the machine that ran it):",
             "# to run it again, put these files beside this scene.yaml (the SHA-256 says whether a file is",
@@ -186,8 +189,6 @@ def _fmt(v) -> str:
 def _materials(model) -> list[dict]:
     """[{direction, strain [], tension_n_per_m []}]: the tension tables of the warp and weft
     springs (one entry per distinct table, in table order)."""
-    from ..model import SpringFamily
-
     out = []
     for fam, name in ((SpringFamily.WARP, "warp"), (SpringFamily.WEFT, "weft")):
         ids = np.unique(model.spring_table[model.spring_family == fam])
@@ -240,8 +241,6 @@ def _stage_text(st) -> str:
 
 def _standards(scene) -> list[dict]:
     """The class tables the scene's classes use (every built-in one, its extra ones)."""
-    from .standards import STANDARDS, standard
-
     cl = getattr(scene, "classes", None)
     if cl is None:
         return []
@@ -282,8 +281,6 @@ def scene_brief(scene) -> dict:
 def scene_summary(brief: dict, model) -> dict:
     """The scene in short (:func:`scene_brief`) with what the run adds: the version, the date,
     the node count and the material tables of ``model``."""
-    from .. import __version__
-
     return {"name": brief["name"], "clothsim_version": __version__,
             "written_utc": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "garment": brief["garment"], "node_count": int(model.node_count), "body": brief["body"],

@@ -14,6 +14,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..records import field_rows, format_value
+from ..version import __version__
 from . import report_figures as rf
 from .report_levels import SIDES, classify_with, levels_from_profiles
 
@@ -253,8 +254,6 @@ def _scene_summary(scene: dict) -> str:
 
 def build_html(s: dict, history, f, levels, pmax: float | None = None) -> str:
     """The page (see clothsim.compression.report)."""
-    from .. import __version__
-
     scene = f.scene
     name = _t(s.get("name", scene.get("name", "")))
     probes = _probe_points(s)
