@@ -13,7 +13,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__version__ = "0.1.0"
+from .version import __version__
 
 
 def _numba_cache_dir() -> None:

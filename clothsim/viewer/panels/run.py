@@ -6,7 +6,7 @@ import html
 
 import numpy as np
 
-from ...results import seam_report, sheet_health
+from ...diagnostics import seam_report, sheet_health
 from ..render import Frame, fmt
 from . import Panel
 
