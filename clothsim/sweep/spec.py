@@ -41,7 +41,7 @@ class SweepError(ValueError):
     """A sweep file or one of its runs is invalid; str is the user-facing message."""
 
 
-class _Strict(Strict):
+class _ByName(Strict):
     """clothsim.strict's base (unknown fields refused) that also takes a field by its name where
     it has an alias (``set`` / ``fixed``)."""
     model_config = ConfigDict(populate_by_name=True)
@@ -51,7 +51,7 @@ class _Strict(Strict):
 MAX_RUNS = 100_000
 
 
-class Space(_Strict):
+class Space(_ByName):
     """``{linspace: [a, b, n]}``: n evenly spaced values from a to b (inclusive);
     ``{logspace: [a, b, n]}``: n values from a to b (inclusive, a, b > 0) evenly spaced on a log
     scale (numpy.geomspace: the endpoints are the values, not their exponents)."""
@@ -87,7 +87,7 @@ class Space(_Strict):
         return [float(f"{x:.12g}") for x in v]
 
 
-class SweepBlock(_Strict):
+class SweepBlock(_ByName):
     """mode: grid (every combination, first parameter slowest) or zip (element by element; all
     lists the same length). parameters: scene field path -> list of values or a Space. x: the
     parameter the plots put on their x axis in zip mode (default: the first that varies; the
@@ -139,7 +139,7 @@ class SweepBlock(_Strict):
         return self
 
 
-class FitBlock(_Strict):
+class FitBlock(_ByName):
     """``fit:`` makes every run of the sweep an inverse sizing (clothsim.compression.fit, as
     ``python app.py fit``): ``vary`` the fields (``PATH`` or ``PATH=LO:HI``; default bounds: the
     run's start value +-30 %; a swept value of a fitted field is that run's start value) until the probes read ``target`` (``PROBE=VALUE[mmHg|Pa|kPa]``).
@@ -188,7 +188,7 @@ def _fit_output(name: str) -> bool:
     return name.startswith("fit:") and len(name) > 4
 
 
-class SweepFile(_Strict):
+class SweepFile(_ByName):
     """A sweep: base scene (path relative to the sweep file), fixed overrides (``set``), the
     parameters to vary, an optional ``fit`` (each run an inverse sizing, see FitBlock) and the
     outputs to tabulate and plot (the field list of clothsim.records: summary.json's fields, the
