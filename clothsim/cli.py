@@ -30,7 +30,8 @@ from .fileio import FolderLock, OutputError, atomic_write_bytes, check_out_dir, 
 from .material import MaterialError, MaterialWarning
 from .mold import MoldError
 from .records import outputs_markdown
-from .results import gathered_rows_warning, strict_json
+from .diagnostics import gathered_rows_warning
+from .results import strict_json
 from .sweep import main as sweep_main
 
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "configs" / "thermoform.yaml"

@@ -8,7 +8,9 @@
 
 from __future__ import annotations
 
-from .records import OUTPUT_FIELDS, split_named
+import dataclasses
+
+from .records import OUTPUT_FIELDS, OutputField, split_named
 
 #: summary.json keys (and the sweep worker's extras): (readable name, unit), from the one field
 #: list (clothsim.records)
@@ -33,6 +35,19 @@ PARENT_UNITS = {("seams", "stiffness"): "N/m^2", ("garment", "width"): "-", ("ga
 INDEX_NAMES = {"size": ("warp", "weft"), "divisions": ("warp", "weft"), "stretch": ("warp", "weft"),
                **{k: ("x", "y", "z") for k in ("center", "origin", "translate", "point", "min", "max",
                                                  "displacement", "axis", "rotate")}}
+
+
+def record_field(record, name: str) -> OutputField:
+    """A field of one of clothsim.records' records (RunSummary, Diagnostics, ProbeReading, ...) with
+    its readable label and unit: what a display (the viewer's status line, readouts and plot
+    labels) writes beside the value, so it names a figure as summary.json, the report and the
+    sweeps do. KeyError for a name the record does not have."""
+    f = next((x for x in dataclasses.fields(record) if x.name == name), None)
+    if f is None:
+        raise KeyError(f"{record.__name__} has no field {name!r}")
+    m = f.metadata
+    scalar = str(f.type).split(" ")[0] in ("int", "float", "bool", "str")
+    return OutputField(name, m["label"], m["unit"], m["doc"], record.__name__, scalar)
 
 
 def _unit(unit: str) -> str:

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from clothsim.records import OUTPUT_FIELDS
+
 CHROMIUM = os.environ.get("CLOTHSIM_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -104,7 +106,8 @@ def status_text(page) -> str:
 
 
 def shown_residual(page) -> float:
-    m = re.search(r"residual ([0-9.eE+-]+|n/a) N", status_text(page))
+    res = OUTPUT_FIELDS["residual"]  # the status line names it as the field list does
+    m = re.search(re.escape(res.label) + r" ([0-9.eE+-]+|n/a) " + re.escape(res.unit), status_text(page))
     assert m, "no residual in the status line"
     return float(m.group(1)) if m.group(1) != "n/a" else float("nan")
 

@@ -163,7 +163,7 @@ def test_a_tube_with_free_ends_warns_of_its_gathered_rows(tmp_path, capsys):
 
 def test_a_tube_held_at_its_cuffs_does_not_warn(tmp_path, capsys):
     """configs/sewn_sleeve.yaml (cuffs held, 5 % along the wale): no gathered rows, no warning."""
-    from clothsim.results import gathered_rows_warning
+    from clothsim.diagnostics import gathered_rows_warning
 
     rc = cli.main(["run", str(SLEEVE), "--set", "solver.method=newton", "--out", str(tmp_path / "o"), "--quiet"])
     out = capsys.readouterr().out

@@ -21,6 +21,7 @@ import pytest
 pytest.importorskip("viser")
 
 from clothsim.config import scene_from_dict  # noqa: E402
+from clothsim.records import OUTPUT_FIELDS  # noqa: E402
 from clothsim.viewer import ViewerApp, parse_table_text  # noqa: E402
 from clothsim.viewer.glb import GlbMeshWriter, colormap, read_glb_positions  # noqa: E402
 
@@ -401,7 +402,9 @@ def test_status_shows_a_gathering_sheet_and_slack_springs():
         assert a.sim.wait(300) in ("converged", "stalled")
         settle(a, 0.5)
         text = a.gui["status"].content
-        m = re.search(r"(\d+) of (\d+) springs slack · (\d+) undetermined nodes · narrowest weft extent (\d+)%", text)
+        # named as the field list names them (clothsim.records.Diagnostics)
+        m = re.search(r"(\d+) slack springs of (\d+) springs · (\d+) undetermined nodes · "
+                      + re.escape(OUTPUT_FIELDS["min_weft_extent_ratio"].label) + r" (\d+)%", text)
         assert m, repr(text)
         assert int(m.group(1)) > 0 and int(m.group(4)) < 50
         assert "the sheet gathers" in text

@@ -14,7 +14,7 @@ import numba
 import numpy as np
 import scipy
 
-from .. import __version__
+from ..version import __version__
 from .cases import LEVELS, PAIR_SOLVES, REFERENCE_E, SCAN_MAX_ITERATIONS
 
 

@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from ..fileio import OutputError, check_free_space, check_out_dir, describe_write_error
+from ..plottext import failure
 from .executors import _on_terminate, _Progress, _run_dask, _run_local, check_dask_address
 from .plots import make_plots
 from .runs import _atomic_write, _FolderLock, build_summary, finished
@@ -24,8 +26,6 @@ def run_sweep(path: str | Path, out: str | Path, *, workers: int | None = None, 
     output folder is locked while the sweep runs (see _FolderLock). Raises SweepError for bad
     input (nothing has run then), a folder in use by another sweep, a folder that cannot be
     written or a full disk (the message says which; finished runs are kept)."""
-    from ..fileio import OutputError, check_free_space, check_out_dir, describe_write_error
-
     check_dask_address(dask)
     sweep = load_sweep(path)
     errors = validate_runs(sweep)
@@ -112,8 +112,6 @@ def _run_locked(sweep: Sweep, out: Path, workers, dask, force, skip_errors, stre
             make_plots(sweep, rows, out)
         except Exception as exc:  # noqa: BLE001 (summary.csv and the runs are written: a plot never costs them)
             import warnings
-
-            from ..plottext import failure
 
             warnings.warn(f"{out}/plots not (all) written ({failure(exc)}); the results are in "
                           f"{out}/summary.csv", stacklevel=2)

@@ -6,6 +6,8 @@ import io
 import math
 from pathlib import Path
 
+from ..labels import axis_label
+from ..plottext import PLAIN, plain_legend
 from ..records import TIMING_KEYS
 from .runs import _atomic_write
 from .spec import Space, Sweep, _fmt
@@ -73,9 +75,6 @@ def make_plots(sweep: Sweep, rows: list[dict], out: Path) -> list[Path]:
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
-
-    from ..labels import axis_label
-    from ..plottext import PLAIN, plain_legend
 
     outputs = plot_outputs(sweep, rows)
     pdir = out / "plots"

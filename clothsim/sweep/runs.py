@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ..fileio import FolderLock, OutputError, atomic_write_bytes, check_free_space
 from ..records import flatten
 from .spec import Run, Sweep, SweepError
 
@@ -16,15 +17,11 @@ FINISHED_FILE = "summary.json"
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    from ..results import atomic_write_bytes
-
     atomic_write_bytes(path, data)
 
 
 def write_run(out: Path, payload: dict) -> None:
     """Write a worker's files into out/<run_id>/, each atomically, summary.json last."""
-    from ..fileio import check_free_space
-
     d = out / payload["run_id"]
     d.mkdir(parents=True, exist_ok=True)
     check_free_space(out, sum(len(b) for b in payload["files"].values()))
@@ -75,13 +72,9 @@ class _FolderLock:
     fit: a run into a sweep's folder is refused too). Raises SweepError naming the holder."""
 
     def __init__(self, out: Path):
-        from ..fileio import FolderLock
-
         self.lock = FolderLock(out, "sweep")
 
     def __enter__(self):
-        from ..fileio import OutputError
-
         try:
             self.lock.__enter__()
         except OutputError as exc:

@@ -10,11 +10,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+import numpy as np
+from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from ..compression.fit import FitError, check_fit, parse_target, parse_vary
 from ..config import SceneError, apply_overrides, format_validation_error, read_yaml, scene_from_dict
+from ..mold import MoldError, check_mold
 from ..records import (FIT_FIELDS, OUTPUT_FIELDS, PROBE_SUFFIXES, SUMMARY_FIELDS, TIMING_KEYS,  # noqa: F401
                        WORKER_FIELDS, split_named)
+from ..strict import Strict
 
 #: summary.json keys a sweep can tabulate and plot (the field list, clothsim.records.SUMMARY_FIELDS)
 SUMMARY_KEYS = tuple(f.key for f in SUMMARY_FIELDS)
@@ -37,15 +41,17 @@ class SweepError(ValueError):
     """A sweep file or one of its runs is invalid; str is the user-facing message."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+class _ByName(Strict):
+    """clothsim.strict's base (unknown fields refused) that also takes a field by its name where
+    it has an alias (``set`` / ``fixed``)."""
+    model_config = ConfigDict(populate_by_name=True)
 
 
 #: the most runs one sweep expands to (a grid's product of counts); more is refused up front
 MAX_RUNS = 100_000
 
 
-class Space(_Strict):
+class Space(_ByName):
     """``{linspace: [a, b, n]}``: n evenly spaced values from a to b (inclusive);
     ``{logspace: [a, b, n]}``: n values from a to b (inclusive, a, b > 0) evenly spaced on a log
     scale (numpy.geomspace: the endpoints are the values, not their exponents)."""
@@ -71,8 +77,6 @@ class Space(_Strict):
         return self
 
     def values(self) -> list[float]:
-        import numpy as np
-
         if self.linspace is not None:
             a, b, n = self.linspace
             v = np.linspace(a, b, n)
@@ -83,7 +87,7 @@ class Space(_Strict):
         return [float(f"{x:.12g}") for x in v]
 
 
-class SweepBlock(_Strict):
+class SweepBlock(_ByName):
     """mode: grid (every combination, first parameter slowest) or zip (element by element; all
     lists the same length). parameters: scene field path -> list of values or a Space. x: the
     parameter the plots put on their x axis in zip mode (default: the first that varies; the
@@ -135,7 +139,7 @@ class SweepBlock(_Strict):
         return self
 
 
-class FitBlock(_Strict):
+class FitBlock(_ByName):
     """``fit:`` makes every run of the sweep an inverse sizing (clothsim.compression.fit, as
     ``python app.py fit``): ``vary`` the fields (``PATH`` or ``PATH=LO:HI``; default bounds: the
     run's start value +-30 %; a swept value of a fitted field is that run's start value) until the probes read ``target`` (``PROBE=VALUE[mmHg|Pa|kPa]``).
@@ -151,8 +155,6 @@ class FitBlock(_Strict):
     @field_validator("vary")
     @classmethod
     def _vary(cls, v):
-        from ..compression.fit import FitError, parse_vary
-
         try:
             for x in v:
                 parse_vary(x)
@@ -163,8 +165,6 @@ class FitBlock(_Strict):
     @field_validator("target")
     @classmethod
     def _target(cls, v):
-        from ..compression.fit import FitError, parse_target
-
         try:
             for x in v:
                 parse_target(x)
@@ -181,8 +181,6 @@ class FitBlock(_Strict):
 
     def parsed(self):
         """(list of Vary, list of Target)."""
-        from ..compression.fit import parse_target, parse_vary
-
         return [parse_vary(x) for x in self.vary], [parse_target(x) for x in self.target]
 
 
@@ -190,7 +188,7 @@ def _fit_output(name: str) -> bool:
     return name.startswith("fit:") and len(name) > 4
 
 
-class SweepFile(_Strict):
+class SweepFile(_ByName):
     """A sweep: base scene (path relative to the sweep file), fixed overrides (``set``), the
     parameters to vary, an optional ``fit`` (each run an inverse sizing, see FitBlock) and the
     outputs to tabulate and plot (the field list of clothsim.records: summary.json's fields, the
@@ -319,8 +317,6 @@ def validate_runs(sweep: Sweep, max_errors: int = 20) -> list[str]:
     """Validate every expanded scene and every distinct mold; returns error lines (empty = ok).
 
     Each line names the run, its parameter values, the field and the message."""
-    from ..mold import MoldError, check_mold
-
     errors: list[str] = []
     molds: dict[str, str | None] = {}
     n_bad = 0
@@ -383,8 +379,6 @@ def _check_probe_outputs(outputs: list[str], scene) -> str | None:
 def _check_fit(sweep: Sweep, run: Run) -> str | None:
     """A fitting sweep's run: its targets name probes of its scene and its varied fields hold
     numbers (the message, or None)."""
-    from ..compression.fit import FitError, check_fit
-
     varies, targets = sweep.spec.fit.parsed()
     try:
         check_fit(run.scene, sweep.base_path, varies, targets)

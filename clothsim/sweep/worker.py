@@ -13,18 +13,17 @@ import traceback
 from pathlib import Path
 
 import yaml
+from numba.core.dispatcher import Dispatcher
 
+from ..compression.fit import FitError, FitResult, fit_data, fit_info, write_outputs
 from ..config import scene_from_dict
+from ..simulation import prepare, solve, warm_up
 from .spec import FitBlock, Run, Sweep, _canonical, _fmt
 
 
 def _numba_counts() -> tuple[int, int]:
     """(cache hits, cache misses = compilations) summed over clothsim's numba kernels so far in
     this process."""
-    try:
-        from numba.core.dispatcher import Dispatcher
-    except ImportError:  # pragma: no cover
-        return 0, 0
     hits = misses = 0
     seen = set()
     for name, mod in list(sys.modules.items()):
@@ -53,8 +52,6 @@ def run_one(task: dict) -> dict:
         if task.get("fit"):
             files, result = _fit_one(task)
         else:
-            from ..simulation import solve
-
             # a problem the start-up finds in a swept field names the parameter, not the base file
             blame = {k: f"sweep parameter {k}={_fmt(v)}" for k, v in (task.get("params") or {}).items()}
             scene = scene_from_dict(task["scene"], task["source"], None, blame)
@@ -99,8 +96,6 @@ def _fit_one(task: dict):
     (files, the fitted Result or None). The fitted run's files plus fitted.yaml, fit.csv and
     fit.json; summary.json gains ``fit`` (fit.json's content) and, when the targets were not met,
     the status ``not_fitted`` (or ``out_of_reach``, with the reachable range in the message)."""
-    from ..compression.fit import FitError, FitResult, fit_data, fit_info, write_outputs
-
     spec = FitBlock.model_validate(task["fit"])
     varies, targets = spec.parsed()
     try:
@@ -131,8 +126,6 @@ def warm_cache(task: dict) -> dict:
     t0 = time.perf_counter()
     h0, m0 = _numba_counts()
     try:
-        from ..simulation import prepare, warm_up
-
         scene = scene_from_dict(task["scene"], task["source"])
         model, state, _ = prepare(scene)
         warm_up(model, state, scene.solver)

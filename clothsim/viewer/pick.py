@@ -17,7 +17,13 @@ import numpy as np
 
 from ..compression.readings import Readings
 from ..kernels import spring_strains_tensions
+from ..labels import record_field
 from ..pressure import MMHG, contact_reaction, mold_closest
+from ..records import Diagnostics, ProbeReading
+
+#: the units of a node's pressure and a probe's reading, as the field list gives them
+NODE_MMHG, NODE_PA = (record_field(Diagnostics, k) for k in ("max_contact_pressure_mmhg", "max_contact_pressure_pa"))
+PROBE_MMHG = record_field(ProbeReading, "pressure_mmhg")
 
 
 def ray_hit(positions: np.ndarray, faces: np.ndarray, origin, direction) -> tuple[int, float, np.ndarray] | None:
@@ -86,7 +92,7 @@ def readout_text(r: dict | None) -> str:
     if r is None:
         return "<small>Click the sheet to read a node's pressure, strains and tensions.</small>"
     p = r["pressure_mmhg"]
-    pt = "line load (gathered)" if not math.isfinite(p) else f"{p:.2f} mmHg ({p * MMHG:.4g} Pa)"
+    pt = "line load (gathered)" if not math.isfinite(p) else f"{p:.2f} {NODE_MMHG.unit} ({p * MMHG:.4g} {NODE_PA.unit})"
     x, y, z = r["position"]
     return (f"**node {r['node']}** ({r['panel']}, i {r['ij'][0]}, j {r['ij'][1]}) at "
             f"({x:.4g}, {y:.4g}, {z:.4g}) m · {'in contact' if r['in_contact'] else 'free'}  \n"
@@ -118,7 +124,7 @@ def probe_label(r: dict) -> str:
     """'ankle 21.3 mmHg' (plus 'off contact' or the contact fraction when partly covered)."""
     if not r["on_contact"]:
         return f"{r['name']}: off contact"
-    txt = f"{r['name']} {r['pressure_mmhg']:.1f} mmHg"
+    txt = f"{r['name']} {r['pressure_mmhg']:.1f} {PROBE_MMHG.unit}"
     if r["contact_fraction"] < 0.999:
         txt += f" ({r['contact_fraction']:.0%} covered)"
     return txt

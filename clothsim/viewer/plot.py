@@ -12,6 +12,11 @@ from typing import Callable
 
 import numpy as np
 
+from ..labels import axis_label
+
+#: the plotted series' labels: the residual and its limit e as the field list names them
+RESIDUAL_LABEL = axis_label("residual")
+LIMIT_LABEL = axis_label("e")
 PLOT_POINTS = 1500
 TOP_PAD = 10.0 ** (1 / 3)  # room above the top tick label (issue 15, item 24)
 #: uPlot padding [px] (top, right, bottom, left): in the browser the chart's canvas starts at the
@@ -77,8 +82,8 @@ class ResidualPlot:
         self.handle = gui.add_uplot(
             data=(np.array([0.0, 1.0]), np.array([1.0, 1.0]), np.array([e, e])),
             series=({"label": "iteration"},
-                    {"label": "||V||inf [N]", "stroke": "#1c7ed6", "width": 1.5},
-                    {"label": "target e", "stroke": "#e03131", "width": 1.0, "dash": (6.0, 4.0)}),
+                    {"label": RESIDUAL_LABEL, "stroke": "#1c7ed6", "width": 1.5},
+                    {"label": LIMIT_LABEL, "stroke": "#e03131", "width": 1.0, "dash": (6.0, 4.0)}),
             scales={"x": {"time": False}, "y": {"distr": 3, "log": 10}},
             title="Convergence", aspect=1.8, padding=PADDING)
         self._key: tuple | None = None

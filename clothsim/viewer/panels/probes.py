@@ -19,7 +19,7 @@ import threading
 
 import numpy as np
 
-from ..pick import node_readout, probe_label, probe_readings, readout_text, ray_hit, ring
+from ..pick import PROBE_MMHG, node_readout, probe_label, probe_readings, readout_text, ray_hit, ring
 from . import Panel
 
 PROBE_COLOR = (20, 110, 220)
@@ -164,7 +164,7 @@ class ProbesPanel(Panel):
             return "Probes are read when the sheet is still (pause, or wait for convergence)."
         # three narrow columns (issue 28, item 18: five, the classes' long names among them,
         # crowded the panel); the classes of the classified probe on a line of their own
-        rows = ["| probe | mmHg | covered |", "|:---|---:|---:|"]
+        rows = [f"| probe | {PROBE_MMHG.unit} | covered |", "|:---|---:|---:|"]
         for r in self.readings:
             rows.append(f"| {html.escape(r['name'])} | {r['pressure_mmhg']:.1f} | {r['contact_fraction']:.0%} |")
         lines = []

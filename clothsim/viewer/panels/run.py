@@ -6,7 +6,9 @@ import html
 
 import numpy as np
 
-from ...results import seam_report, sheet_health
+from ...diagnostics import seam_report, sheet_health
+from ...labels import record_field
+from ...records import Diagnostics, RunSummary
 from ..render import Frame, fmt
 from . import Panel
 
@@ -14,6 +16,11 @@ from . import Panel
 UNDETERMINED_ADVICE = ("Undetermined: nothing fixes where these nodes sit (slack springs, no contact, no "
                        "constraint). Hold the ends along the axis, add pre-tension, or switch on "
                        "`shear:`/`bending:` springs.")
+#: the summary figures the status line shows, named and in the units of the one field list
+#: (clothsim.records), as summary.json, the report and the sweeps name them
+RESIDUAL, LIMIT, CONTACT = (record_field(RunSummary, k) for k in ("residual", "e", "contact_count"))
+SLACK, SPRINGS, UNDETERMINED, WEFT_EXTENT = (record_field(Diagnostics, k) for k in (
+    "slack_springs", "spring_count", "undetermined_nodes", "min_weft_extent_ratio"))
 STATE_TEXT = {"idle": "ready", "max_iterations": "stopped (max iterations)", "time_limit": "stopped (time limit)"}
 
 
@@ -72,8 +79,7 @@ class RunPanel(Panel):
         if not running and last_run is not None and last_run.wall_time_s > 0:
             ips = last_run.iterations / last_run.wall_time_s
         rate = f" · {ips:,.0f} it/s" if ips > 0 else ""
-        text = (f"**{state}** · iteration {it} · residual {fmt(r, 3)} N "
-                f"(e = {fmt(e, 2)} N) · {contact} contact nodes{rate} · {sim.method}")
+        text = status_line(state, it, r, e, contact, rate, sim.method)
         if sim.message and status not in ("running", "idle", "paused"):
             text += f"  \n<small>{html.escape(sim.message)}</small>"
         if not running and last is not None:
@@ -87,18 +93,33 @@ class RunPanel(Panel):
         gathers into a rope or a region held by nothing is shown, not hidden."""
         key = (id(f.model), f.iteration, id(f.positions))
         if self.health_key != key:
-            h = sheet_health(f.model, f.positions, f.in_contact)
-            warn = h["min_weft_extent_ratio"] < 0.5 or h["undetermined_nodes"] > 0
-            txt = (f"{h['slack_springs']} of {h['spring_count']} springs slack · "
-                   f"{h['undetermined_nodes']} undetermined nodes · narrowest weft extent "
-                   f"{h['min_weft_extent_ratio']:.0%} of the rest width")
-            if h["min_weft_extent_ratio"] < 0.5:
-                txt += " (the sheet gathers: nothing holds its width)"
-            if h["undetermined_nodes"] > 0:
-                txt += f"  \n{UNDETERMINED_ADVICE}"
-            self.health = f"<small>{'⚠ ' if warn else ''}{txt}</small>" + seam_text(f.model, f.positions)
+            self.health = health_line(sheet_health(f.model, f.positions, f.in_contact)) + seam_text(
+                f.model, f.positions)
             self.health_key = key
         return self.health
+
+
+def status_line(state: str, iteration: int, residual: float, e: float, contact: int, rate: str,
+                method: str) -> str:
+    """The status line's first line: the state, the iteration, the residual against the limit e,
+    the contact nodes (named and in units as the field list has them), the rate and the solver."""
+    return (f"**{state}** · iteration {iteration} · {RESIDUAL.label} {fmt(residual, 3)} {RESIDUAL.unit} "
+            f"({LIMIT.label} = {fmt(e, 2)} {LIMIT.unit}) · {contact} {CONTACT.label}{rate} · {method}")
+
+
+def health_line(h: dict) -> str:
+    """The sheet's health (clothsim.diagnostics.sheet_health: slack springs, undetermined nodes,
+    narrowest weft extent), named as the field list names them, with a warning and advice when
+    the sheet gathers or nodes are undetermined."""
+    ratio = h["min_weft_extent_ratio"]
+    warn = ratio < 0.5 or h["undetermined_nodes"] > 0
+    txt = (f"{h['slack_springs']} {SLACK.label} of {h['spring_count']} {SPRINGS.label} · "
+           f"{h['undetermined_nodes']} {UNDETERMINED.label} · {WEFT_EXTENT.label} {ratio:.0%}")
+    if ratio < 0.5:
+        txt += " (the sheet gathers: nothing holds its width)"
+    if h["undetermined_nodes"] > 0:
+        txt += f"  \n{UNDETERMINED_ADVICE}"
+    return f"<small>{'⚠ ' if warn else ''}{txt}</small>"
 
 
 def seam_text(model, positions) -> str:
