@@ -8,7 +8,7 @@ so a folder is complete exactly when it holds summary.json):
   (nx, ny+1); strain_weft (nx+1, ny); tension_warp / tension_weft [N per spring]; contact_force
   (nx+1, ny+1) [N] (normal reaction); contact_pressure (nx+1, ny+1) [Pa]; residual_history [N];
   energy_history [J]; and what ``report`` draws (faces, node strains, the body near the garment,
-  the scene in short: clothsim.compression.folder).
+  the scene in short: clothsim.reportdata).
 - ``summary.json``: converged, status, message, iterations, residual [N], relative_residual,
   energy [J], wall_time_s (the relaxation), startup_s (mold loading, model building, JIT
   compilation), solver, contact_count, diagnostics, clothsim version. Strict JSON: a
@@ -34,7 +34,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .compression.folder import body_near, scene_summary_json
 from .contact import max_penetration
 from .diagnostics import gathered_rows, seam_report, sheet_health, surface_report, undetermined_mask
 from .fileio import atomic_write_bytes, check_free_space, check_out_dir
@@ -46,6 +45,7 @@ from .pressure import (GATHERED_AREA_RATIO, MMHG, PEAK_SENSOR, SENSOR_RADIUS_M, 
                        max_sensor_pressure, pressure_area, sensor_pressure, sensor_pressure_at)
 from .pressure import pressure_peaks
 from .records import Diagnostics, RunSummary
+from .reportdata import body_near, scene_summary_json
 from .version import __version__
 
 if TYPE_CHECKING:
@@ -316,7 +316,7 @@ class Result:
         return buf.getvalue()
 
     def _report_arrays(self) -> dict:
-        """What ``report`` draws, so that it reads the folder alone (clothsim.compression.folder):
+        """What ``report`` draws, so that it reads the folder alone (clothsim.reportdata):
         the sheet's faces, each node's warp and weft strain, the body near the garment and the
         scene in short."""
         topo = self.model.topology

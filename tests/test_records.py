@@ -82,7 +82,7 @@ def test_every_field_of_the_field_list_is_a_sweep_output_and_a_report_row():
     """The whole field list, conditional fields included (a summary holding every one): each is
     accepted as a sweep output, flattened into a sweep row and shown in the report's table with
     its unit."""
-    from clothsim.compression.report import summary_table
+    from clothsim.compression.report_html import summary_table
     from clothsim.records import (FRICTION_FIELDS, STAGE_FIELDS, SUMMARY_FIELDS, Diagnostics, FrictionReport,
                                   RunSummary, StageReport, flatten)
 

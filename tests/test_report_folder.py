@@ -228,7 +228,7 @@ def test_body_near_the_garment_is_cropped_and_decimated():
     margin, merged onto a coarser grid when more than max_faces (vertices stay near the surface)."""
     import trimesh
 
-    from clothsim.compression.folder import body_near
+    from clothsim.reportdata import body_near
     from clothsim.mold import mold_from_arrays
 
     s = trimesh.creation.icosphere(subdivisions=5, radius=0.1)

@@ -38,7 +38,7 @@ import numpy as np
 
 from . import MMHG
 from ..fileio import TEXT_LIMIT, check_input_file, excerpt, open_input, read_input_bytes, read_text
-from .folder import BODY_MAX_FACES
+from ..reportdata import BODY_MAX_FACES
 from .report_levels import LEVELS_LIMIT, read_levels
 
 class ReportError(ValueError):
