@@ -75,8 +75,8 @@ def test_girth_mean_on_an_ellipse_and_a_stadium_integrates_laplace(tmp_path):
     """Ellipse (semi-axes 6 and 4 cm): the local pressure T kappa varies by (a / b)^3 = 3.4 round
     the section, every node presses, and each slice's girth mean is T 2 pi / girth (1 %; measured 4e-4),
     the girth the ellipse's perimeter (1 %; measured 1e-4). Stadium (half-circles of 3 cm joined by 2 x 3 cm flats):
-    the girth mean is T 2 pi / girth (2 %), the girth the stadium's perimeter (1 %); on the flats
-    the fabric lies on the body without reaction."""
+    the girth mean is T 2 pi / girth (1 %; measured 1e-4), the girth the stadium's perimeter (1 %);
+    on the flats the fabric lies on the body without reaction, out of the contact set."""
     a, b = 0.06, 0.04
     cyl = trimesh.creation.cylinder(radius=1.0, height=0.3, sections=256)
     trimesh.Trimesh(cyl.vertices * [a, b, 1.0], cyl.faces).export(tmp_path / "ellipse.stl")
@@ -103,8 +103,9 @@ def test_girth_mean_on_an_ellipse_and_a_stadium_integrates_laplace(tmp_path):
     assert body[flat].all()                                    # the flats' fabric lies on the body
     for sl in st.compression()["profiles"][0]["slices"]:
         assert sl["girth_m"] == pytest.approx(2 * np.pi * r + 4 * l, rel=0.01)
-        assert sl["girth_mean_pa"] == pytest.approx(T * 2 * np.pi / sl["girth_m"], rel=0.02)
-        assert sl["mean_pa"] >= sl["girth_mean_pa"] * (1 - 1e-12)
+        assert sl["girth_mean_pa"] == pytest.approx(T * 2 * np.pi / sl["girth_m"], rel=0.01)
+        # the flats' fabric (5.6 of 30.8 cm) is out of the contact set: the contact mean reads 22 % higher
+        assert sl["mean_pa"] > 1.1 * sl["girth_mean_pa"]
     rows = list(csv.DictReader(io.StringIO(profiles_csv(st.compression()["profiles"]))))
     assert float(rows[2]["girth_mean_Pa"]) == pytest.approx(st.compression()["profiles"][0]["slices"][2]["girth_mean_pa"],
                                                              rel=1e-5)
