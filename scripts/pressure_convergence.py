@@ -164,6 +164,10 @@ def main():
                 scene = clothsim.load_scene(ROOT / "configs" / "garments" / "stocking.yaml",
                                             [f"panels.0.divisions=[{14 * k},{30 * k}]",
                                              f"panels.1.divisions=[{14 * k},{30 * k}]",
+                                             # the ankle's single-node seams and the held column name columns
+                                             f"seams.2.a.i={11 * k}", f"seams.2.b.i={3 * k}",
+                                             f"seams.3.a.i={11 * k}", f"seams.3.b.i={3 * k}",
+                                             f"constraints.2.nodes.i={7 * k}",
                                              f"mold.surface={surface}", "solver.method=newton"])
                 print(json.dumps(measure(scene, {"case": "stocking", "surface": surface,
                                                  "divisions": f"2 x {14 * k}x{30 * k}"})), flush=True)

@@ -516,10 +516,10 @@ def _copy_result(src, dst):
     ("summary.json", "summary.json: not valid JSON (line 1"),
     ("summary.json=[]", "summary.json: not a run summary (a JSON list, not an object)"),
     ("result.npz", "result.npz: cannot be read"),
-    ("scene.yaml", "scene.yaml"),
 ])
 def test_report_of_a_damaged_result_folder_refused(tmp_path, capsys, result_dir, damage, message):
-    """A corrupt summary.json used to end in a JSONDecodeError traceback (exit 1)."""
+    """A corrupt summary.json used to end in a JSONDecodeError traceback (exit 1). (scene.yaml is
+    not read by the report: it builds from summary.json, result.npz and history.csv alone.)"""
     d = _copy_result(result_dir, tmp_path / "run")
     name, _, content = damage.partition("=")
     (d / name).write_text(content or "{ not json\x00")

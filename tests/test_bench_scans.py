@@ -52,3 +52,17 @@ def test_scan_table_counts_and_flags():
     # a garment's row (bench.SCAN_GARMENTS) has no height
     text = "\n".join(bench.scan_table([{**rows[1], "body": "stocking 14 x 30", "height": None}]))
     assert "| stocking 14 x 30 | faceted | - | 451 | converged |" in text
+
+
+def test_every_scan_garment_compiles():
+    """Each garment of the campaign (bench.SCAN_GARMENTS) builds: the refined stocking's overrides
+    double the ankle's single-node seams and the held column with its divisions (with the panels'
+    divisions alone it was refused, "seams.2.b: selects no nodes")."""
+    from clothsim.compile import compile_model
+    from clothsim.config import load_scene
+
+    counts = []
+    for name, stem, config, overrides, surface in bench.SCAN_GARMENTS:
+        model = compile_model(load_scene(ROOT / config, list(overrides)))
+        counts.append(model.node_count)
+    assert counts[1] > 3 * counts[0]

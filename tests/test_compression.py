@@ -114,6 +114,9 @@ def test_profile_on_the_sewn_sleeve_is_uniform(sleeve):
     for sl in pf["slices"]:
         assert sl["mean_pa"] == pytest.approx(p, rel=1e-6)
         assert sl["contact_length_m"] == pytest.approx(chord, rel=1e-9)  # the seam's gap is no sheet
+        # every node presses: the girth mean is the contact mean, T / r
+        assert sl["girth_m"] == pytest.approx(sl["contact_length_m"], rel=1e-12)
+        assert sl["girth_mean_pa"] == pytest.approx(sl["mean_pa"], rel=1e-12)
         assert sl["min_mmhg"] <= sl["mean_mmhg"] <= sl["max_mmhg"]
     assert nx == 50
     g = pf["gradient"]
@@ -121,6 +124,9 @@ def test_profile_on_the_sewn_sleeve_is_uniform(sleeve):
     assert g["note"].startswith("does not fall")
     rows = list(csv.DictReader((out / "profiles.csv").open()))
     assert len(rows) == len(pf["slices"]) == 16
+    assert list(rows[0])[:7] == ["profile", "height_m", "contact_length_m", "mean_Pa", "mean_mmHg", "min_mmHg",
+                                 "max_mmHg"]                     # the columns as before; the girth's follow
+    assert float(rows[0]["girth_mean_mmHg"]) == pytest.approx(pf["slices"][0]["girth_mean_mmhg"], abs=1e-4)
     assert (out / "profiles.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -168,6 +174,7 @@ def test_profile_on_a_cone_follows_laplace(tmp_path):
         h = sl["height_m"]
         expected = np.interp(h, zrow[1:-1], T[1:-1]) * cos_a / (0.045 + 0.1 * h)
         assert sl["mean_pa"] == pytest.approx(expected, rel=1e-3), h
+        assert sl["girth_mean_pa"] == pytest.approx(expected, rel=1e-3), h    # every node presses
     assert pf["gradient"]["falls_steadily"] is True
     assert pf["gradient"]["drop_percent"] > 10
 

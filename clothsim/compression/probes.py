@@ -19,9 +19,22 @@ the disc, each split into k^2 sub-triangles (k so that a sub-triangle is about r
 so the disc's outline is resolved well below the node spacing.
 
 **Profile** (slices along an axis): at each height h the plane axis . x = h cuts the deformed
-sheet into segments; along them p and c are interpolated linearly. Per slice: contact length
-(integral of c along the cut) [m], mean pressure (integral of p / contact length), and the least
-and greatest pressure at the cut's points in contact (c >= 0.5).
+sheet into segments; along them p, c and the on-body flag b are interpolated linearly. A node is
+*on the body* when it is in contact or lies within ``ON_BODY_GAP_M`` (0.5 mm) of the mold (its
+signed distance <= 0.5 mm): a stretch of fabric lying on a flat of the body presses with no
+reaction (Laplace: zero curvature, zero pressure) and is left out of the contact set, but a tape
+round the limb measures it and a sensor under it reads zero. Per slice:
+
+- girth [m] (``girth_m``): the integral of b along the cut, the fabric's length on the body;
+- girth mean (``girth_mean_pa``, ``girth_mean_mmhg``): the integral of p along the cut over the
+  girth, what a tape-and-sensor engineer averages round the limb (nodes on the body without
+  reaction count at zero). This is the profile's reported statistic: the plot and the gradient
+  check read it;
+- contact length (``contact_length_m``, the integral of c along the cut) [m] and the contact mean
+  (``mean_pa``, ``mean_mmhg``: the integral of p over the contact length), as before; where every
+  node on the body is in contact (a tube on a cylinder or any convex section it presses all round)
+  the two means are equal;
+- the least and greatest pressure at the cut's points in contact (c >= 0.5).
 """
 
 from __future__ import annotations
@@ -39,6 +52,9 @@ from ..records import ProbeReading
 
 #: a probe whose disc is wider than this share of the sheet's largest extent says it is no local reading
 PROBE_SPAN_WARN = 1.0
+
+#: a node within this distance of the mold [m] is on the body (in a profile's girth) even without reaction
+ON_BODY_GAP_M = 0.5e-3
 
 
 def read_probe(model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray, probe) -> dict:
@@ -112,27 +128,42 @@ def _cut(X: np.ndarray, faces: np.ndarray, d: np.ndarray, vals: list[np.ndarray]
     return ends, vals_out
 
 
+def on_body(model, positions: np.ndarray, in_contact: np.ndarray, gap: float = ON_BODY_GAP_M) -> np.ndarray:
+    """(N,) bool: the nodes in contact or within ``gap`` [m] of the mold (signed distance <= gap,
+    so a node inside the mold counts too). Without a mold: the contact flags."""
+    c = np.asarray(in_contact, bool)
+    if model.mold is None:
+        return c.copy()
+    _, sd = mold_closest(model.mold, np.asarray(positions, float))
+    return c | (sd <= gap)
+
+
 def read_profile(model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray, profile) -> dict:
-    """One profile (see the module docstring): {name, axis, slices: [{height_m, contact_length_m,
-    mean_pa, mean_mmhg, min_mmhg, max_mmhg}], gradient: {...}}. Slices without contact have
-    contact length 0 and pressures None."""
+    """One profile (see the module docstring): {name, axis, slices: [{height_m, girth_m,
+    girth_mean_pa, girth_mean_mmhg, contact_length_m, mean_pa, mean_mmhg, min_mmhg, max_mmhg}],
+    gradient: {...}} (the gradient of the girth mean). Slices without contact have contact length
+    0 and pressures None (girth_m is still the fabric's length on the body there)."""
     axis = np.asarray(profile.unit_axis(), float)
     X = np.asarray(positions, float)
     p, _ = finite_pressure(np.asarray(pressure, float))
     c = np.asarray(in_contact, float)
+    b = on_body(model, X, in_contact).astype(float)
     faces = model.topology.faces
     hx = X @ axis
     slices = []
     for h in profile.heights():
-        ends, (pe, ce) = _cut(X, faces, hx - h, [p, c])
+        ends, (pe, ce, be) = _cut(X, faces, hx - h, [p, c, b])
         seg = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
         clen = float((seg * ce.mean(axis=1)).sum())
-        row = {"height_m": float(h), "contact_length_m": clen, "mean_pa": None, "mean_mmhg": None,
-               "min_mmhg": None, "max_mmhg": None}
+        girth = float((seg * be.mean(axis=1)).sum())
+        row = {"height_m": float(h), "girth_m": girth, "girth_mean_pa": None, "girth_mean_mmhg": None,
+               "contact_length_m": clen, "mean_pa": None, "mean_mmhg": None, "min_mmhg": None, "max_mmhg": None}
         if clen > 0.0:
-            mean = float((seg * pe.mean(axis=1)).sum()) / clen
+            force = float((seg * pe.mean(axis=1)).sum())       # the integral of p round the slice [N/m]
+            mean = force / clen
             on = ce >= 0.5
-            row.update(mean_pa=mean, mean_mmhg=mean / MMHG,
+            row.update(girth_mean_pa=force / girth, girth_mean_mmhg=force / girth / MMHG,
+                       mean_pa=mean, mean_mmhg=mean / MMHG,
                        min_mmhg=float(pe[on].min()) / MMHG if on.any() else None,
                        max_mmhg=float(pe[on].max()) / MMHG if on.any() else None)
         slices.append(row)
@@ -140,13 +171,20 @@ def read_profile(model, positions: np.ndarray, in_contact: np.ndarray, pressure:
             "gradient": gradient_check(slices, profile.steady_tolerance_mmhg)}
 
 
+def reported_mmhg(s: dict) -> float | None:
+    """A slice's reported pressure [mmHg]: its girth mean; a summary written before the girth mean
+    existed (its slices have only the contact mean, ``mean_mmhg``) reads its contact mean."""
+    return s["girth_mean_mmhg"] if "girth_mean_mmhg" in s else s["mean_mmhg"]
+
+
 def gradient_check(slices: list[dict], tolerance_mmhg: float = 0.1) -> dict:
-    """Ankle (first slice in contact) to calf (last): does the mean pressure fall steadily (no
-    rise above ``tolerance_mmhg`` from one slice to the next), and by how much?"""
-    on = [s for s in slices if s["mean_mmhg"] is not None]
+    """Ankle (first slice in contact) to calf (last): does the reported pressure (the girth mean,
+    :func:`reported_mmhg`) fall steadily (no rise above ``tolerance_mmhg`` from one slice to the
+    next), and by how much?"""
+    on = [s for s in slices if reported_mmhg(s) is not None]
     if len(on) < 2:
         return {"falls_steadily": None, "note": "fewer than two slices in contact: no gradient to check"}
-    m = np.array([s["mean_mmhg"] for s in on])
+    m = np.array([reported_mmhg(s) for s in on])
     rises = np.diff(m)
     worst = int(np.argmax(rises))
     steady = bool(rises.max() <= tolerance_mmhg and m[0] - m[-1] > tolerance_mmhg)
@@ -193,18 +231,22 @@ def probes_csv(readings: list[dict]) -> str:
 def profiles_csv(profiles: list[dict]) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["profile", "height_m", "contact_length_m", "mean_Pa", "mean_mmHg", "min_mmHg", "max_mmHg"])
+    # the first seven columns as before (mean_* the contact mean); the girth and its mean follow
+    w.writerow(["profile", "height_m", "contact_length_m", "mean_Pa", "mean_mmHg", "min_mmHg", "max_mmHg",
+                "girth_m", "girth_mean_Pa", "girth_mean_mmHg"])
     f = lambda v, fmt: "" if v is None else format(v, fmt)  # noqa: E731
     for pf in profiles:
         for s in pf["slices"]:
             w.writerow([pf["name"], f"{s['height_m']:.6g}", f"{s['contact_length_m']:.6g}", f(s["mean_pa"], ".6g"),
-                        f(s["mean_mmhg"], ".4f"), f(s["min_mmhg"], ".4f"), f(s["max_mmhg"], ".4f")])
+                        f(s["mean_mmhg"], ".4f"), f(s["min_mmhg"], ".4f"), f(s["max_mmhg"], ".4f"),
+                        f(s.get("girth_m"), ".6g"), f(s.get("girth_mean_pa"), ".6g"),
+                        f(s.get("girth_mean_mmhg"), ".4f")])
     return buf.getvalue()
 
 
 def profile_png(profiles: list[dict], title: str = "") -> bytes:
-    """A PNG (matplotlib, Agg): mean pressure [mmHg] (x) against height [m] (y) per profile, the
-    band from the least to the greatest pressure shaded; the pressure axis runs from 0 to 1.1 x
+    """A PNG (matplotlib, Agg): the reported pressure [mmHg] (x: the girth mean, :func:`reported_mmhg`)
+    against height [m] (y) per profile, the band from the least to the greatest pressure in contact shaded; the pressure axis runs from 0 to 1.1 x
     the greatest reading. The title and the profiles' names are drawn as written (never as
     mathtext: clothsim.plottext)."""
     import matplotlib
@@ -216,15 +258,17 @@ def profile_png(profiles: list[dict], title: str = "") -> bytes:
     ax = fig.add_subplot(1, 1, 1)
     top = 0.0  # the greatest reading drawn [mmHg]
     for pf in profiles:
-        on = [s for s in pf["slices"] if s["mean_mmhg"] is not None]
+        on = [s for s in pf["slices"] if reported_mmhg(s) is not None]
         if not on:
             continue
         h = [s["height_m"] for s in on]
-        line, = ax.plot([s["mean_mmhg"] for s in on], h, "o-", ms=3, label=f"{pf['name']} (mean)")
-        ax.fill_betweenx(h, [s["min_mmhg"] if s["min_mmhg"] is not None else s["mean_mmhg"] for s in on],
-                         [s["max_mmhg"] if s["max_mmhg"] is not None else s["mean_mmhg"] for s in on],
+        m = [reported_mmhg(s) for s in on]
+        what = "girth mean" if "girth_mean_mmhg" in on[0] else "mean"
+        line, = ax.plot(m, h, "o-", ms=3, label=f"{pf['name']} ({what})")
+        ax.fill_betweenx(h, [s["min_mmhg"] if s["min_mmhg"] is not None else v for s, v in zip(on, m)],
+                         [s["max_mmhg"] if s["max_mmhg"] is not None else v for s, v in zip(on, m)],
                          color=line.get_color(), alpha=0.2, label=f"{pf['name']} (min-max)")
-        top = max(top, *(v for s in on for v in (s["mean_mmhg"], s["min_mmhg"], s["max_mmhg"]) if v is not None))
+        top = max(top, *m, *(v for s in on for v in (s["min_mmhg"], s["max_mmhg"]) if v is not None))
     # from 0 with 10 % headroom past the greatest reading: a uniform profile (a vertical line) is
     # drawn inside the axes, not on their right edge
     ax.set_xlim(0.0, 1.1 * top if top > 0 else 1.0)

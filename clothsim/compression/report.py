@@ -355,7 +355,7 @@ def check_summary(s: dict, path: Path) -> dict:
         for j, sl in enumerate(c.items(pf.get("slices"), f"{k}.slices")):
             c.obj(sl, f"{k}.slices[{j}]")
             c.number(sl, "height_m", f"{k}.slices[{j}].height_m", null=False)
-            for name in ("mean_mmhg", "min_mmhg", "max_mmhg"):
+            for name in ("mean_mmhg", "girth_mean_mmhg", "min_mmhg", "max_mmhg"):
                 c.number(sl, name, f"{k}.slices[{j}].{name}")
         if pf.get("gradient") is not None:
             c.obj(pf["gradient"], f"{k}.gradient")
