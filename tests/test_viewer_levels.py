@@ -114,6 +114,8 @@ def test_viewer_draws_the_levels_and_reads_what_run_reads():
             k = int(np.argmin(np.abs(x - r["height_m"] * 100)))
             assert x[k] == pytest.approx(r["height_m"] * 100) and m[k] == pytest.approx(r["mean_mmhg"])
         assert np.isfinite(lo).all() and (hi > lo).all()
+        y0, y1 = app.gui["profile_plot"].scales["y"]["range"]  # set, not uPlot's (NaN between levels)
+        assert y0 <= min(np.nanmin(y), lo[0]) and y1 >= max(np.nanmax(y), hi[0])
         assert np.isfinite(y).sum() > 10  # slices every 5 mm over the tube's 16 cm
         labels = [h.text for h in lv._nodes if hasattr(h, "text")]
         assert any(t.startswith("B 22.0 cm · ") and t.endswith(" mmHg") for t in labels), labels

@@ -175,7 +175,15 @@ class LevelsPanel(Panel):
         if len(x) < 2:  # uPlot needs two points: a lone slice drawn flat over a millimetre
             x = np.array([x[0] - 0.05, x[0]]) if len(x) else np.array([0.0, 1.0])
             y, m, lo, hi = (np.resize(a, 2) if len(a) else np.full(2, math.nan) for a in (y, m, lo, hi))
-        self.gui["profile_plot"].data = (x, y, m, lo, hi)
+        # the y range is set here: uPlot's own range starts from the first value of each series,
+        # and the levels' series is NaN between the levels
+        v = np.concatenate([y, m, lo, hi])
+        v = v[np.isfinite(v)]
+        a, b = (float(v.min()), float(v.max())) if len(v) else (0.0, 1.0)
+        pad = 0.1 * (b - a) if b > a else 1.0
+        plot = self.gui["profile_plot"]
+        plot.scales = {"x": {"time": False}, "y": {"range": (max(0.0, a - pad), b + pad)}}
+        plot.data = (x, y, m, lo, hi)
         self.gui["levels_table"].content = self.table()
 
     def reset(self) -> None:
