@@ -63,6 +63,7 @@ from .panels.constraints import ConstraintsPanel
 from .panels.fabric import FabricPanel
 from .panels.files import FilesPanel
 from .panels.garment import GarmentPanel
+from .panels.levels import LevelsPanel
 from .panels.material import MaterialPanel
 from .panels.probes import ProbesPanel
 from .panels.run import RunPanel
@@ -219,7 +220,7 @@ class ViewerApp:
                             "constraints": ConstraintsPanel(self), "material": MaterialPanel(self),
                             "fabric": FabricPanel(self), "files": FilesPanel(self),
                             "probes": ProbesPanel(self), "garment": GarmentPanel(self),
-                            "stages": StagesPanel(self)})
+                            "stages": StagesPanel(self), "levels": LevelsPanel(self)})
         self.plot = self._build_gui()
         self.server.scene.on_click()(self.panels["probes"].on_scene_click)  # records the ray only
         self.sync_widgets()
@@ -457,6 +458,7 @@ class ViewerApp:
         plot = ResidualPlot(gui, self.sim.settings.e, self.min_period)
         plot.atomic = self.server.atomic
         self.gui["plot"] = plot.handle
+        p["levels"].build(gui)  # the pressure profile beside (under) the convergence plot
         p["view"].build_legend(gui)
         p["probes"].build_readout(gui)
         tabs = gui.add_tab_group()
@@ -637,6 +639,7 @@ class ViewerApp:
         self.panels["run"].sync()
         self.panels["probes"].reset()
         self.panels["stages"].reset()
+        self.panels["levels"].reset()
         with self.quiet():  # the panel list and table of the applied model, its friction
             self.panels["fabric"].sync_panels()
             self.panels["garment"].sync()
@@ -753,6 +756,7 @@ class ViewerApp:
                 self._auto_frame(frame)
         self.panels["run"].update_status(running, self._last_frame)
         self.panels["probes"].update(self._last_frame, still=not running)
+        self.panels["levels"].update(self._last_frame, still=not running)
         self._update_plot(running)
         if sim.model is model:
             self.shown = shown
