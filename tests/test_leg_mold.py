@@ -51,6 +51,7 @@ def _near_points(mold, n, rng, lo=-0.01, hi=0.02):
     return S + d[:, None] * radial + np.column_stack([np.zeros((n, 2)), rng.uniform(-0.01, 0.01, n)])
 
 
+@pytest.mark.slow
 def test_closest_point_is_exact_against_dense_sampling():
     """Points from 1 cm inside to 2 cm outside a shaped leg (ellipses, a flat medial side, a
     tibial crest): p - c is along the unit normal to 1e-12 m, the normal is the surface's
