@@ -326,7 +326,14 @@ class _Solver:
         if self.stop:
             raise FitInterrupted(self.stop[0], self.tries)
         res = sim.result()
-        readings = {r["name"]: r["pressure_mmhg"] for r in res.compression().get("probes", [])}
+        comp = res.compression()
+        readings = {r["name"]: r["pressure_mmhg"] for r in comp.get("probes", [])}
+        for r in (comp.get("levels") or {}).get("levels", []):
+            readings.setdefault(r["level"], r["mean_mmhg"])   # a level's girth mean (a probe's name wins)
+        missing = [t.probe for t in self.targets if readings.get(t.probe) is None]
+        if missing:
+            raise FitError(f"--target {missing[0]}: no reading there (no contact at that level, or its levels "
+                           f"could not be read: {(comp.get('levels') or {}).get('error', 'see run')})")
         p = [readings[t.probe] for t in self.targets]
         r = [pi - t.mmhg for pi, t in zip(p, self.targets)]
         self.prev = res.state
@@ -351,6 +358,19 @@ def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, ov
     return fit_data(data, scene_path, varies, targets, tol_mmhg=tol_mmhg, max_solves=max_solves, log=log, stop=stop)
 
 
+def level_names(scene) -> list[str]:
+    """The names of the scene's measuring levels a target may name (their girth mean): a chart
+    leg's levels, ``levels.find`` (default B, C, D) on a scan, and ``levels.heights``."""
+    spec = getattr(scene, "levels", None)
+    leg = getattr(getattr(scene, "mold", None), "leg", None)
+    out = list(leg.levels) if leg is not None else []
+    if spec is not None:
+        if leg is None:
+            out += list(spec.find) if spec.find is not None else ["B", "C", "D"]
+        out += [k for k in spec.heights if k not in out]
+    return out
+
+
 def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list[Target]) -> list[float]:
     """Check a fit before any solve: the scene validates, every target names one of its probes
     (once), every varied path (given once) is a continuous number of the scene or of its schema
@@ -365,10 +385,12 @@ def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list
                 raise FitError(f"{what} {name}: given twice")
     scene = scene_from_dict(copy.deepcopy(data), source)
     names = [p.name for p in scene.probes]
+    levels = [k for k in level_names(scene) if k not in names]
     for t in targets:
-        if t.probe not in names:
+        if t.probe not in names and t.probe not in levels:
+            more = f"; measuring levels (their girth mean): {', '.join(levels)}" if levels else ""
             raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
-                           f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
+                           f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'}{more})")
     x0 = [start_value(data, v.path, scene) for v in varies]
     lo, hi = _bounds(varies, x0)
     _check_bounds(data, source, varies, [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)], lo, hi)
