@@ -101,3 +101,15 @@ def test_the_graded_stocking_fits_each_size_to_class_ii_at_b(tmp_path):
         again = clothsim.solve(load_scene(f))
         b = next(r for r in again.compression()["levels"]["levels"] if r["level"] == "B")
         assert b["mean_mmhg"] == pytest.approx(info["readings_mmhg"]["B"], abs=1e-3)
+
+
+def test_a_fit_target_may_name_a_measuring_level():
+    """--target B=... is accepted on a chart leg (B is one of its levels: its girth mean is read);
+    a name that is neither a probe nor a level is refused with both lists."""
+    from clothsim.compression.fit import FitError, check_fit, level_names, parse_target, parse_vary
+    data = yaml.safe_load(LEG.read_text())
+    data["garment"] = {"hem": 0.12, "levels": [{"name": "B"}], "reduction": 20}
+    assert level_names(load_scene(LEG)) == ["B0", "B", "B1", "C", "D"]
+    with pytest.raises(FitError, match=r"--target Q: the scene has no probe 'Q' \(probes: B_lateral, C_lateral; "
+                                       r"measuring levels \(their girth mean\): B0, B, B1, C, D\)"):
+        check_fit(data, LEG, [parse_vary("garment.reduction=5:40")], [parse_target("Q=27.5mmHg")])

@@ -3,7 +3,10 @@
 ``python app.py fit SCENE --vary FIELD[=LO:HI] --target "PROBE=20mmHg"`` varies any field a
 ``--set`` path reaches (a panel width ``fabric.size.0``, a stretch, a material ``scale``) until
 the probe reads the target. A field the scene file omits starts from the schema's default
-(``fabric.warp.scale`` 1, ``solver.C`` 2); integer fields (counts) cannot be varied.
+(``fabric.warp.scale`` 1, ``solver.C`` 2); integer fields (counts) cannot be varied. A target
+may name one of the scene's measuring levels instead of a probe (``--target B=27.5mmHg``, see
+:func:`level_names`): it reads that level's girth mean (clothsim.compression.levels), the
+standard's reading; a probe of the same name wins.
 
 - **One field, one target**: secant steps on residual(x) = reading(x) - target, kept inside the
   bracket once the residual changes sign (Illinois regula falsi, the secant's safeguarded form),
