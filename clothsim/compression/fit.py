@@ -332,7 +332,9 @@ class _Solver:
         comp = res.compression()
         readings = {r["name"]: r["pressure_mmhg"] for r in comp.get("probes", [])}
         for r in (comp.get("levels") or {}).get("levels", []):
-            readings.setdefault(r["level"], r["mean_mmhg"])   # a level's girth mean (a probe's name wins)
+            # a level's girth mean (a probe's name wins); no contact round the level reads 0 mmHg,
+            # so a garment too loose to touch the body there is tightened, not refused
+            readings.setdefault(r["level"], r["mean_mmhg"] if r["mean_mmhg"] is not None else 0.0)
         missing = [t.probe for t in self.targets if readings.get(t.probe) is None]
         if missing:
             raise FitError(f"--target {missing[0]}: no reading there (no contact at that level, or its levels "
