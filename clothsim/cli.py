@@ -420,7 +420,8 @@ def add_compression_commands(sub) -> None:
                         "e.g. fabric.warp.scale from 1), with optional bounds (default: start value +-30%%), "
                         "e.g. --vary fabric.size.0=0.2:0.3")
     f.add_argument("--target", action="append", required=True, metavar="PROBE=VALUE",
-                   help="a probe's target pressure, e.g. --target ankle=20mmHg (units mmHg, Pa, kPa)")
+                   help="a probe's target pressure, e.g. --target ankle=20mmHg (units mmHg, Pa, kPa), or a "
+                        "measuring level's girth mean, e.g. --target B=27.5mmHg")
     f.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override a scene field")
     f.add_argument("--tol", type=_positive_float, default=0.1,
                    help="tolerance on each target [mmHg], positive and finite (default 0.1)")

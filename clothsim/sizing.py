@@ -10,6 +10,10 @@ hem).
 A **measuring level** (``garment.levels``) names a height on the body (``height`` [m] along
 ``garment.axis``), the pattern height it falls on (``at`` [m]; default ``height - garment.hem``)
 and the body's girth there (``girth`` [m]; omitted: measured on the mold, see :func:`body_girth`).
+A level given by its ``name`` alone is one of the scene's measuring levels (a chart leg's
+``mold: {leg: {levels: ...}}``, or ``levels:`` found on a scan; :mod:`clothsim.compression.levels`):
+its height and girth are that level's (:func:`resolve_levels`), so the garment is sized against
+the very girths the pressure is read at.
 
 The outline is changed in three steps, each a width factor per level (linear in the pattern
 height between levels, constant beyond the first and the last) and a map of heights:
@@ -30,9 +34,10 @@ straight-sided panel) and linear in between otherwise: :func:`sizing_table` repo
 values. A lattice given by ``spacing`` keeps its node count: the spacing scales with the
 outline's extent (so ``fit`` can vary these fields from warm starts).
 
-The girth on the body is :func:`body_girth`: analytic on a cylinder or sphere, a plane section
-of a mesh (its convex hull: a tape measure's length) otherwise. It is the one place to point at
-a dedicated measuring-levels module.
+The girth on the body is :func:`body_girth`: analytic on a cylinder or sphere, the chart leg's
+tape girth (:func:`clothsim.mold.leg.leg_girth`) on a leg from a size chart, a plane section of
+a mesh measured as the levels module measures a scan (:func:`clothsim.compression.levels.hull_girth`:
+its convex hull, a tape measure's length) otherwise.
 """
 
 from __future__ import annotations
@@ -44,8 +49,10 @@ import numpy as np
 import shapely
 import trimesh
 
+from .compression.levels import LevelError, hull_girth, level_set
 from .errors import SceneError
 from .mold import load_mold
+from .mold.leg import leg_girth
 from .sizingspec import AXES, GarmentSpec, SizingError
 
 
@@ -176,13 +183,15 @@ def body_girth(scene, n: int, mold=None) -> float:
     that axis, the circle's on a sphere, the convex hull of a mesh's plane section (the loop
     nearest ``garment.center``; a tape measure bridges the hollows) otherwise.
 
-    The one function every girth comes from, to be pointed at a dedicated measuring-levels module
-    (measuring levels and girths on scans and parametric legs) once there is one."""
+    A level named by its name alone takes the scene's measuring level's girth
+    (:func:`resolve_levels`). The one function every girth comes from."""
     spec = scene.garment
     lv = spec.levels[n]
     where = f"garment.levels.{n}"
     if lv.girth is not None:
         return float(lv.girth)
+    if lv.height is None and lv.at is None:
+        return float(_measured(scene, mold, n)["girth_m"])
     if lv.height is None:
         raise SizingError(f"{where}.girth: give it, or the level's height on the body to measure it at")
     if scene.mold is None:
@@ -190,6 +199,12 @@ def body_girth(scene, n: int, mold=None) -> float:
     ax = np.zeros(3)
     ax[AXES[spec.axis]] = 1.0
     kind = getattr(scene.mold, "kind", "mesh")
+    if kind == "leg":
+        if spec.axis != "z":
+            raise SizingError(f"{where}.girth: a leg from a size chart stands along z: garment.axis must be z")
+        if mold is None:
+            mold = load_mold(scene.mold, scene.base_dir)
+        return leg_girth(mold.params, float(lv.height))
     if kind == "cylinder":
         c = scene.mold.cylinder
         a = np.asarray(c.axis, float) / np.linalg.norm(c.axis)
@@ -243,7 +258,68 @@ def mesh_girth(mesh, axis: np.ndarray, height: float, center, where: str = "girt
         loop = min(loops, key=lambda p: shapely.Polygon(p).buffer(0).distance(c2))
     else:
         loop = max(loops, key=lambda p: shapely.LineString(p).length)
-    return float(shapely.MultiPoint(loop).convex_hull.exterior.length)
+    return hull_girth(loop)
+
+
+# ---------------------------------------------------------------------------------------------
+# levels named after the scene's measuring levels
+
+
+def _measured(scene, mold, n: int) -> dict:
+    """The scene's measuring level (:func:`clothsim.compression.levels.level_set`) that
+    ``garment.levels[n]`` names; SizingError naming the field when there is none."""
+    name = scene.garment.levels[n].name
+    where = f"garment.levels.{n}"
+    if getattr(scene, "levels", None) is None and getattr(getattr(scene, "mold", None), "leg", None) is None:
+        raise SizingError(f"{where}: give height or at (the scene has no measuring levels named '{name}': "
+                          f"no leg from a size chart, no levels:)")
+    if scene.garment.axis != "z":
+        raise SizingError(f"{where}: the scene's measuring levels stand along z: garment.axis must be z")
+    if mold is None:
+        mold = load_mold(scene.mold, scene.base_dir)
+    try:
+        lset = level_set(scene, mold)
+    except LevelError as exc:
+        raise SizingError(f"{where}: {exc}") from None
+    for lvl in lset["levels"]:
+        if lvl["name"] == name:
+            return lvl
+    names = ", ".join(lvl["name"] for lvl in lset["levels"]) or "none"
+    raise SizingError(f"{where}.name: '{name}' is not one of the scene's measuring levels ({names}); "
+                      f"give height or at")
+
+
+def resolve_levels(scene, mold=None) -> GarmentSpec:
+    """``scene.garment`` with each level named by its name alone given the height and girth of
+    the scene's measuring level of that name (the others as given)."""
+    spec = scene.garment
+    if spec is None or all(lv.height is not None or lv.at is not None for lv in spec.levels):
+        return spec
+    levels = []
+    for n, lv in enumerate(spec.levels):
+        if lv.height is None and lv.at is None:
+            m = _measured(scene, mold, n)
+            lv = lv.model_copy(update={"height": float(m["z_m"]),
+                                       "girth": float(m["girth_m"]) if lv.girth is None else lv.girth})
+        levels.append(lv)
+    return spec.model_copy(update={"levels": levels})
+
+
+def _resolved_scene(scene, mold):
+    spec = resolve_levels(scene, mold)
+    if spec is scene.garment:
+        return scene
+    return _View(scene, spec)
+
+
+class _View:
+    """A scene seen with another ``garment`` (every other field the scene's)."""
+
+    def __init__(self, scene, garment):
+        self._scene, self.garment = scene, garment
+
+    def __getattr__(self, key):
+        return getattr(self._scene, key)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -269,6 +345,11 @@ def sized(scene, outlines: list, grains: list, mold=None) -> tuple[list, list, l
     if spec is None or spec.is_identity():
         return outlines, outlines, grains
     try:
+        if mold is None and getattr(scene, "mold", None) is not None and not all(
+                lv.height is not None or lv.at is not None for lv in spec.levels):
+            mold = load_mold(scene.mold, scene.base_dir)
+        scene = _resolved_scene(scene, mold)
+        spec = scene.garment
         new = size_outlines(spec, outlines, grains, girths(scene, mold))
         if not scene.panels:
             new[0] = new[0] - new[0].min(axis=0)
@@ -290,6 +371,11 @@ def sizing_table(scene, outlines: list, grains: list, mold=None) -> list[dict]:
     if spec is None or not spec.levels:
         return []
     design, new, grains = sized(scene, outlines, grains, mold)
+    try:
+        scene = _resolved_scene(scene, mold)
+    except SizingError as exc:
+        raise SceneError(scene.locate(str(exc))) from None
+    spec = scene.garment
     uv0 = [p @ _frame(g) for p, g in zip(design, grains)]
     uv1 = [p @ _frame(g) for p, g in zip(new, grains)]
     rows = []
@@ -336,6 +422,10 @@ def default_for(path: str, scene, outlines: list, grains: list) -> Any:
     design's (clothsim.compile.design_outlines)."""
     if path != "garment.reduction" or scene.garment is None or not scene.garment.levels:
         return None
+    try:
+        scene = _resolved_scene(scene, None)
+    except SizingError as exc:
+        raise SceneError(scene.locate(str(exc))) from None
     uvs = [p @ _frame(g) for p, g in zip(outlines, grains)]
     c = circumference(uvs, level_heights(scene.garment)[0])
     return round(100.0 * (1.0 - c / body_girth(scene, 0)), 6)

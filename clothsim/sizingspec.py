@@ -44,7 +44,9 @@ class Level(_Strict):
     """A measuring level: ``name`` (B, C, ... as in RAL-GZ 387), ``height`` [m] on the body
     along ``garment.axis``, ``at`` [m] the pattern height above the hem it falls on (default
     ``height - garment.hem``), ``girth`` [m] the body's girth there (default: measured on the
-    mold) and ``reduction`` [%] (default: ``garment.reduction``)."""
+    mold) and ``reduction`` [%] (default: ``garment.reduction``). A level given by its name
+    alone (no height, no at) is the scene's measuring level of that name (a chart leg's or
+    ``levels:``): its height and girth come from the body (clothsim.sizing.resolve_levels)."""
 
     name: str
     height: float | None = None
@@ -67,11 +69,6 @@ class Level(_Strict):
     def _red(cls, v):
         return _number(v, "percent", *REDUCTION_RANGE, " %")
 
-    @model_validator(mode="after")
-    def _where(self):
-        if self.height is None and self.at is None:
-            raise ValueError("give height (on the body) or at (on the pattern)")
-        return self
 
 
 class GradeRule(_Strict):

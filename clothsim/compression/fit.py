@@ -3,7 +3,10 @@
 ``python app.py fit SCENE --vary FIELD[=LO:HI] --target "PROBE=20mmHg"`` varies any field a
 ``--set`` path reaches (a panel width ``fabric.size.0``, a stretch, a material ``scale``) until
 the probe reads the target. A field the scene file omits starts from the schema's default
-(``fabric.warp.scale`` 1, ``solver.C`` 2); integer fields (counts) cannot be varied.
+(``fabric.warp.scale`` 1, ``solver.C`` 2); integer fields (counts) cannot be varied. A target
+may name one of the scene's measuring levels instead of a probe (``--target B=27.5mmHg``, see
+:func:`level_names`): it reads that level's girth mean (clothsim.compression.levels), the
+standard's reading; a probe of the same name wins.
 
 - **One field, one target**: secant steps on residual(x) = reading(x) - target, kept inside the
   bracket once the residual changes sign (Illinois regula falsi, the secant's safeguarded form),
@@ -326,7 +329,16 @@ class _Solver:
         if self.stop:
             raise FitInterrupted(self.stop[0], self.tries)
         res = sim.result()
-        readings = {r["name"]: r["pressure_mmhg"] for r in res.compression().get("probes", [])}
+        comp = res.compression()
+        readings = {r["name"]: r["pressure_mmhg"] for r in comp.get("probes", [])}
+        for r in (comp.get("levels") or {}).get("levels", []):
+            # a level's girth mean (a probe's name wins); no contact round the level reads 0 mmHg,
+            # so a garment too loose to touch the body there is tightened, not refused
+            readings.setdefault(r["level"], r["mean_mmhg"] if r["mean_mmhg"] is not None else 0.0)
+        missing = [t.probe for t in self.targets if readings.get(t.probe) is None]
+        if missing:
+            raise FitError(f"--target {missing[0]}: no reading there (no contact at that level, or its levels "
+                           f"could not be read: {(comp.get('levels') or {}).get('error', 'see run')})")
         p = [readings[t.probe] for t in self.targets]
         r = [pi - t.mmhg for pi, t in zip(p, self.targets)]
         self.prev = res.state
@@ -351,6 +363,19 @@ def fit(scene_path: str | Path, varies: list[Vary], targets: list[Target], *, ov
     return fit_data(data, scene_path, varies, targets, tol_mmhg=tol_mmhg, max_solves=max_solves, log=log, stop=stop)
 
 
+def level_names(scene) -> list[str]:
+    """The names of the scene's measuring levels a target may name (their girth mean): a chart
+    leg's levels, ``levels.find`` (default B, C, D) on a scan, and ``levels.heights``."""
+    spec = getattr(scene, "levels", None)
+    leg = getattr(getattr(scene, "mold", None), "leg", None)
+    out = list(leg.levels) if leg is not None else []
+    if spec is not None:
+        if leg is None:
+            out += list(spec.find) if spec.find is not None else ["B", "C", "D"]
+        out += [k for k in spec.heights if k not in out]
+    return out
+
+
 def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list[Target]) -> list[float]:
     """Check a fit before any solve: the scene validates, every target names one of its probes
     (once), every varied path (given once) is a continuous number of the scene or of its schema
@@ -365,10 +390,12 @@ def check_fit(data: dict, source: Path | None, varies: list[Vary], targets: list
                 raise FitError(f"{what} {name}: given twice")
     scene = scene_from_dict(copy.deepcopy(data), source)
     names = [p.name for p in scene.probes]
+    levels = [k for k in level_names(scene) if k not in names]
     for t in targets:
-        if t.probe not in names:
+        if t.probe not in names and t.probe not in levels:
+            more = f"; measuring levels (their girth mean): {', '.join(levels)}" if levels else ""
             raise FitError(f"--target {t.probe}: the scene has no probe '{t.probe}' "
-                           f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'})")
+                           f"(probes: {', '.join(names) or 'none; add probes: [{name, point, radius}]'}{more})")
     x0 = [start_value(data, v.path, scene) for v in varies]
     lo, hi = _bounds(varies, x0)
     _check_bounds(data, source, varies, [min(max(x, a), b) for x, a, b in zip(x0, lo, hi)], lo, hi)

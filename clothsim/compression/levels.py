@@ -67,10 +67,16 @@ class LevelError(ValueError):
 # ------------------------------------------------------------------------------------------
 
 
-def _hull_length(xy: np.ndarray) -> float:
+def hull_girth(xy: np.ndarray) -> float:
+    """The girth [m] a tape measure reads round a section's points ``xy`` (k, 2): the perimeter
+    of their convex hull (it bridges the hollows). The one girth measurement of meshes: the
+    levels here and a garment's sizing (:func:`clothsim.sizing.body_girth`) read it."""
     from shapely.geometry import MultiPoint
 
-    return float(MultiPoint([tuple(p) for p in xy]).convex_hull.length)
+    return float(MultiPoint([tuple(p) for p in np.asarray(xy, float)]).convex_hull.length)
+
+
+_hull_length = hull_girth
 
 
 def scan_girths(vertices: np.ndarray, faces: np.ndarray, seed_xy, z_from: float | None = None,
