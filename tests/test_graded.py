@@ -9,7 +9,6 @@ levels module's tape girth, to 1e-6 m) and a reduction r gives the circumference
 
 from __future__ import annotations
 
-import json
 
 import pytest
 import yaml
