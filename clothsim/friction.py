@@ -77,14 +77,15 @@ def normal_forces(model, state):
     return nodes, nrm, lam
 
 
-def lag_friction(model, state, anchor) -> FrictionLag:
+def lag_friction(model, state, anchor, eps_scale: float = 1.0) -> FrictionLag:
     """The friction frozen at ``state``: its contact nodes' normals and normal forces
     (:func:`normal_forces`), each node anchored at ``anchor`` (n, 3) [m] (the previous load
-    step's equilibrium)."""
+    step's equilibrium); its slip eps ``eps_scale`` times :func:`slip_eps` (above 1 only for a
+    load step's smoother first solve: ``solvers/friction.py``)."""
     nodes, nrm, lam = normal_forces(model, state)
     mu = float(model.friction_mu)
     return FrictionLag(nodes, np.ascontiguousarray(anchor[nodes], float), np.ascontiguousarray(nrm),
-                       lam, mu * lam, slip_eps(model), mu)
+                       lam, mu * lam, eps_scale * slip_eps(model), mu)
 
 
 def slides(lag: FrictionLag, positions) -> np.ndarray:

@@ -354,3 +354,43 @@ def test_the_equilibria_check_judges_a_friction_scene_with_its_friction():
     pos = r.state.positions.copy()
     pos[pos.shape[0] // 2, 0] += 1e-6  # a node moved along the strip: out of balance even with friction
     assert eq.reference_residual(scene, pos)[0] > 1e-3
+
+
+def test_a_load_step_past_its_iteration_budget_is_rescued_with_a_wider_slip_eps(monkeypatch):
+    """A load step's first solve that runs past ``FrictionTuning.rescue_after`` iterations starts
+    again from the step's start with the slip eps ``eps_continuation`` times wider, and the
+    scene's eps takes over from its equilibrium: the capstan (20 divisions, 5 steps) with a budget
+    of 3 iterations is rescued and reaches the equilibrium of the default schedule (the same
+    Coulomb state: the wide eps only gives Newton its start); with a budget of 0 nothing is."""
+    import clothsim.solvers.friction as sf
+    from clothsim.solvers.tuning import FrictionTuning
+
+    for bad in ({"rescue_after": -1}, {"eps_continuation": 0.5}):
+        with pytest.raises(ValueError):
+            FrictionTuning(**bad)
+    calls = []
+    real = sf._rescue
+
+    def counted(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(sf, "_rescue", counted)
+    sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml",
+                    ["fabric.divisions=[20,2]", "solver.method=newton", "solver.e=1e-7"])
+    out = []
+    for tuning in (FrictionTuning(rescue_after=0), FrictionTuning(rescue_after=3)):
+        calls.clear()
+        model = compile_model(sc)
+        state = compile_state(sc, model)
+        assert solve(model, state, sc.solver).converged
+        target = model.prescribed_positions.copy()
+        right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
+        target[right, 2] -= 0.03
+        _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state,
+                             load_steps(model.prescribed_positions, target, 5), sc.solver, tuning=tuning)
+        assert res.converged and res.residual <= 1e-7, res.message
+        out.append((state.positions.copy(), len(calls), res.friction["slip"], res.friction["cone_violation"]))
+    assert out[0][1] == 0 and out[1][1] >= 1
+    assert np.abs(out[0][0] - out[1][0]).max() < 1e-5
+    assert out[1][2] == out[0][2] and out[1][3] < 1e-5

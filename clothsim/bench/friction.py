@@ -232,7 +232,7 @@ def run(out: str | Path, log=None, stocking: bool = True) -> list[dict]:
              f"{info.get('cores', '')} cores). CPU seconds of one process with warm kernels, and work units "
              "(WU: the time over one reference force pass over the scene's springs, measured in the same "
              f"process). Target: a frictional load step at most {TARGET_RATIO:g} x the frictionless solve "
-             "of the same scene. See `clothsim/bench_friction.py` for what each row solves.", ""]
+             "of the same scene. See `clothsim/bench/friction.py` for what each row solves.", ""]
     lines += table(rows) + ["", "The capstan's tension ratio against Euler-Eytelwein's e^(mu phi), mu = 0.3, "
                                 "pulled past slip:", ""] + capstan_table(rows) + [""]
 

@@ -34,11 +34,16 @@ def _newton(model, limits):
                                              sequencing=bool(getattr(limits, "newton_sequencing", True))))
 
 
-def _with_e(limits, e):
-    """``limits`` (SolverSettings or RunLimits) with its e replaced."""
+def _with(limits, **kw):
+    """``limits`` (SolverSettings or RunLimits) with the fields ``kw`` replaced."""
     if hasattr(limits, "model_copy"):
-        return limits.model_copy(update={"e": e})
-    return dataclasses.replace(limits, e=e)
+        return limits.model_copy(update=kw)
+    return dataclasses.replace(limits, **kw)
+
+
+def _with_e(limits, e):
+    """``limits`` with its e replaced."""
+    return _with(limits, e=e)
 
 
 def _frictional_step(base, state, control, limits, callback, hist, tuning: FrictionTuning):
@@ -50,6 +55,7 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
     equilibrium is at most e."""
     anchor = state.positions.copy()
     m = control.apply(base, state)
+    e = limits.e
     lag = lag_friction(m, state, anchor)
     mm = dataclasses.replace(m, friction=lag)
     solver = _newton(mm, limits)
@@ -57,14 +63,25 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
         def refresh(st):
             return dataclasses.replace(m, friction=lag_friction(m, st, anchor))
         solver.refresh = refresh
-    e = limits.e
+    # the step's first solve gets ``rescue_after`` iterations: past them (stick/slip transitions
+    # thinner than Newton's steps: the line search cuts, the residual wanders) it starts again
+    # from the step's start with the slip eps ``eps_continuation`` times wider, and the solve
+    # with the scene's eps (which decides the step) goes on from there
+    rescue = tuning.rescue_after > 0 and tuning.eps_continuation > 1.0
+    snap = state.copy() if rescue else None
     res = None
     for r in range(1, tuning.max_relags + 1):
         lim = limits
         if not tuning.refresh_every_iteration:
             v0, _ = residual(mm, state)
             lim = _with_e(limits, max(e, tuning.refresh_forcing * v0))
-        res = solver.solve(state, lim, callback, hist)
+        if rescue and r == 1:
+            res = solver.solve(state, _with(lim, max_iterations=min(lim.max_iterations, tuning.rescue_after)),
+                               callback, hist)
+            if res.status == Status.MAX_ITERATIONS:
+                res = _rescue(m, state, snap, anchor, lim, callback, hist, tuning, solver)
+        else:
+            res = solver.solve(state, lim, callback, hist)
         if not res.converged:
             return False, solver.model, res, r, None
         new = lag_friction(m, state, anchor)
@@ -78,6 +95,23 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
     return False, mm, dataclasses.replace(res, converged=False, status=Status.STALLED,
                                           message=f"friction not settled after {tuning.max_relags} refreshes"), \
         tuning.max_relags, None
+
+
+def _rescue(m, state, snap, anchor, limits, callback, hist, tuning: FrictionTuning, solver):
+    """A load step's first solve again from the step's start ``snap``: with the slip eps
+    ``tuning.eps_continuation`` times wider, then (from its equilibrium, or from the start if it
+    fails) with the scene's eps on ``solver`` (its friction refreshed at the state)."""
+    c = float(tuning.eps_continuation)
+    state.positions[:] = snap.positions
+    state.in_contact[:] = snap.in_contact
+    wide = _newton(dataclasses.replace(m, friction=lag_friction(m, state, anchor, c)), limits)
+    if tuning.refresh_every_iteration:
+        wide.refresh = lambda st: dataclasses.replace(m, friction=lag_friction(m, st, anchor, c))
+    if not wide.solve(state, limits, callback, hist).converged:
+        state.positions[:] = snap.positions
+        state.in_contact[:] = snap.in_contact
+    solver.retarget(dataclasses.replace(m, friction=lag_friction(m, state, anchor)))
+    return solver.solve(state, limits, callback, hist)
 
 
 def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None,

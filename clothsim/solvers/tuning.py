@@ -193,6 +193,12 @@ class FrictionTuning:
     refresh_forcing: float = 0.1
     """With refreshes once per solve: a refresh's solve stops at this share of the residual it
     starts from (or at e, the last one) [1]."""
+    rescue_after: int = 40
+    """Newton iterations of a load step's first solve before it starts again with a wider slip
+    eps (0: never) [iterations]."""
+    eps_continuation: float = 10.0
+    """The rescue's slip eps over the scene's: the step solved with it from its start, then
+    with the scene's eps from there (1: no rescue) [1]."""
     max_cuts: int = 8
     """Halvings of one load step in a row before the sequence ends [cuts]."""
 
@@ -201,6 +207,10 @@ class FrictionTuning:
             raise ValueError(f"FrictionTuning.max_relags must be a whole number >= 1 (got {self.max_relags!r})")
         if isinstance(self.max_cuts, bool) or int(self.max_cuts) != self.max_cuts or self.max_cuts < 0:
             raise ValueError(f"FrictionTuning.max_cuts must be a whole number >= 0 (got {self.max_cuts!r})")
+        if isinstance(self.rescue_after, bool) or int(self.rescue_after) != self.rescue_after or self.rescue_after < 0:
+            raise ValueError(f"FrictionTuning.rescue_after must be a whole number >= 0 (got {self.rescue_after!r})")
+        if not float(self.eps_continuation) >= 1.0:
+            raise ValueError(f"FrictionTuning.eps_continuation must be >= 1 (got {self.eps_continuation!r})")
         if not 0.0 < float(self.refresh_forcing) < 1.0:
             raise ValueError(f"FrictionTuning.refresh_forcing must lie in (0, 1) (got {self.refresh_forcing!r})")
         object.__setattr__(self, "refresh_every_iteration", bool(self.refresh_every_iteration))
