@@ -61,7 +61,9 @@ def test_stages_replay_in_chromium(tmp_path, browser):
             assert poll(lambda: app.pushed_positions is ends[2].positions, timeout=30)
             page.get_by_role("button", name="Previous").click()
             assert poll(lambda: app.pushed_positions is ends[1].positions, timeout=30)
-            amber = poll(lambda: page.evaluate(AMBER_JS) > 300 and page.evaluate(AMBER_JS), timeout=30)
+            # the frame is redrawn after the positions are pushed: wait for the drape's colours
+            amber = poll(lambda: page.evaluate(AMBER_JS) > 300 and page.evaluate(RED_JS) < red_live / 5
+                         and page.evaluate(AMBER_JS), timeout=30)
             red_drape = page.evaluate(RED_JS)
             assert amber and red_drape < red_live / 5, (amber, red_drape, red_live)
             assert page.get_by_text("end of stage 1").first.is_visible()
