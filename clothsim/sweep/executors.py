@@ -182,10 +182,14 @@ def _terminate_pool(pool) -> None:
     try:
         from multiprocessing import forkserver
 
-        pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
+        server = forkserver._forkserver
+        pid = getattr(server, "_forkserver_pid", None)
         if pid:
             os.kill(pid, signal.SIGTERM)
-    except (ImportError, AttributeError, ProcessLookupError, PermissionError):
+            # reap it and forget it, so that the next pool of this process starts a fresh server
+            # (a server still dying when the next pool asks for it answered with EOFError)
+            server._stop()
+    except (ImportError, AttributeError, ProcessLookupError, PermissionError, ChildProcessError, OSError):
         pass
 
 
