@@ -610,23 +610,3 @@ def test_two_threads_loading_one_scan_build_its_surface_once(monkeypatch):
     assert len(builds) == 1 and got[0] is got[1] and got[0].kind == MOLD_SMOOTH
     assert not load._building
     clear_mold_cache()
-
-
-@pytest.mark.slow
-def test_shape_operator_compiles_its_helpers_once():
-    """Issue 29 item 6: smooth_shape_operator passed a literal -1 on one path, which compiled
-    _shape_operator_blend, _blend_at and _blend_from a second time for the type Literal[int](-1)
-    (three of the first run's 177 compilations). Typed afresh (a new, uncached dispatcher of the
-    same function, so that its callees are asked for their signatures even on a warm cache),
-    it now asks each for int64 alone."""
-    import numba
-
-    from clothsim.mold import smooth
-
-    fresh = numba.njit(smooth.smooth_shape_operator.py_func)
-    ma = _ico(2).kernel_args()
-    n, S = np.empty(3), np.empty((3, 3))
-    assert fresh(ma, 0.0, 0.0, R0, 1e-4, n, S)
-    np.testing.assert_allclose(np.sort(np.abs(np.linalg.eigvalsh(S)))[1:], 1 / R0, rtol=0.25)  # a sphere: 1/R twice
-    for f in (smooth._shape_operator_blend, smooth._blend_at, smooth._blend_from):
-        assert f.signatures and not any("Literal" in str(s) for s in f.signatures), (f.__name__, f.signatures)
