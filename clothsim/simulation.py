@@ -30,7 +30,7 @@ from .results import Result
 from .solvers import History, SolveResult, load_steps, make_solver, pick_method
 from .solvers import solve as run_solver
 from .solvers.base import Status
-from .solvers.common import energy as energy_fn, residual as residual_fn, residual
+from .solvers.common import energy as energy_fn, residual as residual_fn
 from .solvers.friction import solve_steps
 
 
@@ -500,7 +500,7 @@ class Simulation:
         """||V||_inf [N] of the current state, evaluated now (under the lock, so a consistent
         state): what the viewer shows before a run has reported one."""
         with self._lock:
-            return float(residual(self.model, self.state)[0])
+            return float(residual_fn(self.model, self.state)[0])
 
     def snapshot(self) -> Snapshot:
         with self._lock:
