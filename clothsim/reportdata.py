@@ -75,10 +75,12 @@ def body_near(mold, positions: np.ndarray, margin: float = BODY_MARGIN_M,
     V, F = np.asarray(V, float), np.asarray(F, np.int64)
     F = F[_overlaps(V, F, lo, hi)]
     # a primitive's long triangles (a cylinder's sides run its whole length) are split in four
-    # until they are short against the box: the crop then follows the box
+    # until they are short against the box: the crop then follows the box. A split is made only
+    # while its four times as many triangles stay within max_faces (else the merging below would
+    # undo it)
     target = float((hi - lo).max()) / 12.0
     for _ in range(8):
-        if not len(F) or 4 * len(F) > 4 * max_faces:
+        if not len(F) or 4 * len(F) > max_faces:
             break
         T = V[F]
         if np.linalg.norm(T - np.roll(T, 1, axis=1), axis=2).max() <= target:

@@ -241,3 +241,28 @@ def test_body_near_the_garment_is_cropped_and_decimated():
     assert 50 < len(f) <= 500 and f.max() < len(v)
     assert np.abs(np.linalg.norm(v, axis=1) - 0.1).max() < 0.003
     assert body_near(None, garment)[1].shape == (0, 3)
+
+
+class _Square:
+    """A mold whose display surface is the unit square z = 0 in two triangles (edges of 1 and
+    1.41 m: long against the box, so body_near splits them)."""
+
+    def surface_mesh(self, resolution, extent):
+        return np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def test_body_near_splits_only_within_max_faces():
+    """A split makes four triangles of one: it is made only when the four-fold count stays within
+    max_faces (the guard read ``4 len(F) > 4 max_faces``, i.e. len(F) > max_faces, so a split could
+    leave up to four times max_faces, merged back onto a grid). At the boundary: 2 triangles with
+    max_faces 8 are split once (8, not 32: the next split would pass 8) and kept as split; with
+    max_faces 7 they are kept as they are."""
+    from clothsim.reportdata import body_near
+
+    garment = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    v, f = body_near(_Square(), garment, margin=0.01, max_faces=8)
+    assert len(f) == 8 and len(v) == 9                       # one split: the square's 3 x 3 grid
+    assert sorted({(float(x), float(y)) for x, y, _ in v}) == [(x, y) for x in (0, 0.5, 1) for y in (0, 0.5, 1)]
+    v, f = body_near(_Square(), garment, margin=0.01, max_faces=7)
+    assert len(f) == 2 and len(v) == 4                       # no split: the two triangles as given
+    assert sorted({(float(x), float(y)) for x, y, _ in v}) == [(0, 0), (0, 1), (1, 0), (1, 1)]
