@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import patterns
-from .compression.folder import portable_scene_yaml, scene_brief
+from .compression.folder import portable_scene, portable_scene_yaml, scene_brief
 from .compression.readings import Readings
 from .config import Scene
 from .errors import SceneError
@@ -399,8 +399,10 @@ def compile_scene(scene: Scene, mold=_NO_MOLD) -> tuple[Model, State]:
 
 def run_inputs(scene: Scene) -> RunInputs:
     """What the run's Result reports of ``scene`` (its name, C and e, the resolved scene's YAML,
-    the probes, profiles and classes to read): the Result reads these, never the scene."""
+    the probes, profiles and classes to read): the Result reads these, never the scene. The
+    scene's files are read and hashed once, for both the YAML and the brief."""
 
+    portable = portable_scene(scene)
     return RunInputs(name=scene.name, C=float(scene.solver.C), e=float(scene.solver.e),
-                     scene_yaml=portable_scene_yaml(scene), readings=Readings.of(scene),
-                     scene_brief=scene_brief(scene))
+                     scene_yaml=portable_scene_yaml(scene, portable), readings=Readings.of(scene),
+                     scene_brief=scene_brief(scene, portable))

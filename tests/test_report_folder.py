@@ -266,3 +266,21 @@ def test_body_near_splits_only_within_max_faces():
     v, f = body_near(_Square(), garment, margin=0.01, max_faces=7)
     assert len(f) == 2 and len(v) == 4                       # no split: the two triangles as given
     assert sorted({(float(x), float(y)) for x, y, _ in v}) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+
+
+def test_run_inputs_reads_each_scene_file_once(monkeypatch):
+    """run_inputs takes the portable scene once for scene.yaml and the scene in short: each file
+    the stocking reads (two CSV tables, the body's STL) is hashed once (it was twice: 6 reads for 3
+    files), and both are what each gives alone."""
+    from clothsim.compile import run_inputs
+    from clothsim.compression import folder
+
+    scene = load_scene(ROOT / "configs" / "garments" / "stocking.yaml")
+    hashed = []
+    sha256 = folder._sha256
+    monkeypatch.setattr(folder, "_sha256", lambda path: (hashed.append(path.name), sha256(path))[1])
+    inputs = run_inputs(scene)
+    assert sorted(hashed) == ["compression_knit_course.csv", "compression_knit_wale.csv", "smpl_man.stl"]
+    monkeypatch.setattr(folder, "_sha256", sha256)
+    assert inputs.scene_yaml == folder.portable_scene_yaml(scene)
+    assert inputs.scene_brief == folder.scene_brief(scene)

@@ -78,10 +78,11 @@ def portable_scene(scene) -> tuple[dict, list[dict]]:
     return d, files
 
 
-def portable_scene_yaml(scene) -> str:
+def portable_scene_yaml(scene, portable: tuple[dict, list[dict]] | None = None) -> str:
     """``scene.yaml`` of a result folder: a header naming each file the scene read with its
-    SHA-256, then the scene with those references by name only (see the module docstring)."""
-    d, files = portable_scene(scene)
+    SHA-256, then the scene with those references by name only (see the module docstring).
+    ``portable``: :func:`portable_scene` of ``scene`` if already taken (its files are read once)."""
+    d, files = portable if portable is not None else portable_scene(scene)
     head = ["# The scene as run. File references are by name only (no path of the machine that ran it):",
             "# to run it again, put these files beside this scene.yaml (the SHA-256 says whether a file is",
             "# the one used) or edit the paths."]
@@ -148,10 +149,11 @@ def _standards(scene) -> list[dict]:
              "classes": [{"name": c.name, "min": c.min, "max": c.max} for c in s.classes]} for s in chosen]
 
 
-def scene_brief(scene) -> dict:
+def scene_brief(scene, portable: tuple[dict, list[dict]] | None = None) -> dict:
     """The scene in short, as the report shows it (no path, no YAML dump; see the module
-    docstring): what the scene alone says, taken when the scene is compiled."""
-    d, files = portable_scene(scene)
+    docstring): what the scene alone says, taken when the scene is compiled. ``portable``: as
+    for :func:`portable_scene_yaml`."""
+    d, files = portable if portable is not None else portable_scene(scene)
     panels = d.get("panels") or []
     if panels:
         names = ", ".join(str(p.get("name")) for p in panels)
