@@ -222,6 +222,34 @@ def test_bad_compression_fields_name_the_field(override, message):
     assert message in str(exc.value)
 
 
+@pytest.mark.parametrize("model, fields, message", [
+    ("probe", {"point": (math.nan, 0, 0)}, "point\n  Value error, must be finite (got [nan, 0.0, 0.0])"),
+    ("probe", {"point": (0, 0, 0), "radius": 0}, "radius\n  Value error, must be positive and finite (got 0.0)"),
+    ("profile", {"step": -0.01}, "step\n  Value error, must be positive and finite (got -0.01)"),
+    ("profile", {"step": 0.01, "axis": (0, math.inf, 1)}, "axis\n  Value error, must be finite (got [0.0, inf, 1.0])"),
+    ("levels", {"center": (math.nan, 0)}, "center\n  Value error, must be finite (got [nan, 0.0])"),
+    ("levels", {"medial": (1, math.inf)}, "medial\n  Value error, must be finite (got [1.0, inf])"),
+    ("levels", {"radius": math.inf}, "radius\n  Value error, must be positive and finite (got inf)"),
+    ("fit", {"tol_mmhg": -1}, "tol_mmhg\n  Value error, must be positive and finite (got -1.0)"),
+])
+def test_compression_fields_finite_and_positive_messages(model, fields, message):
+    """The finite and positive checks of probes, profiles, levels and a sweep's fit share one
+    helper (clothsim.strict); their words stay as they were."""
+    from pydantic import ValidationError
+
+    from clothsim.compression.levelspec import Levels
+    from clothsim.compression.spec import Probe, Profile
+    from clothsim.sweep.spec import FitBlock
+
+    make = {"probe": lambda: Probe(name="a", **fields),
+            "profile": lambda: Profile(name="p", **{"from": 0.0, "to": 0.1}, **fields),
+            "levels": lambda: Levels(**fields),
+            "fit": lambda: FitBlock(vary=["fabric.size.0"], target=["a=20"], **fields)}[model]
+    with pytest.raises(ValidationError) as exc:
+        make()
+    assert message in str(exc.value)
+
+
 def test_probe_defaults_and_round_trip():
     """The default radius is 1 cm; 'from' survives a write and a re-read of the scene."""
     scene = load_scene(SLEEVE, [PROBES, PROFILE])

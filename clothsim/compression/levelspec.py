@@ -24,18 +24,12 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from ..strict import Strict as _Strict
+from ..strict import Strict as _Strict, finite_values, positive_finite
 
 #: the levels :mod:`.levels` can find on a body's girths
 FINDABLE = ("B", "C", "D")
 #: the four sides a stocking's pressure is read on
 SIDES = ("anterior", "posterior", "medial", "lateral")
-
-
-def _pair(v):
-    if any(not math.isfinite(x) for x in v):
-        raise ValueError(f"must be finite (got {list(v)})")
-    return v
 
 
 class Levels(_Strict):
@@ -54,7 +48,8 @@ class Levels(_Strict):
     radius: float = 0.01
     gradient: dict[str, tuple[float, float]] = Field(default_factory=dict)
 
-    _pairs = field_validator("center", "anterior", "medial")(classmethod(lambda cls, v: v if v is None else _pair(v)))
+    _pairs = field_validator("center", "anterior", "medial")(classmethod(lambda cls, v: v if v is None else finite_values(v)))
+    _radius = field_validator("radius")(classmethod(lambda cls, v: positive_finite(v)))
 
     @field_validator("heights")
     @classmethod
@@ -62,13 +57,6 @@ class Levels(_Strict):
         for k, h in v.items():
             if not (isinstance(h, (int, float)) and math.isfinite(h)):
                 raise ValueError(f"{k}: must be a finite height [m] (got {h!r})")
-        return v
-
-    @field_validator("radius")
-    @classmethod
-    def _radius(cls, v):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
         return v
 
     @field_validator("gradient")

@@ -20,17 +20,11 @@ from typing import Literal, Union
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from ..strict import Strict as _Strict
+from ..strict import Strict as _Strict, finite_values, positive_finite
 from .standards import STANDARDS, ClassBand, Standard  # noqa: F401  (ClassBand re-exported)
 
 #: a sensor's default radius [m]: the 1-2 cm discs used to measure garments on limbs
 DEFAULT_PROBE_RADIUS = 0.01
-
-
-def _finite_tuple(v):
-    if any(not math.isfinite(x) for x in v):
-        raise ValueError(f"must be finite (got {list(v)})")
-    return v
 
 
 class Probe(_Strict):
@@ -46,7 +40,8 @@ class Probe(_Strict):
     level: str | None = None
     side: Literal["anterior", "posterior", "medial", "lateral"] | None = None
 
-    _point = field_validator("point")(classmethod(lambda cls, v: v if v is None else _finite_tuple(v)))
+    _point = field_validator("point")(classmethod(lambda cls, v: v if v is None else finite_values(v)))
+    _radius = field_validator("radius")(classmethod(lambda cls, v: positive_finite(v)))
 
     @model_validator(mode="after")
     def _where(self):
@@ -55,13 +50,6 @@ class Probe(_Strict):
         if self.point is not None and (self.level is not None or self.side is not None):
             raise ValueError("give point, or level and side, not both")
         return self
-
-    @field_validator("radius")
-    @classmethod
-    def _radius(cls, v):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
-        return v
 
 
 class Profile(_Strict):
@@ -79,18 +67,13 @@ class Profile(_Strict):
     step: float
     steady_tolerance_mmhg: float = 0.1
 
-    @field_validator("step")
-    @classmethod
-    def _step(cls, v):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
-        return v
+    _step = field_validator("step")(classmethod(lambda cls, v: positive_finite(v)))
 
     @field_validator("axis")
     @classmethod
     def _axis(cls, v):
         if isinstance(v, tuple):
-            _finite_tuple(v)
+            finite_values(v)
             if math.hypot(*v) == 0.0:
                 raise ValueError("must not be the zero vector")
         return v

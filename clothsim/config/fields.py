@@ -10,6 +10,7 @@ from typing import Annotated, Any
 from pydantic import BeforeValidator
 
 from ..fileio import fmt_beyond
+from ..strict import positive_finite
 
 
 #: bound on every coordinate, length and displacement [m]: far beyond any garment or mold, and
@@ -31,8 +32,8 @@ def _finite(v, name="value"):
 def _positive(v, hi: float | None = None, unit: str = ""):
     """None, or a positive finite number (else the validation message every such field gives),
     at most ``hi`` if given."""
-    if v is not None and not (math.isfinite(v) and v > 0):
-        raise ValueError(f"must be positive and finite (got {v})")
+    if v is not None:
+        positive_finite(v)
     if v is not None and hi is not None and v > hi:
         raise ValueError(f"at most {hi:.0e}{' ' + unit if unit else ''} (got {fmt_beyond(v, hi)})")
     return v

@@ -18,7 +18,7 @@ from ..config import SceneError, apply_overrides, format_validation_error, read_
 from ..mold import MoldError, check_mold
 from ..records import (FIT_FIELDS, OUTPUT_FIELDS, PROBE_SUFFIXES, SUMMARY_FIELDS, TIMING_KEYS,  # noqa: F401
                        WORKER_FIELDS, split_named)
-from ..strict import Strict
+from ..strict import Strict, positive_finite
 
 #: summary.json keys a sweep can tabulate and plot (the field list, clothsim.records.SUMMARY_FIELDS)
 SUMMARY_KEYS = tuple(f.key for f in SUMMARY_FIELDS)
@@ -172,12 +172,7 @@ class FitBlock(_ByName):
             raise ValueError(str(exc).replace("--target ", "")) from None
         return v
 
-    @field_validator("tol_mmhg")
-    @classmethod
-    def _tol(cls, v):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be positive and finite (got {v})")
-        return v
+    _tol = field_validator("tol_mmhg")(classmethod(lambda cls, v: positive_finite(v)))
 
     def parsed(self):
         """(list of Vary, list of Target)."""
