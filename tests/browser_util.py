@@ -72,6 +72,41 @@ def launch(playwright):
     return browser
 
 
+def offline_page(browser, **kwargs):
+    """(page, refused): a new page of ``browser`` (``kwargs`` to ``new_page``) on which every
+    request but file: and data: URLs is refused and its URL appended to ``refused``: a report
+    that opens offline leaves it empty."""
+    page = browser.new_page(**kwargs)
+    refused = []
+
+    def block(route):
+        if not route.request.url.startswith(("file:", "data:")):
+            refused.append(route.request.url)
+            route.abort()
+        else:
+            route.continue_()
+
+    page.route("**/*", block)
+    return page, refused
+
+
+# JavaScript: every image of the page, decoded and drawn into a canvas: its size, how many pixels
+# are not near-white (n) and how many are coloured (a channel spread over 60)
+IMAGES_JS = """() => [...document.images].map(img => {
+  const c = document.createElement('canvas'); c.width = img.naturalWidth; c.height = img.naturalHeight;
+  if (!img.complete || !c.width) return {alt: img.alt, w: 0, h: 0, n: 0, colored: 0};
+  const ctx = c.getContext('2d'); ctx.drawImage(img, 0, 0);
+  const d = ctx.getImageData(0, 0, c.width, c.height).data;
+  let n = 0, colored = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    if (d[i] + d[i+1] + d[i+2] < 720) n++;
+    const mx = Math.max(d[i], d[i+1], d[i+2]), mn = Math.min(d[i], d[i+1], d[i+2]);
+    if (mx - mn > 60) colored++;
+  }
+  return {alt: img.alt, w: c.width, h: c.height, n, colored};
+})"""
+
+
 def canvas_pixels(page) -> dict:
     return page.evaluate(COUNT_JS)
 

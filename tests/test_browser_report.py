@@ -19,21 +19,8 @@ pytest.importorskip("playwright")
 import clothsim  # noqa: E402
 from clothsim.config import load_scene  # noqa: E402
 
+from browser_util import IMAGES_JS, offline_page  # noqa: E402
 from conftest import ROOT  # noqa: E402
-
-IMAGES_JS = """() => [...document.images].map(img => {
-  const c = document.createElement('canvas'); c.width = img.naturalWidth; c.height = img.naturalHeight;
-  if (!img.complete || !c.width) return {alt: img.alt, w: 0, h: 0, n: 0, colored: 0};
-  const ctx = c.getContext('2d'); ctx.drawImage(img, 0, 0);
-  const d = ctx.getImageData(0, 0, c.width, c.height).data;
-  let n = 0, colored = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    if (d[i] + d[i+1] + d[i+2] < 720) n++;
-    const mx = Math.max(d[i], d[i+1], d[i+2]), mn = Math.min(d[i], d[i+1], d[i+2]);
-    if (mx - mn > 60) colored++;
-  }
-  return {alt: img.alt, w: c.width, h: c.height, n, colored};
-})"""
 
 SCREENSHOT = ROOT / "docs" / "guide" / "report.png"
 
@@ -50,20 +37,11 @@ def test_stocking_report_in_chromium(tmp_path, browser):
     assert main(["report", str(out)]) == 0
     page_file = out / "report.html"
     s = json.loads((out / "summary.json").read_text())
-    requests, errors = [], []
-    page = browser.new_page(viewport={"width": 1360, "height": 1000})
+    errors = []
+    page, requests = offline_page(browser, viewport={"width": 1360, "height": 1000})
     try:
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         page.on("pageerror", lambda e: errors.append(str(e)))
-
-        def block(route):
-            if not route.request.url.startswith(("file:", "data:")):
-                requests.append(route.request.url)
-                route.abort()
-            else:
-                route.continue_()
-
-        page.route("**/*", block)
         page.goto(page_file.as_uri())
         page.wait_for_load_state("load")
         imgs = page.evaluate(IMAGES_JS)

@@ -14,21 +14,8 @@ pytest.importorskip("playwright")
 import clothsim  # noqa: E402
 from clothsim.config import load_scene  # noqa: E402
 
+from browser_util import IMAGES_JS, offline_page  # noqa: E402
 from conftest import ROOT  # noqa: E402
-
-IMAGES_JS = """() => [...document.images].map(img => {
-  const c = document.createElement('canvas'); c.width = img.naturalWidth; c.height = img.naturalHeight;
-  if (!c.width) return {alt: img.alt, w: 0, h: 0, n: 0, colored: 0};
-  const ctx = c.getContext('2d'); ctx.drawImage(img, 0, 0);
-  const d = ctx.getImageData(0, 0, c.width, c.height).data;
-  let n = 0, colored = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    if (d[i] + d[i+1] + d[i+2] < 720) n++;
-    const mx = Math.max(d[i], d[i+1], d[i+2]), mn = Math.min(d[i], d[i+1], d[i+2]);
-    if (mx - mn > 60) colored++;
-  }
-  return {alt: img.alt, w: c.width, h: c.height, n, colored};
-})"""
 
 
 @pytest.mark.browser
@@ -47,18 +34,8 @@ def test_report_opens_offline_with_images_and_the_summary_numbers(tmp_path, brow
     text = page_file.read_text()
     assert "http://" not in text and "https://" not in text and "<script" not in text
     s = json.loads((out / "summary.json").read_text())
-    requests = []
-    page = browser.new_page()
+    page, requests = offline_page(browser)
     try:
-
-        def block(route):
-            if not route.request.url.startswith(("file:", "data:")):
-                requests.append(route.request.url)
-                route.abort()
-            else:
-                route.continue_()
-
-        page.route("**/*", block)
         page.goto(page_file.as_uri())
         page.wait_for_load_state("load")
         imgs = page.evaluate(IMAGES_JS)
