@@ -55,6 +55,24 @@ def test_rings_lie_round_each_chart_level_at_its_girth():
     assert ring_label(rings[0], {"mean_mmhg": 27.06}) == "B 22.0 cm · 27.1 mmHg"
 
 
+def test_a_scan_ring_is_the_section_loop_round_the_level_centre():
+    """On a scan the ring is the section's loop holding the level's centre, else the one whose
+    mean is nearest (clothsim.compression.levels.section_loop, shared with the scan's girths):
+    two legs, cylinders of radius 5 and 8 cm at x = -0.1 and 0.1 m."""
+    import trimesh
+
+    from clothsim.viewer.levelview import _scan_loop
+
+    legs = [trimesh.creation.cylinder(radius=r, height=0.4, sections=64).apply_translation([x, 0, 0])
+            for r, x in ((0.05, -0.1), (0.08, 0.1))]
+    mesh = trimesh.util.concatenate(legs)
+    for centre, (x, r) in (([0.12, 0.01], (0.1, 0.08)), ([-0.1, 0.0], (-0.1, 0.05)), ([-0.05, 0.3], (-0.1, 0.05))):
+        xy = _scan_loop(mesh, {"z_m": 0.0, "center": centre})
+        d = np.linalg.norm(xy - [x, 0.0], axis=1)       # on the 64-gon: from r cos(pi / 64) to r
+        assert len(xy) >= 64 and np.all((d > r * math.cos(math.pi / 64) - 1e-9) & (d < r + 1e-9)), centre
+    assert _scan_loop(mesh, {"z_m": 0.5, "center": [0.0, 0.0]}) is None     # above the legs: no section
+
+
 def test_class_band_is_the_class_b_falls_in():
     assert class_band(27.0) == {"standard": "RAL-GZ 387", "class": "II", "min": 23.0, "max": 32.0}
     assert class_band(19.5)["class"] == "I"

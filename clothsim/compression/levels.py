@@ -79,13 +79,30 @@ def hull_girth(xy: np.ndarray) -> float:
 _hull_length = hull_girth
 
 
+def section_loop(section, seed) -> tuple[np.ndarray | None, float]:
+    """The loop of a mesh's plane section (trimesh's Path3D) round ``seed`` (x, y) [m], else the
+    one whose mean is nearest to it: (its (k, 2) points, 0 or that distance [m]); (None, inf)
+    when no loop has 4 points. The scan's girths here and the viewer's level rings read it."""
+    from shapely.geometry import Point, Polygon
+
+    best, best_d = None, math.inf
+    for loop in section.discrete:
+        xy = np.asarray(loop)[:, :2]
+        if len(xy) < 4:
+            continue
+        poly = Polygon(xy)
+        d = 0.0 if poly.is_valid and poly.contains(Point(*seed)) else float(np.linalg.norm(xy.mean(0) - seed))
+        if d < best_d:
+            best, best_d = xy, d
+    return best, best_d
+
+
 def scan_girths(vertices: np.ndarray, faces: np.ndarray, seed_xy, z_from: float | None = None,
                 z_to: float | None = None, step: float = SCAN_STEP) -> dict:
     """The girths of one leg of a mesh along z: {z, girth (convex hull) [m], loop [m],
     centroid (n, 2) [m], loops (list of (k, 2) arrays)}, from the lowest slice holding the seed
     up to where the legs merge (see the module docstring)."""
     import trimesh
-    from shapely.geometry import Point, Polygon
 
     mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces, np.int64), process=False)
     lo, hi = mesh.bounds[:, 2]
@@ -99,15 +116,7 @@ def scan_girths(vertices: np.ndarray, faces: np.ndarray, seed_xy, z_from: float 
             if out["z"]:
                 break
             continue
-        best, best_d = None, math.inf
-        for loop in sec.discrete:
-            xy = np.asarray(loop)[:, :2]
-            if len(xy) < 4:
-                continue
-            poly = Polygon(xy)
-            d = 0.0 if poly.is_valid and poly.contains(Point(*seed)) else float(np.linalg.norm(xy.mean(0) - seed))
-            if d < best_d:
-                best, best_d = xy, d
+        best, best_d = section_loop(sec, seed)
         if best is None or (best_d > 0.05 and out["z"]):
             if len(out["z"]) >= 8:
                 break

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from ..compression.levels import level_set, read_levels
+from ..compression.levels import level_set, read_levels, section_loop
 from ..compression.probes import read_profile
 from ..compression.spec import Profile
 from ..compression.standards import STANDARDS, standard
@@ -48,22 +48,10 @@ def _chart_loop(mold, lv: dict, n: int) -> np.ndarray:
 
 
 def _scan_loop(mesh, lv: dict) -> np.ndarray | None:
-    from shapely.geometry import Point, Polygon
-
     sec = mesh.section(plane_origin=[0.0, 0.0, lv["z_m"]], plane_normal=[0.0, 0.0, 1.0])
     if sec is None:
         return None
-    c = np.asarray(lv["center"][:2], float)
-    best, best_d = None, math.inf
-    for loop in sec.discrete:
-        xy = np.asarray(loop)[:, :2]
-        if len(xy) < 4:
-            continue
-        poly = Polygon(xy)
-        d = 0.0 if poly.is_valid and poly.contains(Point(*c)) else float(np.linalg.norm(xy.mean(0) - c))
-        if d < best_d:
-            best, best_d = xy, d
-    return best
+    return section_loop(sec, np.asarray(lv["center"][:2], float))[0]
 
 
 def level_rings(scene, mold, lset: dict | None = None, n: int = RING_POINTS, lift: float = RING_LIFT) -> list[dict]:
