@@ -231,6 +231,9 @@ def test_bad_compression_fields_name_the_field(override, message):
     ("levels", {"medial": (1, math.inf)}, "medial\n  Value error, must be finite (got [1.0, inf])"),
     ("levels", {"radius": math.inf}, "radius\n  Value error, must be positive and finite (got inf)"),
     ("fit", {"tol_mmhg": -1}, "tol_mmhg\n  Value error, must be positive and finite (got -1.0)"),
+    ("fit", {"vary": ["fabric.size.0=a:b"]},
+     "vary\n  Value error, fabric.size.0=a:b: expected FIELD or FIELD=LO:HI, e.g. fabric.size.0=0.2:0.3 [type"),
+    ("fit", {"target": ["ankle=25psi"]}, "target\n  Value error, ankle=25psi: unknown unit 'psi' (mmHg, Pa or kPa) [type"),
 ])
 def test_compression_fields_finite_and_positive_messages(model, fields, message):
     """The finite and positive checks of probes, profiles, levels and a sweep's fit share one
@@ -244,7 +247,7 @@ def test_compression_fields_finite_and_positive_messages(model, fields, message)
     make = {"probe": lambda: Probe(name="a", **fields),
             "profile": lambda: Profile(name="p", **{"from": 0.0, "to": 0.1}, **fields),
             "levels": lambda: Levels(**fields),
-            "fit": lambda: FitBlock(vary=["fabric.size.0"], target=["a=20"], **fields)}[model]
+            "fit": lambda: FitBlock(**{"vary": ["fabric.size.0"], "target": ["a=20"], **fields})}[model]
     with pytest.raises(ValidationError) as exc:
         make()
     assert message in str(exc.value)

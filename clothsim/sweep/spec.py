@@ -139,6 +139,17 @@ class SweepBlock(_ByName):
         return self
 
 
+def _parses(v: list[str], parse, flag: str) -> list[str]:
+    """``v`` if ``parse`` (the fit command's reader of --vary or --target) reads each item, else
+    its FitError as a ValueError, without the command's ``flag``."""
+    try:
+        for x in v:
+            parse(x)
+    except FitError as exc:
+        raise ValueError(str(exc).replace(flag, "")) from None
+    return v
+
+
 class FitBlock(_ByName):
     """``fit:`` makes every run of the sweep an inverse sizing (clothsim.compression.fit, as
     ``python app.py fit``): ``vary`` the fields (``PATH`` or ``PATH=LO:HI``; default bounds: the
@@ -152,26 +163,8 @@ class FitBlock(_ByName):
     tol_mmhg: float = 0.1
     max_solves: int = Field(default=12, ge=1, le=100)
 
-    @field_validator("vary")
-    @classmethod
-    def _vary(cls, v):
-        try:
-            for x in v:
-                parse_vary(x)
-        except FitError as exc:
-            raise ValueError(str(exc).replace("--vary ", "")) from None
-        return v
-
-    @field_validator("target")
-    @classmethod
-    def _target(cls, v):
-        try:
-            for x in v:
-                parse_target(x)
-        except FitError as exc:
-            raise ValueError(str(exc).replace("--target ", "")) from None
-        return v
-
+    _vary = field_validator("vary")(classmethod(lambda cls, v: _parses(v, parse_vary, "--vary ")))
+    _target = field_validator("target")(classmethod(lambda cls, v: _parses(v, parse_target, "--target ")))
     _tol = field_validator("tol_mmhg")(classmethod(lambda cls, v: positive_finite(v)))
 
     def parsed(self):
