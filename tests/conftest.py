@@ -52,6 +52,20 @@ def root():
     return ROOT
 
 
+def cli_main(capsys, *argv) -> tuple[int, str]:
+    """(exit status, stderr) of the command line (``app.py`` with ``argv``) run in this process;
+    an argparse refusal's SystemExit gives its status. Its stderr never holds a traceback."""
+    from clothsim import cli
+
+    try:
+        rc = cli.main(list(argv))
+    except SystemExit as exc:
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err, err
+    return rc, err
+
+
 @pytest.fixture(scope="module")
 def browser():
     """Debian's Chromium, headless, through Playwright (``browser_util.launch``: software WebGL,

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import ROOT, scene_dict
+from conftest import ROOT, cli_main, scene_dict
 
 from clothsim import cli
 from clothsim.config import SceneError, load_scene
@@ -26,17 +26,6 @@ def _write(tmp_path, d, name="s.yaml"):
     p = tmp_path / name
     p.write_text(yaml.safe_dump(d, sort_keys=False))
     return p
-
-
-def _main(capsys, *argv):
-    """(exit status, stderr) of the command line run in this process."""
-    try:
-        rc = cli.main(list(argv))
-    except SystemExit as exc:  # argparse refusals
-        rc = exc.code
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return rc, err
 
 
 @pytest.fixture
@@ -57,9 +46,9 @@ def test_non_utf8_scene_refused_for_run_and_view(tmp_path, capsys, no_solve):
     p = tmp_path / "latin.yaml"
     p.write_bytes(yaml.safe_dump(scene_dict()).encode() + "# caf\xe9\n".encode("latin-1"))
     line = p.read_bytes().count(b"\n")
-    rc, err = _main(capsys, "run", str(p))
+    rc, err = cli_main(capsys, "run", str(p))
     assert rc == 2 and f"latin.yaml:{line}: not UTF-8 text" in err
-    rc, err = _main(capsys, "view", str(p), "--no-browser")
+    rc, err = cli_main(capsys, "view", str(p), "--no-browser")
     assert rc == 2 and f"latin.yaml:{line}: not UTF-8 text" in err
 
 
@@ -69,25 +58,25 @@ def test_latin1_csv_table_refused_with_its_line(tmp_path, capsys):
     s = _write(tmp_path, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}))
     with pytest.raises(MaterialError, match=r"t\.csv:4: not UTF-8 text"):
         load_scene(s).tables()
-    rc, err = _main(capsys, "run", str(s))
+    rc, err = cli_main(capsys, "run", str(s))
     assert rc == 2 and "t.csv:4: not UTF-8 text" in err
 
 
 @pytest.mark.parametrize("what", ["scene", "csv"])
 def test_dev_zero_and_oversized_files_refused(tmp_path, capsys, what):
     if what == "scene":
-        rc, err = _main(capsys, "run", "/dev/zero")
+        rc, err = cli_main(capsys, "run", "/dev/zero")
         assert rc == 2 and "/dev/zero: not a regular file" in err
         big = tmp_path / "big.yaml"
         with open(big, "wb") as fh:
             fh.write(b"name: x\n")
             fh.seek(11 * 2**20)
             fh.write(b"\n")
-        rc, err = _main(capsys, "run", str(big))
+        rc, err = cli_main(capsys, "run", str(big))
         assert rc == 2 and "big.yaml: too large" in err
     else:
         s = _write(tmp_path, scene_dict(**{"fabric.weft": {"csv": "/dev/zero"}}))
-        rc, err = _main(capsys, "run", str(s))
+        rc, err = cli_main(capsys, "run", str(s))
         assert rc == 2 and "/dev/zero: not a regular file" in err
 
 
@@ -105,7 +94,7 @@ def test_bad_initial_file_refused(tmp_path, capsys):
         (tmp_path / name).write_bytes(b)
     np.savez(tmp_path / "complex.npz", positions=np.zeros((11, 3, 3), complex))
     for name in [*bad, "complex.npz"]:
-        rc, err = _main(capsys, "run", str(s), "--quiet", "--set", f"initial.file={tmp_path / name}")
+        rc, err = cli_main(capsys, "run", str(s), "--quiet", "--set", f"initial.file={tmp_path / name}")
         assert rc == 2, (name, err)
         assert f"{name}: initial.file:" in err, err
 
@@ -115,7 +104,7 @@ def test_bad_initial_file_refused(tmp_path, capsys):
 
 def test_out_that_is_a_file_refused_before_the_solve(tmp_path, capsys, no_solve):
     s = _write(tmp_path, scene_dict())
-    rc, err = _main(capsys, "run", str(s), "--out", "/etc/passwd")
+    rc, err = cli_main(capsys, "run", str(s), "--out", "/etc/passwd")
     assert rc == 2 and "--out /etc/passwd: exists and is not a folder" in err
 
 
@@ -135,7 +124,7 @@ def test_out_in_a_read_only_folder_refused_before_the_solve(tmp_path, capsys, mo
         return real_open(path, flags, *a, **k)
 
     monkeypatch.setattr(fileio.os, "open", ro_open)
-    rc, err = _main(capsys, "run", str(s), "--out", str(ro))
+    rc, err = cli_main(capsys, "run", str(s), "--out", str(ro))
     assert rc == 2 and f"--out {ro}: cannot write there (Read-only file system)" in err
     assert list(ro.iterdir()) == []
 
@@ -223,7 +212,7 @@ def test_yaml_bomb_scene_refused_before_validation(tmp_path, capsys, no_solve):
     p = tmp_path / "bomb.yaml"
     p.write_text("x-bomb:\n" + "\n".join("  " + ln for ln in BOMB.splitlines()) + "\n" + body.replace(
         "mold:\n", "mold:\n  closed: *i\n", 1))
-    rc, err = _main(capsys, "run", str(p), "--out", str(tmp_path / "out"))
+    rc, err = cli_main(capsys, "run", str(p), "--out", str(tmp_path / "out"))
     assert rc == 2 and "bomb.yaml:" in err and "aliases expand" in err
     # ordinary anchors and aliases (a shared table) still work
     ok = tmp_path / "ok.yaml"
@@ -272,11 +261,11 @@ def test_strain_typed_as_percent_warns(tmp_path):
 @pytest.mark.slow
 def test_strain_warning_printed_by_the_cli(tmp_path, capsys):
     s = _write(tmp_path, scene_dict(**{"fabric.weft": {"strain": [0, 10, 30], "tension": [0, 20, 80]}}))
-    rc, err = _main(capsys, "run", str(s), "--quiet")
+    rc, err = cli_main(capsys, "run", str(s), "--quiet")
     assert rc == 0
     assert err.count("warning: fabric.weft.strain: 30 (3000 %)") == 1, err
     # with --out the scene is resolved and written again: still one warning
-    rc, err = _main(capsys, "run", str(s), "--quiet", "--out", str(tmp_path / "out"), "--set", "solver.method=newton")
+    rc, err = cli_main(capsys, "run", str(s), "--quiet", "--out", str(tmp_path / "out"), "--set", "solver.method=newton")
     assert rc == 0
     assert err.count("warning: fabric.weft.strain: 30 (3000 %)") == 1, err
 
@@ -286,17 +275,17 @@ def test_strain_warning_printed_by_the_cli(tmp_path, capsys):
 
 def test_set_errors_blamed_on_the_set_argument(tmp_path, capsys, no_solve):
     s = _write(tmp_path, scene_dict())
-    rc, err = _main(capsys, "run", str(s), "--set", "solver.Cx=1")
+    rc, err = cli_main(capsys, "run", str(s), "--set", "solver.Cx=1")
     assert rc == 2 and "--set solver.Cx=1: solver.Cx: unknown field" in err
     assert "s.yaml:" not in err
-    rc, err = _main(capsys, "run", str(s), "--set", "solver.C=0.5")
+    rc, err = cli_main(capsys, "run", str(s), "--set", "solver.C=0.5")
     assert rc == 2 and "--set solver.C=0.5: solver.C: must be greater than 1" in err
     # an override that makes a new section, mistypes one, or sets an item of a checked list is
     # blamed too (they were blamed on an unrelated line of the file: found by a hostile pass)
     for arg, msg in (("solvr.C=3", "--set solvr.C=3: solvr: unknown field"),
                      ("gravity.g=1", "--set gravity.g=1: gravity.areal_density: missing"),
                      ("fabric.size.0=-1", "--set fabric.size.0=-1: fabric.size: must be positive and finite")):
-        rc, err = _main(capsys, "run", str(s), "--set", arg)
+        rc, err = cli_main(capsys, "run", str(s), "--set", arg)
         assert rc == 2 and msg in err and "s.yaml:" not in err, err
 
 
@@ -311,16 +300,16 @@ def test_errors_found_at_start_up_name_the_line(tmp_path, capsys):
     line = 1 + s.read_text().splitlines().index("constraints:") + 1
     with pytest.raises(SceneError, match=rf"s\.yaml:{line}: constraints\.0\.nodes: constraints: i range \[0, 600\] outside 0\.\."):
         load_scene(s)
-    rc, err = _main(capsys, "run", str(s), "--quiet", "--set", "constraints.0.nodes={i: [0, 700]}")
+    rc, err = cli_main(capsys, "run", str(s), "--quiet", "--set", "constraints.0.nodes={i: [0, 700]}")
     assert rc == 2 and "--set constraints.0.nodes={i: [0, 700]}: constraints.0.nodes: " in err, err
     text = (ROOT / "configs" / "garments" / "sleeve_dxf.yaml").read_text()
     text = text.replace("../../", str(ROOT) + "/").replace("piece: FRONT}", "piece: FRONTT}")
     g = tmp_path / "g.yaml"
     g.write_text(text)
     line = 1 + next(n for n, t in enumerate(text.splitlines()) if "FRONTT" in t)
-    rc, err = _main(capsys, "run", str(g), "--quiet")
+    rc, err = cli_main(capsys, "run", str(g), "--quiet")
     assert rc == 2 and f"g.yaml:{line}: panels.0.pattern.piece: no piece 'FRONTT'" in err, err
-    rc, err = _main(capsys, "run", str(g), "--quiet", "--set", "panels.0.pattern.piece=BACKK")
+    rc, err = cli_main(capsys, "run", str(g), "--quiet", "--set", "panels.0.pattern.piece=BACKK")
     assert rc == 2 and "--set panels.0.pattern.piece=BACKK: panels.0.pattern.piece: no piece 'BACKK'" in err, err
 
 
@@ -379,15 +368,15 @@ def test_link_out_of_its_folder_not_followed(tmp_path, capsys, kind):
         return
     if kind == "scene":
         (folder / "s.yaml").symlink_to(secret)
-        rc, err = _main(capsys, "run", str(folder / "s.yaml"))
+        rc, err = cli_main(capsys, "run", str(folder / "s.yaml"))
     elif kind == "csv":
         (folder / "t.csv").symlink_to(secret)
         s = _write(folder, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}))
-        rc, err = _main(capsys, "run", str(s))
+        rc, err = cli_main(capsys, "run", str(s))
     else:
         (folder / "r.npz").symlink_to(secret)
         s = _write(folder, scene_dict(**{"initial.file": "r.npz"}))
-        rc, err = _main(capsys, "run", str(s))
+        rc, err = cli_main(capsys, "run", str(s))
     assert rc == 2 and "outside its folder" in err, err
     _no_secret(err)
 
@@ -415,7 +404,7 @@ def test_csv_errors_quote_a_short_printable_excerpt(tmp_path, capsys, content):
     refused with file and line, quoting at most a short, printable excerpt of what it holds."""
     (tmp_path / "t.csv").write_text(content)
     s = _write(tmp_path, scene_dict(**{"fabric.weft": {"csv": "t.csv"}}))
-    rc, err = _main(capsys, "run", str(s))
+    rc, err = cli_main(capsys, "run", str(s))
     assert rc == 2 and "t.csv:" in err, err
     _no_secret(err.replace(str(tmp_path), ""), strict=False)
 
@@ -424,7 +413,7 @@ def test_yaml_error_quotes_a_short_excerpt(tmp_path, capsys):
     """A YAML syntax error quotes at most a short excerpt of the offending text."""
     p = tmp_path / "s.yaml"
     p.write_text("name: x\nfabric: *" + "secretsecretsecret" * 20 + "\n")
-    rc, err = _main(capsys, "run", str(p))
+    rc, err = cli_main(capsys, "run", str(p))
     assert rc == 2 and "s.yaml:2: not valid YAML" in err, err
     assert err.count("secretsecretsecret") <= 5, err
 
@@ -460,7 +449,7 @@ def no_fit_solve(monkeypatch):
 ])
 def test_fit_bad_tol_and_max_solves_refused_before_any_solve(capsys, no_fit_solve, option, value, message):
     """--tol nan/-1 used to run every solve and exit 1; --max-solves 0/-3 ran a solve and exit 0."""
-    rc, err = _main(capsys, "fit", str(SLEEVE), "--vary", "fabric.size.0", "--target", "side=20mmHg",
+    rc, err = cli_main(capsys, "fit", str(SLEEVE), "--vary", "fabric.size.0", "--target", "side=20mmHg",
                     "--set", SIDE_PROBE, option, value)
     assert rc == 2 and message in err, err
 
@@ -480,7 +469,7 @@ def test_fit_bad_vary_and_target_refused_before_any_solve(capsys, no_fit_solve, 
         argv += ["--vary", "fabric.size.0"]
     if "--target" not in args:
         argv += ["--target", "side=20mmHg"]
-    rc, err = _main(capsys, *argv)
+    rc, err = cli_main(capsys, *argv)
     assert rc == 2 and message in err, err
 
 
@@ -488,7 +477,7 @@ def test_fit_out_checked_before_any_solve(tmp_path, capsys, no_fit_solve):
     """A --out that cannot be a folder is refused before the fit spends its solves."""
     f = tmp_path / "file"
     f.write_text("x")
-    rc, err = _main(capsys, "fit", str(SLEEVE), "--vary", "fabric.size.0", "--target", "side=20mmHg",
+    rc, err = cli_main(capsys, "fit", str(SLEEVE), "--vary", "fabric.size.0", "--target", "side=20mmHg",
                     "--set", SIDE_PROBE, "--out", str(f))
     assert rc == 2 and f"--out {f}: exists and is not a folder" in err, err
 
@@ -523,7 +512,7 @@ def test_report_of_a_damaged_result_folder_refused(tmp_path, capsys, result_dir,
     d = _copy_result(result_dir, tmp_path / "run")
     name, _, content = damage.partition("=")
     (d / name).write_text(content or "{ not json\x00")
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and message in err and str(d) in err, err
     assert not (d / "report.html").exists()
 
@@ -531,13 +520,13 @@ def test_report_of_a_damaged_result_folder_refused(tmp_path, capsys, result_dir,
 def test_report_of_a_folder_that_is_not_a_result_refused(tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
-    rc, err = _main(capsys, "report", str(empty))
+    rc, err = cli_main(capsys, "report", str(empty))
     assert rc == 2 and f"{empty}: not a result folder: no summary.json" in err, err
-    rc, err = _main(capsys, "report", str(tmp_path / "missing"))
+    rc, err = cli_main(capsys, "report", str(tmp_path / "missing"))
     assert rc == 2 and f"{tmp_path / 'missing'}: no such folder" in err, err
     f = tmp_path / "file.txt"
     f.write_text("x")
-    rc, err = _main(capsys, "report", str(f))
+    rc, err = cli_main(capsys, "report", str(f))
     assert rc == 2 and f"{f}: not a folder" in err, err
 
 
@@ -547,15 +536,14 @@ def test_report_out_that_cannot_be_written_refused(tmp_path, capsys, result_dir)
     d = _copy_result(result_dir, tmp_path / "run")
     folder = tmp_path / "somewhere"
     folder.mkdir()
-    rc, err = _main(capsys, "report", str(d), "--out", str(folder))
+    rc, err = cli_main(capsys, "report", str(d), "--out", str(folder))
     assert rc == 2 and f"--out {folder}: is a folder (give the HTML file to write" in err, err
     assert "Errno" not in err
     missing = tmp_path / "no" / "such" / "report.html"
-    rc, err = _main(capsys, "report", str(d), "--out", str(missing))
+    rc, err = cli_main(capsys, "report", str(d), "--out", str(missing))
     assert rc == 2 and f"--out {missing}: its folder {missing.parent} does not exist" in err, err
     assert "Errno" not in err
     assert list(folder.iterdir()) == []
-
 
 
 def test_report_of_a_run_stopped_before_its_residual(tmp_path, capsys):
@@ -564,9 +552,9 @@ def test_report_of_a_run_stopped_before_its_residual(tmp_path, capsys):
     s = tmp_path / "s.yaml"
     s.write_text(yaml.safe_dump(scene_dict()))
     d = tmp_path / "run"
-    rc, err = _main(capsys, "run", str(s), "--quiet", "--set", "solver.time_limit_s=1e-9", "--out", str(d))
+    rc, err = cli_main(capsys, "run", str(s), "--quiet", "--set", "solver.time_limit_s=1e-9", "--out", str(d))
     assert rc == 1 and json.loads((d / "summary.json").read_text())["residual"] is None, err
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 0, err
     assert "<span id='residual'>n/a</span>" in (d / "report.html").read_text()
 
@@ -664,7 +652,7 @@ def test_memory_error_is_a_clear_refusal(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(simulation, "solve", oom)
     s = _write(tmp_path, scene_dict())
-    rc, err = _main(capsys, "run", str(s), "--quiet")
+    rc, err = cli_main(capsys, "run", str(s), "--quiet")
     assert rc == 2
     assert "error: run: out of memory" in err
 
@@ -685,7 +673,7 @@ def test_time_limit_bounds_the_start_up(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(simulation, "warm_up", no_warm_up)
     s = _write(tmp_path, scene_dict())
-    rc, err = _main(capsys, "run", str(s), "--progress", "--set", "solver.time_limit_s=1e-9",
+    rc, err = cli_main(capsys, "run", str(s), "--progress", "--set", "solver.time_limit_s=1e-9",
                     "--out", str(tmp_path / "out"))
     assert rc == 1, err
     assert "start-up: model built (33 nodes)" in err and "start-up: initial state set" in err, err

@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 import yaml
 
-from clothsim import cli
 from clothsim import sweep as sw
 
-from conftest import ROOT
+from conftest import ROOT, cli_main
 
 SLEEVE = ROOT / "configs" / "class2_sleeve.yaml"
 STRIP = ROOT / "configs" / "uniaxial_strip.yaml"
@@ -27,21 +26,14 @@ PROFILE = "profiles=[{name: 'leg $1_$2 \\alpha', axis: z, from: -0.035, to: 0.04
 NUMERIC = ("result.npz", "history.csv", "sheet.ply", "scene.yaml", "probes.csv", "profiles.csv", "summary.json")
 
 
-def _main(capsys, *argv):
-    rc = cli.main(list(argv))
-    out = capsys.readouterr()
-    assert "Traceback" not in out.err, out.err
-    return rc, out.err
-
-
 def test_a_dollar_in_scene_and_profile_names_is_drawn_as_text(tmp_path, capsys):
     out = tmp_path / "run"
-    rc, err = _main(capsys, "run", str(SLEEVE), "--quiet", "--set", f"name={NAME}", "--set", PROFILE,
+    rc, err = cli_main(capsys, "run", str(SLEEVE), "--quiet", "--set", f"name={NAME}", "--set", PROFILE,
                     "--out", str(out))
     assert rc == 0, err
     assert all((out / n).is_file() for n in (*NUMERIC, "profiles.png")), sorted(os.listdir(out))
     assert json.loads((out / "summary.json").read_text())["name"] == NAME
-    rc, err = _main(capsys, "report", str(out))
+    rc, err = cli_main(capsys, "report", str(out))
     assert rc == 0, err
     assert "profile plot" in (out / "report.html").read_text()
 
@@ -82,13 +74,13 @@ def test_a_failing_plot_costs_no_result_file(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(Figure, "savefig", broken)
     out = tmp_path / "run"
-    rc, err = _main(capsys, "run", str(SLEEVE), "--quiet", "--out", str(out))
+    rc, err = cli_main(capsys, "run", str(SLEEVE), "--quiet", "--out", str(out))
     assert rc == 0, err
     assert all((out / n).is_file() for n in NUMERIC), sorted(os.listdir(out))
     assert not (out / "profiles.png").exists()
     assert "warning: profiles.png not written (RuntimeError: the plot broke)" in err, err
     # the report: the plot's place says why it is missing
-    rc, err = _main(capsys, "report", str(out))
+    rc, err = cli_main(capsys, "report", str(out))
     assert rc == 0, err
     text = (out / "report.html").read_text()
     assert "profile plot not drawn (RuntimeError: the plot broke)" in text

@@ -18,21 +18,10 @@ import numpy as np
 import pytest
 
 import clothsim
-from clothsim import cli
 from clothsim.compression.report_figures import PMAX_PERCENTILE, colour_scale
 from clothsim.config import load_scene
 
-from conftest import ROOT
-
-
-def _main(capsys, *argv):
-    try:
-        rc = cli.main(list(argv))
-    except SystemExit as exc:
-        rc = exc.code
-    err = capsys.readouterr().err
-    assert "Traceback" not in err, err
-    return rc, err
+from conftest import ROOT, cli_main
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +55,7 @@ def test_report_from_a_moved_folder_without_its_files(tmp_path, capsys, limb_run
     for f in src.iterdir():
         f.rename(tmp_path / f"hidden-{f.name}")   # the body file and the tables are no longer there
     try:
-        rc, err = _main(capsys, "report", str(moved))
+        rc, err = cli_main(capsys, "report", str(moved))
     finally:
         for f in gone.iterdir():
             shutil.copy(f, src / f.name)
@@ -108,7 +97,7 @@ def test_the_reports_numbers_are_the_results(tmp_path, capsys, limb_run):
     _, out = limb_run
     d = tmp_path / "run"
     shutil.copytree(out, d)
-    assert _main(capsys, "report", str(d))[0] == 0
+    assert cli_main(capsys, "report", str(d))[0] == 0
     page = (d / "report.html").read_text()
     s = json.loads((d / "summary.json").read_text())
     assert _cells(page, "probes", "mmhg") == [f"{p['pressure_mmhg']:.2f}" for p in s["probes"]]
@@ -129,10 +118,10 @@ def test_the_reports_numbers_are_the_results(tmp_path, capsys, limb_run):
     assert girths and all(float(g) == pytest.approx(100 * 2 * 64 * 0.035 * np.sin(np.pi / 64), abs=0.05)
                           for g in girths)
     # --pmax: the scale the user chose, stated
-    assert _main(capsys, "report", str(d), "--pmax", "40")[0] == 0
+    assert cli_main(capsys, "report", str(d), "--pmax", "40")[0] == 0
     page = (d / "report.html").read_text()
     assert "data-lo='0' data-hi='40' data-top-tick='40'" in page and "(chosen with --pmax)" in page
-    rc, err = _main(capsys, "report", str(d), "--pmax", "-3")
+    rc, err = cli_main(capsys, "report", str(d), "--pmax", "-3")
     assert rc == 2 and "--pmax" in err
 
 
@@ -168,7 +157,7 @@ def test_levels_csv_read_tolerantly_and_refused_when_not_numbers(tmp_path, capsy
         "B,0.12,22.8,30,24.5,26,23,20,28,x\n"
         "C,0.35,37.6,28,17.2,,18,15,19,y\n"
         "<b id=inj>D</b>,0.42,35,n/a,14.0,14,14,13,15,z\n")
-    assert _main(capsys, "report", str(d))[0] == 0
+    assert cli_main(capsys, "report", str(d))[0] == 0
     page = (d / "report.html").read_text()
     assert "<b id=inj>" not in page and "&lt;b id=inj&gt;D&lt;/b&gt;" in page
     assert _cells(page, "levels", "mean") == ["24.5", "17.2", "14.0"]
@@ -182,7 +171,7 @@ def test_levels_csv_read_tolerantly_and_refused_when_not_numbers(tmp_path, capsy
         "posterior_mmHg,medial_mmHg,lateral_mmHg,percent_of_B,required_percent_of_B,gradient_ok\n"
         "B,12.00,0.12000,22.80,23.10,found,0.3012,23.15,28.100,39.600,25.000,20.100,27.000,100.0,100-100,1\n"
         "C,35.00,0.35000,37.60,38.00,found,0.2500,20.00,14.300,15.000,14.000,13.000,15.500,50.9,50-80,1\n")
-    assert _main(capsys, "report", str(d))[0] == 0
+    assert cli_main(capsys, "report", str(d))[0] == 0
     page = (d / "report.html").read_text()
     assert _cells(page, "levels", "mean") == ["28.1", "14.3"]
     row_b = page.split("<td>B</td>", 1)[1].split("</tr>", 1)[0]
@@ -190,10 +179,10 @@ def test_levels_csv_read_tolerantly_and_refused_when_not_numbers(tmp_path, capsy
                                                                 "27.0", "100"]
     assert "RAL-GZ 387: class II" in row_b and "<span id='girth-mean-b'>28.1</span>" in page
     (d / "levels.csv").write_text("level,height,girth,mean,anterior\nB,0.12,0.228,<i>24</i>,25\n")
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'levels.csv'}:2: mean is not a number" in err, err
     (d / "levels.csv").write_text("height,girth\n0.1,0.2\n")
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'levels.csv'}:1: no 'level' column" in err, err
 
 
@@ -205,7 +194,7 @@ def test_an_old_folder_or_a_damaged_scene_summary_refused(tmp_path, capsys, limb
     with np.load(d / "result.npz") as z:
         arrays = {k: z[k] for k in z.files if k not in ("faces", "scene_summary")}
     np.savez_compressed(d / "result.npz", **arrays)
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'result.npz'}: no faces: written by a clothsim older" in err, err
     with np.load(out / "result.npz") as z:
         arrays = {k: z[k] for k in z.files}
@@ -213,12 +202,12 @@ def test_an_old_folder_or_a_damaged_scene_summary_refused(tmp_path, capsys, limb
     scene["materials"][0]["strain"][1] = "<script>alert(1)</script>"
     arrays["scene_summary"] = np.array(json.dumps(scene))
     np.savez_compressed(d / "result.npz", **arrays)
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and "scene_summary: materials[0].strain[1]: not a number" in err, err
     arrays["faces"] = arrays["faces"] + 10_000
     arrays["scene_summary"] = np.array(json.dumps({**scene, "materials": []}))
     np.savez_compressed(d / "result.npz", **arrays)
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'result.npz'}: faces names a node outside" in err, err
     assert not (d / "report.html").exists()
 

@@ -17,10 +17,9 @@ import sys
 import pytest
 
 import clothsim
-from clothsim import cli
 from clothsim.config import load_scene
 
-from conftest import ROOT
+from conftest import ROOT, cli_main
 
 SLEEVE = ROOT / "configs" / "class2_sleeve.yaml"
 
@@ -31,16 +30,6 @@ def sleeve_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("sleeve") / "run"
     clothsim.solve(load_scene(SLEEVE)).save(out)
     return out
-
-
-def _main(capsys, *argv):
-    try:
-        rc = cli.main(list(argv))
-    except SystemExit as exc:
-        rc = exc.code
-    err = capsys.readouterr().err
-    assert "Traceback" not in err, err
-    return rc, err
 
 
 def _copy(src, dst, edit=None):
@@ -151,7 +140,7 @@ def test_markup_in_number_fields_never_runs_in_chromium(tmp_path, capsys, sleeve
     script (Chromium fired three alerts). A non-number there is refused: exit 2, naming the file
     and key, and no report file (so nothing to open); any page written is opened in Chromium."""
     d = _copy(sleeve_run, tmp_path / "numbers", _hostile_numbers)
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     page = d / "report.html"
     _assert_inert(_open_in_chromium(browser, {"numbers": page} if page.exists() else {}))
     assert rc == 2 and f"{d / 'summary.json'}: iterations: not a number (got a string" in err, err
@@ -164,7 +153,7 @@ def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, 
     Chromium shows it as text, runs nothing, injects nothing."""
     d = _copy(sleeve_run, tmp_path / "strings", _hostile_strings)
     _hostile_scene_summary(d)
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 0, err
     got = _open_in_chromium(browser, {"strings": d / "report.html"})
     _assert_inert(got)
@@ -192,7 +181,7 @@ def test_markup_in_string_fields_is_shown_as_text_in_chromium(tmp_path, capsys, 
 ])
 def test_a_non_number_in_a_number_field_is_refused_naming_the_key(tmp_path, capsys, sleeve_run, key, value):
     d = _copy(sleeve_run, tmp_path / "run", lambda s: _set(s, key, value))
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     name = "".join(f"[{k}]" if isinstance(k, int) else f".{k}" for k in key).lstrip(".")
     assert rc == 2 and f"{d / 'summary.json'}: {name}: " in err, err
     assert not (d / "report.html").exists()
@@ -203,15 +192,15 @@ def test_deep_json_and_a_history_without_its_columns_refused(tmp_path, capsys, s
     column (ValueError) ended in tracebacks."""
     d = _copy(sleeve_run, tmp_path / "deep")
     (d / "summary.json").write_text("[" * 100_000 + "]" * 100_000)
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'summary.json'}: JSON nested too deeply" in err, err
     d = _copy(sleeve_run, tmp_path / "nocol")
     (d / "history.csv").write_text("step,residual_N\n1,2\n")
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'history.csv'}:1: no 'iteration' column" in err, err
     d = _copy(sleeve_run, tmp_path / "badcell")
     (d / "history.csv").write_text("iteration,residual_N,energy_J,elapsed_s\n0,1.0,0,0\n1,<b>,0,0\n")
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'history.csv'}:3: residual_N is not a number ('<b>')" in err, err
     assert not any((tmp_path / n / "report.html").exists() for n in ("deep", "nocol", "badcell"))
 
@@ -271,9 +260,9 @@ def test_a_result_npz_declaring_more_than_the_scene_needs_refused(tmp_path, caps
     d = _copy(sleeve_run, tmp_path / "bomb")
     np.savez_compressed(d / "result.npz", positions=np.zeros((25_000_000,)), in_contact=np.zeros(1, bool))
     assert (d / "result.npz").stat().st_size < 1_000_000
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'result.npz'}: positions holds 200,000,128 bytes, more than the scene's" in err, err
     np.savez_compressed(d / "result.npz", positions=np.zeros((7, 3)), in_contact=np.zeros(7, bool))
-    rc, err = _main(capsys, "report", str(d))
+    rc, err = cli_main(capsys, "report", str(d))
     assert rc == 2 and f"{d / 'result.npz'}: positions (7, 3) and in_contact (7,) do not hold the scene's" in err, err
     assert not (d / "report.html").exists()

@@ -16,7 +16,7 @@ from collections import namedtuple
 import pytest
 import yaml
 
-from conftest import scene_dict
+from conftest import cli_main, scene_dict
 
 from clothsim import cli
 from clothsim.config import load_scene
@@ -26,13 +26,6 @@ def _scene(tmp_path, **changes):
     p = tmp_path / "s.yaml"
     p.write_text(yaml.safe_dump(scene_dict(**changes), sort_keys=False))
     return p
-
-
-def _main(capsys, *argv):
-    rc = cli.main(list(argv))
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return rc, err
 
 
 def _fail_fsync_of(monkeypatch, name, exc):
@@ -52,7 +45,7 @@ def test_run_into_a_folder_with_an_earlier_result_is_replaced_as_a_set(tmp_path,
     A's summary.json beside B's result.npz (it would look complete), nor a temporary file."""
     s = _scene(tmp_path)
     out = tmp_path / "out"
-    rc, _ = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    rc, _ = cli_main(capsys, "run", str(s), "--out", str(out), "--quiet")
     assert rc == 0 and (out / "summary.json").is_file()
     _fail_fsync_of(monkeypatch, "history.csv", KeyboardInterrupt())  # killed half-way through
     assert cli.main(["run", str(s), "--out", str(out), "--quiet", "--set", "solver.C=3"]) == 130
@@ -65,7 +58,7 @@ def test_full_disk_during_the_write_exits_2_and_leaves_no_temp_file(tmp_path, ca
     s = _scene(tmp_path)
     out = tmp_path / "out"
     _fail_fsync_of(monkeypatch, "sheet.ply", OSError(errno.ENOSPC, "No space left on device"))
-    rc, err = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    rc, err = cli_main(capsys, "run", str(s), "--out", str(out), "--quiet")
     assert rc == 2
     assert f"--out {out}: the disk is full (No space left on device)" in err
     names = sorted(p.name for p in out.iterdir())
@@ -82,7 +75,7 @@ def test_free_space_checked_before_writing(tmp_path, capsys, monkeypatch):
     out = tmp_path / "out"
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**6, 10**6 - 1000, 1000))
-    rc, err = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    rc, err = cli_main(capsys, "run", str(s), "--out", str(out), "--quiet")
     assert rc == 2 and f"--out {out}: not enough free space" in err
     assert list(out.iterdir()) == []
 
@@ -110,7 +103,7 @@ def test_run_on_a_really_full_disk(tmp_path, capsys, monkeypatch, tiny_tmpfs, sp
         monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**12, 0, 10**12))
     s = _scene(tmp_path, **{"fabric.divisions": [160, 160], "solver.e": 1e-3, "initial.perturb": 0.0})
     out = tiny_tmpfs / "out"
-    rc, err = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    rc, err = cli_main(capsys, "run", str(s), "--out", str(out), "--quiet")
     assert rc == 2, err
     assert ("not enough free space" if space_check else "the disk is full") in err, err
     names = sorted(p.name for p in out.iterdir())
@@ -157,7 +150,7 @@ def test_an_earlier_results_extra_files_are_removed(tmp_path, capsys):
     for name in stale:
         (out / name).write_bytes(b"run A")
     (out / "notes.txt").write_text("mine")
-    rc, _ = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    rc, _ = cli_main(capsys, "run", str(s), "--out", str(out), "--quiet")
     assert rc == 0
     names = sorted(p.name for p in out.iterdir())
     assert names == ["history.csv", "notes.txt", "result.npz", "scene.yaml", "sheet.ply",
@@ -174,7 +167,7 @@ def test_files_of_result_names_in_a_folder_without_a_result_stay(tmp_path, capsy
     out = tmp_path / "out"
     out.mkdir()
     (out / "probes.csv").write_text("the user's sensor readings")
-    rc, _ = _main(capsys, "run", str(s), "--out", str(out), "--quiet")
+    rc, _ = cli_main(capsys, "run", str(s), "--out", str(out), "--quiet")
     assert rc == 0
     assert (out / "probes.csv").read_text() == "the user's sensor readings"
     assert json.loads((out / "summary.json").read_text())["status"] == "converged"
