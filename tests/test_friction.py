@@ -12,32 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clothsim.bench.friction import end_tensions  # (T, d) at the strip's two ends
 from clothsim.compile import compile_model, compile_state
 from clothsim.config import SceneError, load_scene, scene_from_dict
-from clothsim.kernels import spring_strains_tensions
 from clothsim.solvers import Control, load_steps, solve
 from clothsim.solvers.friction import solve_steps
 
 ROOT = Path(__file__).resolve().parent.parent
 MU = 0.3
-
-
-def _end_tensions(model, pos):
-    """(T_left, T_right) [N]: the warp force summed across the strip's first and last columns of
-    springs (the straight free ends), and (d_left, d_right) their unit directions."""
-    s = np.empty(model.spring_count)
-    f = np.empty(model.spring_count)
-    spring_strains_tensions(pos, *model.spring_args(), s, f)
-    warp = model.spring_family == 0
-    a, b = model.spring_nodes[warp].T
-    xm = 0.5 * (model.rest_positions[a, 0] + model.rest_positions[b, 0])
-    out = []
-    for col in (xm.min(), xm.max()):
-        sel = np.isclose(xm, col)
-        d = pos[b[sel]] - pos[a[sel]]
-        d = (d / np.linalg.norm(d, axis=1)[:, None]).mean(axis=0)
-        out.append((f[warp][sel].sum(), d / np.linalg.norm(d)))
-    return out
 
 
 def _capstan(nx, pull=0.06, steps=20):
@@ -49,17 +31,35 @@ def _capstan(nx, pull=0.06, steps=20):
     model = compile_model(sc)
     state = compile_state(sc, model)
     assert solve(model, state, sc.solver).converged
-    (t0l, _), (t0r, _) = _end_tensions(model, state.positions)
+    (t0l, _), (t0r, _) = end_tensions(model, state.positions)
     assert t0r / t0l == pytest.approx(1.0, abs=1e-5)  # frictionless: the same tension both ends
     target = model.prescribed_positions.copy()
     right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
     target[right, 2] -= pull
     controls = load_steps(model.prescribed_positions, target, steps)
     _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state, controls, sc.solver)
-    (tl, dl), (tr, dr) = _end_tensions(model, state.positions)
+    (tl, dl), (tr, dr) = end_tensions(model, state.positions)
     # the angle the strip turns through from its left end's direction to its right end's (x-z plane)
     phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
     return tr / tl, phi, res
+
+
+def _capstan_pulled(pull, steps, **tuning):
+    """The capstan (configs/cylinder_wrap.yaml, 20 divisions, e = 1e-7 N) solved frictionless,
+    then with mu = 0.3 its right end pulled down ``pull`` [m] in ``steps`` load steps
+    (``tuning``: solve_steps' FrictionTuning): (the positions, the pulled end's target positions,
+    the pulled nodes (mask), the steps' result)."""
+    sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml",
+                    ["fabric.divisions=[20,2]", "solver.method=newton", "solver.e=1e-7"])
+    model = compile_model(sc)
+    state = compile_state(sc, model)
+    assert solve(model, state, sc.solver).converged
+    target = model.prescribed_positions.copy()
+    right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
+    target[right, 2] -= pull
+    _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state,
+                         load_steps(model.prescribed_positions, target, steps), sc.solver, **tuning)
+    return state.positions.copy(), target, right, res
 
 
 def test_capstan_ratio_is_e_to_mu_phi_and_its_error_falls_with_the_lattice():
@@ -211,20 +211,11 @@ def test_a_failing_load_step_is_cut_in_half_and_the_run_goes_on(monkeypatch):
         return real(base, state, control, *rest)
 
     monkeypatch.setattr(sf, "_frictional_step", flaky)
-    sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml",
-                    ["fabric.divisions=[20,2]", "solver.method=newton", "solver.e=1e-7"])
-    model = compile_model(sc)
-    state = compile_state(sc, model)
-    assert solve(model, state, sc.solver).converged
-    target = model.prescribed_positions.copy()
-    right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
-    target[right, 2] -= 0.01
-    _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state, load_steps(model.prescribed_positions,
-                                                                                     target, 2), sc.solver)
+    pos, target, right, res = _capstan_pulled(0.01, 2)
     assert res.converged, res.message
     assert res.friction["cuts"] == 2 and res.friction["steps_solved"] == 4  # 5 mm steps cut to 2.5 mm
     assert "2 load step(s) cut in half" in res.message
-    assert np.allclose(state.positions[right, 2], target[right, 2])
+    assert np.allclose(pos[right, 2], target[right, 2])
 
 
 def test_stages_drape_then_pull_reach_the_capstan_and_keep_every_stage():
@@ -243,7 +234,7 @@ def test_stages_drape_then_pull_reach_the_capstan_and_keep_every_stage():
     assert s["friction"]["slip"] > 0 and s["friction"]["stick"] == 0
     # each step's iterations count all its solves (on main only the last refresh's: 97 of 304)
     assert [sum(x["iterations"] for x in t["friction"]["steps"]) for t in st] == [t["iterations"] for t in st]
-    (tl, dl), (tr, dr) = _end_tensions(r.model, r.state.positions)
+    (tl, dl), (tr, dr) = end_tensions(r.model, r.state.positions)
     phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
     assert abs(tr / tl / math.exp(MU * phi) - 1) < 2e-3
     ratio, _, _ = _capstan(40)
@@ -310,20 +301,11 @@ def test_the_schedule_is_a_record_and_no_friction_module_keeps_a_switch():
     for bad in ({"max_relags": 0}, {"max_cuts": -1}, {"refresh_forcing": 1.5}):
         with pytest.raises(ValueError):
             FrictionTuning(**bad)
-    sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml",
-                    ["fabric.divisions=[20,2]", "solver.method=newton", "solver.e=1e-7"])
     out = []
     for tuning in (FrictionTuning(), FrictionTuning(refresh_every_iteration=False)):
-        model = compile_model(sc)
-        state = compile_state(sc, model)
-        assert solve(model, state, sc.solver).converged
-        target = model.prescribed_positions.copy()
-        right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
-        target[right, 2] -= 0.03
-        _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state,
-                             load_steps(model.prescribed_positions, target, 5), sc.solver, tuning=tuning)
+        pos, _, _, res = _capstan_pulled(0.03, 5, tuning=tuning)
         assert res.converged and res.residual <= 1e-7, res.message
-        out.append((state.positions.copy(), res.friction["refreshes"]))
+        out.append((pos, res.friction["refreshes"]))
     assert np.abs(out[0][0] - out[1][0]).max() < 1e-5
     assert out[1][1] > out[0][1]
 
@@ -376,21 +358,12 @@ def test_a_load_step_past_its_iteration_budget_is_rescued_with_a_wider_slip_eps(
         return real(*a, **k)
 
     monkeypatch.setattr(sf, "_rescue", counted)
-    sc = load_scene(ROOT / "configs" / "cylinder_wrap.yaml",
-                    ["fabric.divisions=[20,2]", "solver.method=newton", "solver.e=1e-7"])
     out = []
     for tuning in (FrictionTuning(rescue_after=0), FrictionTuning(rescue_after=3)):
         calls.clear()
-        model = compile_model(sc)
-        state = compile_state(sc, model)
-        assert solve(model, state, sc.solver).converged
-        target = model.prescribed_positions.copy()
-        right = model.fixed_axes[:, 2] & (model.rest_positions[:, 0] > 0.1)
-        target[right, 2] -= 0.03
-        _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state,
-                             load_steps(model.prescribed_positions, target, 5), sc.solver, tuning=tuning)
+        pos, _, _, res = _capstan_pulled(0.03, 5, tuning=tuning)
         assert res.converged and res.residual <= 1e-7, res.message
-        out.append((state.positions.copy(), len(calls), res.friction["slip"], res.friction["cone_violation"]))
+        out.append((pos, len(calls), res.friction["slip"], res.friction["cone_violation"]))
     assert out[0][1] == 0 and out[1][1] >= 1
     assert np.abs(out[0][0] - out[1][0]).max() < 1e-5
     assert out[1][2] == out[0][2] and out[1][3] < 1e-5
