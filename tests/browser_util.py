@@ -124,6 +124,21 @@ def wait_for_render(page, min_pixels: int = 2000, timeout: float = 60.0) -> dict
     return last
 
 
+def open_viewer(browser, url: str, min_pixels: int = 2000):
+    """A 1400 x 900 page of ``browser`` on the viewer at ``url``, its 3D view drawn (at least
+    ``min_pixels`` pixels, waiting up to 90 s) and its notifications closed; the page is closed
+    if any of that fails."""
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    try:
+        page.goto(url)
+        wait_for_render(page, min_pixels=min_pixels, timeout=90)
+        close_notifications(page)
+    except BaseException:
+        page.close()
+        raise
+    return page
+
+
 def close_notifications(page) -> None:
     for b in page.locator(".mantine-Notification-closeButton").all():
         try:

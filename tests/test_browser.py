@@ -22,6 +22,7 @@ from browser_util import (  # noqa: E402
     canvas_pixels,
     close_notifications,
     free_port,
+    open_viewer,
     pixels_js,
     poll,
     shown_iteration,
@@ -218,11 +219,8 @@ def test_scene_picker_opens_a_bundled_scene_framed_on_the_garment(browser):
     view, the leg filling it (framed with the whole body it was a sliver below the knee: 504
     coloured pixels, 0.04 %)."""
     app = ViewerApp(scene_from_dict(SMALL), port=free_port())
-    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    page = open_viewer(browser, app.url)
     try:
-        page.goto(app.url)
-        wait_for_render(page, min_pixels=2000, timeout=90)
-        close_notifications(page)
         page.get_by_role("tab", name="Files").click()
         page.get_by_label("Bundled scene").click()
         options = page.get_by_role("option")

@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, pixels_js, poll, wait_for_render  # noqa: E402
+from browser_util import open_viewer, pixels_js, poll, wait_for_render  # noqa: E402
 
 from clothsim.config import load_scene, scene_from_dict  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -31,10 +31,7 @@ CLASS2 = ROOT / "configs" / "class2_sleeve.yaml"
 @pytest.fixture(scope="module")
 def sleeve(browser):
     app = ViewerApp(load_scene(CLASS2, ["solver.method=newton"]), port=free_port())
-    page = browser.new_page(viewport={"width": 1400, "height": 900})
-    page.goto(app.url)
-    wait_for_render(page, min_pixels=2000, timeout=90)
-    close_notifications(page)
+    page = open_viewer(browser, app.url)
     page.get_by_role("button", name="Start").click()
     # seconds alone; the upper bound is for a loaded 2-core machine
     assert poll(lambda: app.sim.status == "converged", timeout=300), app.sim.status
@@ -138,11 +135,8 @@ def test_open_scene_through_the_page(browser, tmp_path):
              "constraints": [{"nodes": "perimeter", "axes": "xyz", "stretch": 1.1}],
              "solver": {"method": "newton", "e": 1e-8}}
     app = ViewerApp(scene_from_dict(small), port=free_port())
-    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    page = open_viewer(browser, app.url, min_pixels=500)
     try:
-        page.goto(app.url)
-        wait_for_render(page, min_pixels=500, timeout=90)
-        close_notifications(page)
         page.get_by_role("tab", name="Files").click()
         sel = f"#file_upload_{app.gui['scene_upload']._impl.uuid}"
         bad = tmp_path / "broken.yaml"

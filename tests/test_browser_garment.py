@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, free_port, pixels_js, poll, wait_for_render  # noqa: E402
+from browser_util import free_port, open_viewer, pixels_js, poll  # noqa: E402
 
 from clothsim.config import load_scene  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -31,11 +31,8 @@ MAGENTA_JS = pixels_js("r > 120 && b > 120 && g < 0.45 * Math.min(r, b)")
 def test_panel_outlines_and_panel_list_in_chromium(browser):
     app = ViewerApp(load_scene(ROOT / "configs" / "garments" / "sleeve_dxf.yaml"), port=free_port())
     try:
-        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page = open_viewer(browser, app.url)
         try:
-            page.goto(app.url)
-            wait_for_render(page, min_pixels=2000, timeout=90)
-            close_notifications(page)
             assert app.renderer.h_outlines is not None
             assert len(app.renderer.h_outlines.points) == int(app.sim.model.topology.boundary.sum())
             shown = poll(lambda: page.evaluate(MAGENTA_JS) > 200 and page.evaluate(MAGENTA_JS), timeout=30)

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, free_port, poll, wait_for_render  # noqa: E402
+from browser_util import free_port, open_viewer, poll  # noqa: E402
 from viewer_util import BOMB_SVG, SMALL, pattern_dxf  # noqa: E402
 
 from clothsim.config import scene_from_dict  # noqa: E402
@@ -23,11 +23,8 @@ from clothsim.viewer import ViewerApp  # noqa: E402
 def test_hostile_svg_upload_refused_on_the_page_which_keeps_answering(tmp_path, browser):
     app = ViewerApp(scene_from_dict({**SMALL, "name": "browser-patterns"}), port=free_port())
     try:
-        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page = open_viewer(browser, app.url)
         try:
-            page.goto(app.url)
-            wait_for_render(page, min_pixels=2000, timeout=90)
-            close_notifications(page)
             page.get_by_role("tab", name="Fabric & mold").click()
             upload = f"#file_upload_{app.gui['pattern_upload']._impl.uuid}"
             bomb = tmp_path / "bomb.svg"

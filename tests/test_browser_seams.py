@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("playwright")
 
-from browser_util import close_notifications, free_port, pixels_js, poll, status_text, wait_for_render  # noqa: E402
+from browser_util import free_port, open_viewer, pixels_js, poll, status_text  # noqa: E402
 
 from clothsim.config import load_scene  # noqa: E402
 from clothsim.viewer import ViewerApp  # noqa: E402
@@ -35,11 +35,8 @@ def test_unequal_seam_threads_and_gap_list_in_chromium(browser):
                        ["panels.1.placement.transform.translate=[-0.005,0.08,0]"])
     app = ViewerApp(scene, port=free_port())
     try:
-        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page = open_viewer(browser, app.url)
         try:
-            page.goto(app.url)
-            wait_for_render(page, min_pixels=2000, timeout=90)
-            close_notifications(page)
             assert app.renderer.h_seams is not None and len(app.renderer.h_seams.points) == 23
             shown = poll(lambda: page.evaluate(ORANGE_JS) > 200 and page.evaluate(ORANGE_JS), timeout=30)
             app.renderer.h_seams.visible = False
