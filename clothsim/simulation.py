@@ -340,8 +340,8 @@ class Simulation:
         """The load steps still to do, stage by stage (clothsim.solvers.friction.solve_steps):
         each stage's prescribed coordinates, rest scale and external force from where the last
         one left them (the scene without stages: from the placed sheet and no load) to its values
-        in its steps; a paused run goes on with the step it was in. The result's ``friction`` holds the last stage's report and ``stages``
-        every stage's."""
+        in its steps; a paused run goes on with the step it was in. The result's ``friction``
+        holds the last stage's report and ``stages`` every stage's."""
         if self._plan is None:
             self._plan = self._stages()
             self._stage_reports = []

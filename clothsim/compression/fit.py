@@ -11,9 +11,10 @@ standard's reading; a probe of the same name wins.
 - **One field, one target**: secant steps on residual(x) = reading(x) - target, kept inside the
   bracket once the residual changes sign (Illinois regula falsi, the secant's safeguarded form;
   a value it proposes again, where the reading is not monotonic inside the bracket, is replaced
-  by the bracket's middle: solves are deterministic), and inside [LO, HI] (default: the start value +-30 %). A step that would leave [LO, HI] tries
-  the bound; if the residual keeps its sign there the target is out of reach and the fit is
-  refused with the reachable range (the readings at both bounds).
+  by the bracket's middle: solves are deterministic), and inside [LO, HI] (default: the start
+  value +-30 %). A step that would leave [LO, HI] tries the bound; if the residual keeps its sign
+  there the target is out of reach and the fit is refused with the reachable range (the readings
+  at both bounds).
 - **Several fields / targets**: least squares (scipy.optimize.least_squares, trust-region
   reflective with the bounds, forward differences), each residual a solve; it stops at the first
   solve (a step or a difference) whose readings all meet their targets within the tolerance.
@@ -24,9 +25,8 @@ scene solved along a loading path (stages, friction, ``solver.load_steps`` > 1) 
 its answer is the path's from the scene's start, and a path begun at another equilibrium can end
 elsewhere (the sewn sleeve drawn on at 1.1 and relaxed with mu 0.4, 20 x 8, at 0.235 m: 18.47
 mmHg from the 0.25 m equilibrium, 18.07 from its start), so each of its solves runs every stage
-from the scene's own start, as ``run`` does. A fit
-reached from such a warm start is then solved once more from the scene's own start (what ``run
-fitted.yaml`` does): where the equilibrium is not unique (a stocking's slack courses) the two can
+from the scene's own start, as ``run`` does. A fit reached from such a warm start is then
+solved once more from the scene's own start (what ``run fitted.yaml`` does): where the equilibrium is not unique (a stocking's slack courses) the two can
 differ, and the search goes on from fresh starts until that reading meets the tolerance too, so
 the fitted run and its files are the ones a rerun reproduces (fit.csv's ``start`` column).
 

@@ -1,11 +1,12 @@
 """Load steps with Coulomb friction between the fabric and the mold (quasi-static and
-path-dependent): each step's controls (prescribed coordinates, rest scale, external force) are applied, the step is solved by Newton with the friction
-frozen at its start (``clothsim.friction.lag_friction``: normal forces and tangent planes, every
-contact node anchored at the previous step's equilibrium), and solved again with the friction
-refreshed at the equilibrium found until the residual with the refreshed friction (the full
-residual: springs, loads and friction) is at most e. A step's solves (its first, a rescue's, a
-refresh's) share ``max_iterations``. A step that fails is cut in half (both halves
-solved in turn), at most ``max_cuts`` times in a row, and the result says how many were cut.
+path-dependent): each step's controls (prescribed coordinates, rest scale, external force) are
+applied, the step is solved by Newton with the friction frozen at its start
+(``clothsim.friction.lag_friction``: normal forces and tangent planes, every contact node
+anchored at the previous step's equilibrium), and solved again with the friction refreshed at
+the equilibrium found until the residual with the refreshed friction (the full residual:
+springs, loads and friction) is at most e. A step's solves (its first, a rescue's, a
+refresh's) share ``max_iterations``. A step that fails is cut in half (both halves solved in
+turn), at most ``max_cuts`` times in a row, and the result says how many were cut.
 Without friction the steps are solved as ``control.solve_load_steps`` does. The switches and
 constants of the schedule are a :class:`~clothsim.solvers.tuning.FrictionTuning` record.
 """
