@@ -301,13 +301,28 @@ class Simulation:
         ``solver.load_steps`` > 1 (a scene without any pays nothing for them)."""
         return bool(self.scene.stages) or self.model.friction_mu > 0 or self.settings.load_steps > 1
 
+    def solved_along_a_path(self) -> bool:
+        """Whether the run follows a loading path from the scene's start (stages, friction,
+        ``solver.load_steps`` > 1): its answer is that path's, so a run started elsewhere (a fit's
+        warm start) would follow another path and may end elsewhere."""
+        return self._staged()
+
     def _stages(self) -> list:
-        """[[name, Model, steps]]: the scene's stages (config.stage_scenes), or the scene itself
-        as one stage of ``solver.load_steps`` steps from the placed sheet."""
+        """[[name, Model, steps, solver, scales, forces]]: the scene's stages
+        (config.stage_scenes), or the scene itself as one stage of ``solver.load_steps`` steps
+        from the placed sheet. ``scales`` and ``forces``: (from, to) of the rest scale and of the
+        external force [N] (N, 3) ramped over the stage's steps, or None where they do not change
+        (each stage's from the previous one's; the first stage's from the scene's own, the scene
+        without stages its gravity from zero)."""
         if not self.scene.stages:
-            return [["", self.model, int(self.settings.load_steps), None, None]]
+            steps = int(self.settings.load_steps)
+            f = self.model.external_force
+            # load steps ramp the loads as they ramp the displacements: gravity from zero
+            forces = (np.zeros_like(f), f) if steps > 1 and f.any() else None
+            return [["", self.model, steps, None, None, forces]]
         out = []
         scale = (1.0, 1.0)
+        force = self.model.external_force
         for n, (st, sc) in enumerate(stage_scenes(self.scene)):
             m = compile_model(sc)
             if m.node_count != self.model.node_count:
@@ -315,16 +330,18 @@ class Simulation:
             new = st.scale(scale)
             # the garment's rest scale ramped over the stage (None: the design all along)
             scales = None if scale == new == (1.0, 1.0) else (scale, new)
-            out.append([st.name or f"stage {n + 1}", m, int(st.steps), sc.solver, scales])
-            scale = new
+            # the loads ramped from the previous stage's (None: unchanged, the stage's own)
+            forces = None if np.array_equal(force, m.external_force) else (force, m.external_force)
+            out.append([st.name or f"stage {n + 1}", m, int(st.steps), sc.solver, scales, forces])
+            scale, force = new, m.external_force
         return out
 
     def _run_steps(self, settings) -> SolveResult:
         """The load steps still to do, stage by stage (clothsim.solvers.friction.solve_steps):
-        each stage's prescribed coordinates from where the last one left them (the scene without
-        stages: from the placed sheet) to its values in its steps; a paused run goes on with the
-        step it was in. The result's ``friction`` holds the last stage's report and ``stages``
-        every stage's."""
+        each stage's prescribed coordinates, rest scale and external force from where the last
+        one left them (the scene without stages: from the placed sheet and no load) to its values
+        in its steps; a paused run goes on with the step it was in. The result's ``friction``
+        holds the last stage's report and ``stages`` every stage's."""
         if self._plan is None:
             self._plan = self._stages()
             self._stage_reports = []
@@ -333,14 +350,14 @@ class Simulation:
             self.stage_marks = []
         res = None
         while self._plan:
-            name, model, steps, stage_solver, scales = self._plan[0]
+            name, model, steps, stage_solver, scales, forces = self._plan[0]
             if self._controls is None:
                 if self.scene.stages:
                     start = self.state.positions.copy()
                 else:
                     start = model.placement.apply(model.rest_positions) if steps > 1 else model.prescribed_positions
                 start = np.where(model.fixed_axes, start, model.prescribed_positions)
-                self._controls = load_steps(start, model.prescribed_positions, steps, scales)
+                self._controls = load_steps(start, model.prescribed_positions, steps, scales, forces)
                 self._stage_model = dataclasses.replace(model, prescribed_positions=start)
                 self._steps_done = 0
                 self.stage_marks = self.stage_marks + [(int(self.state.iteration), name)]
@@ -351,13 +368,16 @@ class Simulation:
             done = self._steps_done
             from_scale = (1.0, 1.0) if scales is None else \
                 (scales[0] if done == 0 else self._controls[done - 1].rest_scale)
+            from_force = None if forces is None else \
+                (forces[0] if done == 0 else self._controls[done - 1].external_force)
             m, res = solve_steps(self._stage_model, self.state, todo, s, self._callback, self.history,
-                                 lambda mm: make_solver(mm, s), model_scale=from_scale)
+                                 lambda mm: make_solver(mm, s), model_scale=from_scale, model_force=from_force)
             self._steps_done += int(res.friction["steps_solved"])
             self.model = m
-            # the stage's design rest lengths stay with it: each control scales them anew
+            # the stage's design rest lengths and loads stay with it: each control sets them anew
             self._stage_model = dataclasses.replace(m, spring_rest_length=model.spring_rest_length,
-                                                    spring_width=model.spring_width)
+                                                    spring_width=model.spring_width,
+                                                    external_force=model.external_force)
             if not res.converged:
                 break
             self._stage_reports.append(StageReport(

@@ -39,9 +39,10 @@ REST_SCALE_RANGE = (0.5, 2.0)
 class Stage(_Strict):
     """One stage of a loading path (``stages:``): name; steps, its load steps (>= 1); set, scene
     fields (dotted paths as in ``--set``, under constraints, mold, gravity or solver) and the
-    values they take from this stage on. The constraints' prescribed coordinates go linearly from
-    where the previous stage left them to this stage's values over its steps; the other changes
-    (mold.friction, gravity, a mold) apply from the stage's first step."""
+    values they take from this stage on. The constraints' prescribed coordinates and the loads
+    (gravity's force on the nodes) go linearly from where the previous stage left them (the first
+    stage: from the scene's own) to this stage's values over its steps; the other changes
+    (mold.friction, a mold, solver fields) apply from the stage's first step."""
 
     name: str = ""
     steps: Int = 1

@@ -544,9 +544,10 @@ class SolverSettings(_Strict):
     # search direction only, never the forces); and whether to solve coarser grids first
     newton_kink: float = Field(default=SOLVER_DEFAULTS["newton_kink"], ge=0.0, le=1e3)
     newton_sequencing: bool = SOLVER_DEFAULTS["newton_sequencing"]
-    # load steps: the constraints' displacements (and stretches) are applied in this many equal
-    # steps from the placed sheet, each solved to equilibrium from the one before (a path: with
-    # friction the answer depends on it; without, only the last step's equilibrium counts)
+    # load steps: the constraints' displacements (and stretches) and gravity are applied in this
+    # many equal steps from the placed sheet and no load, each solved to equilibrium from the one
+    # before (a path: with friction the answer depends on it; without, only the last step's
+    # equilibrium counts)
     load_steps: Int = SOLVER_DEFAULTS["load_steps"]
 
     @field_validator("C")

@@ -5,12 +5,13 @@ A :class:`Control` holds the prescribed positions [m] (N, 3) of the constrained 
 of the State there and returns the Model with its ``prescribed_positions`` replaced; the other
 coordinates keep their values (the previous step's equilibrium is the next one's start).
 :func:`load_steps` interpolates controls linearly from initial prescribed positions to final ones;
-:func:`solve_load_steps` solves each in turn. Path-dependent physics (friction) will need the
-path; for the present path-independent model the last step's equilibrium is the one-step one.
+:func:`solve_load_steps` solves each in turn. With friction the answer depends on the path
+(clothsim.solvers.friction.solve_steps); without it the last step's equilibrium is the one-step one.
 
 A Control may also carry a garment-level rest scale (warp, weft): the pattern's size relative to
 its design, as a stocking is pulled on wider than it is cut and relaxed onto the leg
-(:func:`scale_rest`; a stage's ``rest_scale``).
+(:func:`scale_rest`; a stage's ``rest_scale``), and the external force [N] (N, 3) on the nodes
+(``Model.external_force``: gravity), so that a stage's loads are ramped as its displacements are.
 """
 
 from __future__ import annotations
@@ -32,12 +33,20 @@ class Control:
     prescribed_positions: np.ndarray
     # the pattern's size relative to its design along (warp, weft); None: the model's own
     rest_scale: tuple | None = None
+    # the external force [N] (N, 3) on the nodes (Model.external_force); None: the model's own
+    external_force: np.ndarray | None = None
 
     def __post_init__(self):
         p = np.ascontiguousarray(self.prescribed_positions, dtype=float)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"Control.prescribed_positions must have shape (N, 3) (got {p.shape})")
         object.__setattr__(self, "prescribed_positions", p)
+        if self.external_force is not None:
+            f = np.ascontiguousarray(self.external_force, dtype=float)
+            if f.shape != p.shape or not np.all(np.isfinite(f)):
+                raise ValueError(f"Control.external_force must be finite with the shape of the prescribed "
+                                 f"positions {p.shape} (got {f.shape})")
+            object.__setattr__(self, "external_force", f)
         if self.rest_scale is not None:
             sc = tuple(float(v) for v in np.broadcast_to(np.asarray(self.rest_scale, float), (2,)))
             if not all(np.isfinite(v) and v > 0 for v in sc):
@@ -46,7 +55,8 @@ class Control:
 
     def apply(self, model, state):
         """Move the constrained coordinates of ``state`` (in place) to this control's values and
-        return the Model with ``prescribed_positions`` replaced (Model is frozen)."""
+        return the Model with ``prescribed_positions`` replaced (Model is frozen), its rest
+        lengths scaled and its ``external_force`` replaced when the control carries them."""
         p = self.prescribed_positions
         if p.shape != (model.node_count, 3):
             raise ValueError(f"Control for {p.shape[0]} nodes applied to a model of {model.node_count}")
@@ -55,6 +65,8 @@ class Control:
             raise ValueError("Control.prescribed_positions has non-finite constrained coordinates")
         state.positions[fixed] = p[fixed]
         out = dataclasses.replace(model, prescribed_positions=p.copy())
+        if self.external_force is not None:
+            out = dataclasses.replace(out, external_force=self.external_force.copy())
         return out if self.rest_scale is None else scale_rest(out, self.rest_scale)
 
 
@@ -86,21 +98,32 @@ def scale_rest(model, scale):
     return dataclasses.replace(model, spring_rest_length=rest, spring_width=width)
 
 
-def load_steps(initial: np.ndarray, final: np.ndarray, n: int, scales=None) -> list[Control]:
+def load_steps(initial: np.ndarray, final: np.ndarray, n: int, scales=None, forces=None) -> list[Control]:
     """n controls whose prescribed positions [m] (N, 3) go linearly from ``initial`` (excluded)
     to ``final`` (the last control, exactly): step k of n prescribes initial + k/n (final - initial).
-    ``scales`` = (from, to), each (s_warp, s_weft): the rest scale ramped the same way (None: none)."""
+    ``scales`` = (from, to), each (s_warp, s_weft): the rest scale ramped the same way (None: none);
+    ``forces`` = (from, to), each (N, 3) [N]: the external force ramped the same way (None: the
+    model's own in every step)."""
     if int(n) != n or n < 1:
         raise ValueError(f"load_steps needs n >= 1 (got {n})")
+    n = int(n)
     a = np.asarray(initial, float)
     b = np.asarray(final, float)
     if a.shape != b.shape:
         raise ValueError(f"initial {a.shape} and final {b.shape} prescribed positions differ in shape")
-    if scales is None:
-        return [Control(b.copy() if k == n else a + (k / n) * (b - a)) for k in range(1, int(n) + 1)]
-    s0, s1 = (np.broadcast_to(np.asarray(v, float), (2,)) for v in scales)
-    return [Control(b.copy() if k == n else a + (k / n) * (b - a),
-                    tuple(s1) if k == n else tuple(s0 + (k / n) * (s1 - s0))) for k in range(1, int(n) + 1)]
+
+    def ramp(lo, hi, k):
+        return hi.copy() if k == n else lo + (k / n) * (hi - lo)
+
+    s0 = s1 = f0 = f1 = None
+    if scales is not None:
+        s0, s1 = (np.broadcast_to(np.asarray(v, float), (2,)) for v in scales)
+    if forces is not None:
+        f0, f1 = (np.asarray(v, float) for v in forces)
+        if f0.shape != a.shape or f1.shape != a.shape:
+            raise ValueError(f"external forces {f0.shape} -> {f1.shape} do not match the prescribed positions {a.shape}")
+    return [Control(ramp(a, b, k), None if s0 is None else tuple(ramp(s0, s1, k)),
+                    None if f0 is None else ramp(f0, f1, k)) for k in range(1, n + 1)]
 
 
 def solve_load_steps(make_solver, model, state, controls, limits, callback=None, history=None):

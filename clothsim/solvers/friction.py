@@ -1,10 +1,12 @@
 """Load steps with Coulomb friction between the fabric and the mold (quasi-static and
-path-dependent): each step's controls are applied, the step is solved by Newton with the friction
-frozen at its start (``clothsim.friction.lag_friction``: normal forces and tangent planes, every
-contact node anchored at the previous step's equilibrium), and solved again with the friction
-refreshed at the equilibrium found until the residual with the refreshed friction (the full
-residual: springs, loads and friction) is at most e. A step that fails is cut in half (both halves
-solved in turn), at most ``max_cuts`` times in a row, and the result says how many were cut.
+path-dependent): each step's controls (prescribed coordinates, rest scale, external force) are
+applied, the step is solved by Newton with the friction frozen at its start
+(``clothsim.friction.lag_friction``: normal forces and tangent planes, every contact node
+anchored at the previous step's equilibrium), and solved again with the friction refreshed at
+the equilibrium found until the residual with the refreshed friction (the full residual:
+springs, loads and friction) is at most e. A step's solves (its first, a rescue's, a
+refresh's) share ``max_iterations``. A step that fails is cut in half (both halves solved in
+turn), at most ``max_cuts`` times in a row, and the result says how many were cut.
 Without friction the steps are solved as ``control.solve_load_steps`` does. The switches and
 constants of the schedule are a :class:`~clothsim.solvers.tuning.FrictionTuning` record.
 """
@@ -52,10 +54,12 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
     solver takes the friction refreshed at every iterate; otherwise each solve keeps one frozen
     friction and stops at ``tuning.refresh_forcing`` times the residual it starts from (or e).
     Either way the step is done when the residual with the friction refreshed at its
-    equilibrium is at most e."""
+    equilibrium is at most e. The step's solves (the first, a rescue's two, a refresh's) share
+    ``limits.max_iterations``: the whole step takes at most that many Newton iterations."""
     anchor = state.positions.copy()
     m = control.apply(base, state)
     e = limits.e
+    budget = _Budget(state, limits.max_iterations)
     lag = lag_friction(m, state, anchor)
     mm = dataclasses.replace(m, friction=lag)
     solver = _newton(mm, limits)
@@ -66,7 +70,8 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
     # the step's first solve gets ``rescue_after`` iterations: past them (stick/slip transitions
     # thinner than Newton's steps: the line search cuts, the residual wanders) it starts again
     # from the step's start with the slip eps ``eps_continuation`` times wider, and the solve
-    # with the scene's eps (which decides the step) goes on from there
+    # with the scene's eps (which decides the step) goes on from there, in what is left of the
+    # step's budget (none left: the step ends out of iterations, as a plain solve would)
     rescue = tuning.rescue_after > 0 and tuning.eps_continuation > 1.0
     snap = state.copy() if rescue else None
     res = None
@@ -75,13 +80,15 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
         if not tuning.refresh_every_iteration:
             v0, _ = residual(mm, state)
             lim = _with_e(limits, max(e, tuning.refresh_forcing * v0))
+        if budget.left() < 1:
+            return False, solver.model, budget.spent(res), r - 1, None
         if rescue and r == 1:
-            res = solver.solve(state, _with(lim, max_iterations=min(lim.max_iterations, tuning.rescue_after)),
+            res = solver.solve(state, _with(lim, max_iterations=min(budget.left(), tuning.rescue_after)),
                                callback, hist)
-            if res.status == Status.MAX_ITERATIONS:
-                res = _rescue(m, state, snap, anchor, lim, callback, hist, tuning, solver)
+            if res.status == Status.MAX_ITERATIONS and budget.left() >= 1:
+                res = _rescue(m, state, snap, anchor, lim, callback, hist, tuning, solver, budget)
         else:
-            res = solver.solve(state, lim, callback, hist)
+            res = solver.solve(state, _with(lim, max_iterations=budget.left()), callback, hist)
         if not res.converged:
             return False, solver.model, res, r, None
         new = lag_friction(m, state, anchor)
@@ -97,30 +104,50 @@ def _frictional_step(base, state, control, limits, callback, hist, tuning: Frict
         tuning.max_relags, None
 
 
-def _rescue(m, state, snap, anchor, limits, callback, hist, tuning: FrictionTuning, solver):
+class _Budget:
+    """A load step's Newton iterations: ``total`` from the state's iteration count at its start."""
+
+    def __init__(self, state, total):
+        self.state, self.start, self.total = state, int(state.iteration), int(total)
+
+    def left(self) -> int:
+        return self.total - (int(self.state.iteration) - self.start)
+
+    def spent(self, res):
+        """``res`` (the step's last SolveResult) as a step that ran out of its iterations."""
+        return dataclasses.replace(res, converged=False, status=Status.MAX_ITERATIONS,
+                                   message=f"stopped after {self.total} iterations in the load step without converging")
+
+
+def _rescue(m, state, snap, anchor, limits, callback, hist, tuning: FrictionTuning, solver, budget):
     """A load step's first solve again from the step's start ``snap``: with the slip eps
     ``tuning.eps_continuation`` times wider, then (from its equilibrium, or from the start if it
-    fails) with the scene's eps on ``solver`` (its friction refreshed at the state)."""
+    fails) with the scene's eps on ``solver`` (its friction refreshed at the state); both within
+    what is left of the step's iteration ``budget`` (a _Budget)."""
     c = float(tuning.eps_continuation)
     state.positions[:] = snap.positions
     state.in_contact[:] = snap.in_contact
     wide = _newton(dataclasses.replace(m, friction=lag_friction(m, state, anchor, c)), limits)
     if tuning.refresh_every_iteration:
         wide.refresh = lambda st: dataclasses.replace(m, friction=lag_friction(m, st, anchor, c))
-    if not wide.solve(state, limits, callback, hist).converged:
+    res = wide.solve(state, _with(limits, max_iterations=budget.left()), callback, hist)
+    if not res.converged:
         state.positions[:] = snap.positions
         state.in_contact[:] = snap.in_contact
+    if budget.left() < 1:
+        return budget.spent(res)
     solver.retarget(dataclasses.replace(m, friction=lag_friction(m, state, anchor)))
-    return solver.solve(state, limits, callback, hist)
+    return solver.solve(state, _with(limits, max_iterations=budget.left()), callback, hist)
 
 
 def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None,
-                model_scale=(1.0, 1.0), tuning: FrictionTuning = FrictionTuning()):
+                model_scale=(1.0, 1.0), tuning: FrictionTuning = FrictionTuning(), model_force=None):
     """Solve ``state`` in place through the load steps ``controls`` (Controls, from the model's
     current prescribed positions), with friction when ``model.friction_mu`` > 0 (``limits``: a
     SolverSettings or RunLimits; the Newton solver's options from it when it is a SolverSettings);
     ``make_solver(model)`` solves the frictionless steps (default: Newton); ``model_scale``: the rest
-    scale the state is at before the first control (a halved first step ramps from it); ``tuning``: the
+    scale the state is at before the first control (a halved first step ramps from it); ``model_force``:
+    likewise the external force [N] (N, 3) before the first control (None: the model's own); ``tuning``: the
     schedule's switches (:class:`~clothsim.solvers.tuning.FrictionTuning`). Returns (the last step's Model, a
     SolveResult over all steps whose ``friction`` holds the steps' report: load steps, cuts,
     refreshes, and at the last step the stick and slip counts and the cone violation)."""
@@ -132,38 +159,42 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
     it0 = state.iteration
     base = dataclasses.replace(model, friction=None)
     frictional = model.friction_mu > 0 and model.mold is not None
-    queue = [(c.prescribed_positions, c.rest_scale) for c in controls]
+    queue = [(c.prescribed_positions, c.rest_scale, c.external_force) for c in controls]
     prev = model.prescribed_positions
-    prev_scale = None
+    prev_scale = prev_force = None
     fixed = model.fixed_axes
     steps, cuts, relags_total = [], 0, 0
     res, m, rep = None, model, None
     cut_run = 0
     while queue:
-        target, scale = queue.pop(0)
+        target, scale, force = queue.pop(0)
+        control = Control(target, scale, force)
         snap = state.copy()
         ts = time.perf_counter()
         its = state.iteration
         if frictional:
-            ok, m_new, res, relags, rep_new = _frictional_step(base, state, Control(target, scale), limits, callback,
+            ok, m_new, res, relags, rep_new = _frictional_step(base, state, control, limits, callback,
                                                               hist, tuning)
         else:
-            m_new = Control(target, scale).apply(base, state)
+            m_new = control.apply(base, state)
             res = make_solver(m_new).solve(state, limits, callback, hist)
             ok, relags, rep_new = res.converged, 1, None
         relags_total += relags
         if ok:
-            m, rep, prev, prev_scale, cut_run = m_new, rep_new, target, scale, 0
+            m, rep, prev, prev_scale, prev_force, cut_run = m_new, rep_new, target, scale, force, 0
             # the step's Newton iterations over all its solves (a refresh's solve counts too)
             steps.append({"iterations": int(state.iteration - its), "refreshes": int(relags),
                           "seconds": time.perf_counter() - ts, **(rep_new or {}),
-                          **({} if scale is None else {"rest_scale": [float(v) for v in scale]})})
+                          **({} if scale is None else {"rest_scale": [float(v) for v in scale]}),
+                          **({} if force is None else {"external_force_n": [float(v) for v in force.sum(axis=0)]})})
             continue
         m = m_new
         if res.status not in (Status.DIVERGED, Status.STALLED):
             break  # stopped, out of iterations or time: no cut
         s_from = prev_scale if prev_scale is not None else model_scale
-        moved = not np.array_equal(prev[fixed], target[fixed]) or (scale is not None and tuple(s_from) != tuple(scale))
+        f_from = prev_force if prev_force is not None else model.external_force if model_force is None else model_force
+        moved = not np.array_equal(prev[fixed], target[fixed]) or (scale is not None and tuple(s_from) != tuple(scale)) \
+            or (force is not None and not np.array_equal(f_from, force))
         if not moved or cut_run >= tuning.max_cuts:
             break
         # cut the failing step in half and go on from where it started
@@ -171,7 +202,8 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
         state.in_contact[:] = snap.in_contact
         half = np.where(fixed, 0.5 * (prev + target), target)
         half_scale = None if scale is None else tuple(0.5 * (np.asarray(s_from) + np.asarray(scale)))
-        queue[:0] = [(half, half_scale), (target, scale)]
+        half_force = None if force is None else 0.5 * (np.asarray(f_from, float) + force)
+        queue[:0] = [(half, half_scale, half_force), (target, scale, force)]
         cuts += 1
         cut_run += 1
     done = len(steps)
