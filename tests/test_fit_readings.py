@@ -127,3 +127,43 @@ def test_fitted_yaml_runs_after_its_folder_is_moved_and_the_scene_is_gone(tmp_pa
     assert main(["run", str(moved / "fitted.yaml"), "--out", str(tmp_path / "again"), "--quiet"]) == 0
     again = json.loads((tmp_path / "again" / "summary.json").read_text())
     assert again["probes"][0]["pressure_mmhg"] == pytest.approx(info["readings_mmhg"]["side"], abs=1e-3)
+
+
+@pytest.mark.slow  # about 4.5 s under load (the scene's validation, scipy's import)
+def test_a_try_whose_node_count_changed_is_solved_from_the_scenes_own_start(monkeypatch):
+    """A reduction per level changes a panel's row lengths, and its rows gain or lose nodes (the
+    graded stocking: 778 nodes at reductions 19.14 / 18.31 % at B / C, 810 at 19.14 / 25 %): the
+    fit used to refuse it ("the varied field changes the number of nodes") on the first such try.
+    Such a try is now solved from the scene's own start (fit.csv: fresh) and the fit goes on.
+    Modelled with a stand-in solve whose node count changes at 0.24 m and whose reading is
+    100 x width."""
+    import numpy as np
+
+    from clothsim.compression import fit as fitmod
+
+    class Sim:
+        def __init__(self, scene, callback=None):
+            self.x = float(scene.fabric.size[0])
+            self.model = type("M", (), {"fixed_axes": np.zeros((10 if self.x < 0.24 else 12, 3), bool),
+                                        "mold": None})()
+            self.state = type("S", (), {"positions": np.zeros((10 if self.x < 0.24 else 12, 3))})()
+            self.settings = None
+
+        def run(self):
+            pass
+
+        def result(self):
+            x, state = self.x, self.state
+            return type("R", (), {"state": state, "solve": type("V", (), {"status": "converged"})(),
+                                  "read": lambda _, names: {n: 100.0 * x for n in names},
+                                  "compression": lambda _: {"probes": [{"name": "side", "pressure_mmhg": 100.0 * x}]}})()
+
+    monkeypatch.setattr(fitmod.simulation, "Simulation", Sim)
+    monkeypatch.setattr(fitmod.simulation, "warm_up", lambda *a: None)
+    res = fitmod.fit(SLEEVE, [fitmod.Vary("fabric.size.0", 0.2, 0.3)], [fitmod.Target("side", 25.0)],
+                     overrides=["probes=[{name: side, point: [0.06, 0.0, 0.0]}]", "fabric.size.0=0.2"], tol_mmhg=0.01)
+    assert res.converged and abs(res.values[0] - 0.25) < 1e-4, res.message
+    starts = [(t.values[0] >= 0.24, t.start) for t in res.tries]
+    first_big = next(k for k, (big, _) in enumerate(starts) if big)
+    assert starts[0] == (False, "fresh") and starts[1] == (False, "warm"), starts   # the count held: warm
+    assert starts[first_big][1] == "fresh", starts

@@ -24,8 +24,10 @@ fitted.yaml`` does): where the equilibrium is not unique (a stocking's slack cou
 differ, and the search goes on from fresh starts until that reading meets the tolerance too, so
 the fitted run and its files are the ones a rerun reproduces (fit.csv's ``start`` column).
 
-Limitations: the reading must depend continuously on the field (a field that changes the node
-count, such as ``fabric.divisions``, cannot warm-start and is refused); the single-field search
+Limitations: the reading must depend continuously on the field (an integer field such as
+``fabric.divisions`` is refused; a try whose scene has another node count than the previous one,
+as a panel's rows gain or lose nodes under a reduction per level, is solved from the scene's own
+start); the single-field search
 assumes the reading is monotonic between LO and HI (the reachable range it reports is the range
 between the readings at the bounds).
 """
@@ -319,10 +321,11 @@ class _Solver:
         scene = scene_from_dict(self.scene_dict(x), self.source, None, blame)
         # a signal stops the solve at its next iteration; that try is dropped (not an equilibrium)
         sim = simulation.Simulation(scene, callback=lambda prog: bool(self.stop))
-        warm = self.prev is not None and not self.fresh
+        # a field that changes the node count (a panel's row lengths under a reduction per level:
+        # its rows gain or lose nodes) cannot start from the previous equilibrium: that try is
+        # solved from the scene's own start
+        warm = self.prev is not None and not self.fresh and self.prev.positions.shape == sim.state.positions.shape
         if warm:
-            if self.prev.positions.shape != sim.state.positions.shape:
-                raise FitError("the varied field changes the number of nodes: a fit cannot vary it")
             warm_start(sim.model, sim.state, self.prev.positions)
         if not self.warm:
             simulation.warm_up(sim.model, sim.state, sim.settings)
