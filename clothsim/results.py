@@ -271,6 +271,13 @@ class Result:
                                                   self._f()[3], self._f()[0][:self.model.topology.warp_count])
         return self._compression
 
+    def read(self, names) -> dict:
+        """{name: mmHg or None} of the named probes and measuring levels alone
+        (clothsim.compression.readings.Readings.read: the numbers :meth:`compression` gives them,
+        without its other readings); LevelError for a name the scene cannot read."""
+        return self.inputs.readings.read(self.model, self.state.positions, self.state.in_contact, self._f()[3],
+                                         list(names))
+
     def colored_mesh(self, field: str = "strain"):
         """A trimesh.Trimesh of the deformed sheet with per-vertex colours (viridis) of field
         ('strain' or 'pressure')."""

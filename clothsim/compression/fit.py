@@ -30,8 +30,10 @@ solved once more from the scene's own start (what ``run fitted.yaml`` does): whe
 differ, and the search goes on from fresh starts until that reading meets the tolerance too, so
 the fitted run and its files are the ones a rerun reproduces (fit.csv's ``start`` column).
 
-Limitations: the reading must depend continuously on the field (a field that changes the node
-count, such as ``fabric.divisions``, cannot warm-start and is refused); the single-field search
+Limitations: the reading must depend continuously on the field (an integer field such as
+``fabric.divisions`` is refused; a try whose scene has another node count than the previous one,
+as a panel's rows gain or lose nodes under a reduction per level, is solved from the scene's own
+start); the single-field search
 assumes the reading is monotonic between LO and HI (the reachable range it reports is the range
 between the readings at the bounds).
 """
@@ -58,10 +60,12 @@ from ..compile import design_outlines
 from ..config import SceneError, apply_overrides, read_yaml, scene_from_dict
 from ..labels import field_unit
 from ..mold import mold_query_many
-from ..results import atomic_write_bytes
+from ..results import RESULT_FILES, atomic_write_bytes
 from ..sizing import default_for, sizing_table, table_lines
 from ..sizingspec import GarmentSpec
 from . import MMHG
+from .folder import runnable_scene
+from .levels import LevelError
 
 if TYPE_CHECKING:
     from ..results import Result
@@ -323,11 +327,13 @@ class _Solver:
         scene = scene_from_dict(self.scene_dict(x), self.source, None, blame)
         # a signal stops the solve at its next iteration; that try is dropped (not an equilibrium)
         sim = simulation.Simulation(scene, callback=lambda prog: bool(self.stop))
-        # a loading path (stages, friction, load steps) is replayed from the scene's own start
-        warm = self.prev is not None and not self.fresh and not sim.solved_along_a_path()
+        # a loading path (stages, friction, load steps) is replayed from the scene's own start; a
+        # field that changes the node count (a panel's row lengths under a reduction per level:
+        # its rows gain or lose nodes) cannot start from the previous equilibrium either: such a
+        # try is solved from the scene's own start
+        warm = (self.prev is not None and not self.fresh and not sim.solved_along_a_path()
+                and self.prev.positions.shape == sim.state.positions.shape)
         if warm:
-            if self.prev.positions.shape != sim.state.positions.shape:
-                raise FitError("the varied field changes the number of nodes: a fit cannot vary it")
             warm_start(sim.model, sim.state, self.prev.positions)
         if not self.warm:
             simulation.warm_up(sim.model, sim.state, sim.settings)
@@ -336,16 +342,17 @@ class _Solver:
         if self.stop:
             raise FitInterrupted(self.stop[0], self.tries)
         res = sim.result()
-        comp = res.compression()
-        readings = {r["name"]: r["pressure_mmhg"] for r in comp.get("probes", [])}
-        for r in (comp.get("levels") or {}).get("levels", []):
-            # a level's girth mean (a probe's name wins); no contact round the level reads 0 mmHg,
-            # so a garment too loose to touch the body there is tightened, not refused
-            readings.setdefault(r["level"], r["mean_mmhg"] if r["mean_mmhg"] is not None else 0.0)
-        missing = [t.probe for t in self.targets if readings.get(t.probe) is None]
-        if missing:
-            raise FitError(f"--target {missing[0]}: no reading there (no contact at that level, or its levels "
-                           f"could not be read: {(comp.get('levels') or {}).get('error', 'see run')})")
+        # the targets' readings alone (Result.read: a probe's pressure, a level's girth mean), by the
+        # code the full readings use; those (every probe, every level's side sensors) are computed
+        # once, for the fitted result, when it is written
+        try:
+            readings = res.read([t.probe for t in self.targets])
+        except LevelError as e:
+            raise FitError(f"--target {self.targets[0].probe}: no reading there (its levels could not be read: "
+                           f"{e})") from None
+        # no contact round a level reads 0 mmHg, so a garment too loose to touch the body there is
+        # tightened, not refused
+        readings = {k: 0.0 if v is None else v for k, v in readings.items()}
         p = [readings[t.probe] for t in self.targets]
         r = [pi - t.mmhg for pi, t in zip(p, self.targets)]
         self.prev = res.state
@@ -641,14 +648,23 @@ def _least_squares(f: _Solver, x0, lo, hi, tol, max_solves) -> FitResult:
 
 
 def write_outputs(res: FitResult, out: str | Path, varies: list[Vary], targets: list[Target]) -> Path:
-    """out/fitted.yaml (the scene at the fitted values), out/fit.csv (the tries), out/fit.json and
+    """out/fitted.yaml (the scene at the fitted values, with the files it reads copied beside it and
+    named without a path: clothsim.compression.folder.runnable_scene), out/fit.csv (the tries), out/fit.json and
     the fitted run's result files (result.npz, summary.json, ...)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if res.result is not None:
         res.result.save(out)
-    if res.result is not None:  # file references made absolute, so it runs from anywhere
-        atomic_write_bytes(out / "fitted.yaml", res.result.scene.resolved().to_yaml().encode())
+        # the files the scene reads copied beside it, by name: the folder runs wherever it is moved
+        text, files = runnable_scene(res.result.scene, "The scene at the fitted values (clothsim fit)",
+                                     reserved={*RESULT_FILES, "fitted.yaml", "fit.csv", "fit.json"})
+        for name, src in files.items():
+            try:
+                data = Path(src).read_bytes()
+            except OSError as exc:
+                raise FitError(f"fitted.yaml: cannot copy {name}, a file the scene reads ({exc.strerror})") from None
+            atomic_write_bytes(out / name, data)
+        atomic_write_bytes(out / "fitted.yaml", text.encode())
     atomic_write_bytes(out / "fit.csv", res.tries_csv(varies, targets).encode())
     atomic_write_bytes(out / "fit.json", json.dumps(fit_info(res, varies, targets), indent=2).encode())
     return out

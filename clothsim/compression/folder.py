@@ -18,7 +18,9 @@ the material tables) nor recompile the model. :meth:`clothsim.results.Result.npz
 ``scene.yaml`` is written by :func:`portable_scene_yaml`: the scene as run with every file
 reference reduced to the file's name, and a header listing each file's SHA-256, so the folder
 holds no path of the machine that ran it and the run can be repeated with the same files put
-beside it (the hashes say whether they are the same files).
+beside it (the hashes say whether they are the same files). ``fit``'s ``fitted.yaml`` is written
+the same way by :func:`runnable_scene`, with the files themselves copied beside it: the fit's
+folder runs (``run fitted.yaml``) wherever it is moved.
 """
 
 from __future__ import annotations
@@ -64,17 +66,30 @@ def _sha256(path: Path) -> tuple[str | None, int | None]:
         return None, None
 
 
-def portable_scene(scene) -> tuple[dict, list[dict]]:
-    """(the scene as a dict with every file reference reduced to the file's name, [{field,
-    file, sha256, bytes}] of those references; sha256 None when the file cannot be read)."""
+def _portable(scene, reserved=()) -> tuple[dict, list[dict], dict[str, Path]]:
+    """(the scene dict with its file references by name, [{field, file, sha256, bytes}], {name:
+    the file it names}). Two different files of one name (a course.csv from two folders), or a
+    name in ``reserved``, get distinct names (``course-2.csv``)."""
     d = scene.to_dict()
-    files = []
+    files, paths = [], {}
     for holder, key, field in _refs(d):
         path = scene.resolve(holder[key])
         name = PurePath(str(holder[key]).replace("\\", "/")).name
+        stem, suffix, k = PurePath(name).stem, PurePath(name).suffix, 1
+        while name in reserved or paths.get(name, path) != path:
+            k += 1
+            name = f"{stem}-{k}{suffix}"
+        paths[name] = path
         digest, size = _sha256(path)
         holder[key] = name
         files.append({"field": field, "file": name, "sha256": digest, "bytes": size})
+    return d, files, paths
+
+
+def portable_scene(scene) -> tuple[dict, list[dict]]:
+    """(the scene as a dict with every file reference reduced to the file's name, [{field,
+    file, sha256, bytes}] of those references; sha256 None when the file cannot be read)."""
+    d, files, _ = _portable(scene)
     return d, files
 
 
@@ -88,6 +103,19 @@ def portable_scene_yaml(scene, portable: tuple[dict, list[dict]] | None = None) 
             "# the one used) or edit the paths."]
     head += [f"#   {f['field']}: {f['file']}  sha256 {f['sha256'] or 'unreadable'}" for f in files]
     return "\n".join(head) + "\n" + yaml.safe_dump(d, sort_keys=False)
+
+
+def runnable_scene(scene, what: str, reserved=()) -> tuple[str, dict[str, Path]]:
+    """A scene that runs from its folder wherever the folder is moved (``fitted.yaml``): (its
+    YAML, {name: file to copy beside it}). As :func:`portable_scene_yaml`, every file reference
+    is by name only (no path of the machine that ran it); the caller copies each file under that
+    name into the folder. ``what`` names the scene in the header; ``reserved``: names the folder's
+    other files take (a file of such a name is copied under another)."""
+    d, files, paths = _portable(scene, reserved)
+    head = [f"# {what}. The files it reads are copied beside it and referenced by name (no path of the",
+            "# machine that ran it), so the folder runs wherever it is moved:"]
+    head += [f"#   {f['field']}: {f['file']}  sha256 {f['sha256'] or 'unreadable'}" for f in files]
+    return "\n".join(head) + "\n" + yaml.safe_dump(d, sort_keys=False), paths
 
 
 # ----------------------------------------------------------------------------- the scene in short

@@ -302,6 +302,34 @@ def _course_strain(model, positions, strain_warp, z: float) -> float | None:
     return float((w * np.asarray(strain_warp)).sum() / w.sum())
 
 
+def sensor_radius(scene) -> float:
+    """The radius [m] of the levels' side sensors (``levels.radius``; 1 cm without)."""
+    spec = getattr(scene, "levels", None)
+    return spec.radius if spec is not None else 0.01
+
+
+def read_level(model, positions, in_contact, pressure, lv: dict, radius: float, strain_warp=None,
+               sides: bool = True) -> dict:
+    """One level's reading (``lv``: a row of :func:`level_set`): {level, z_m, height_m, girth_m,
+    loop_m, how, course_strain, reduction_pct, mean_mmhg, sides {side: mmHg}}. ``sides`` False
+    leaves the four sensor discs out (``sides`` {}) and ``strain_warp`` None the course strain
+    (None): what a fit needs of a level is its girth mean alone (:meth:`.readings.Readings.read`),
+    read here by the same code as the full reading."""
+    z = lv["z_m"]
+    prof = read_profile(model, positions, in_contact, pressure,
+                        Profile.model_validate({"name": lv["name"], "axis": "z", "from": z, "to": z, "step": 1.0}))
+    mean = prof["slices"][0]["mean_mmhg"]
+    read = {}
+    for side, pt in (lv["sides"].items() if sides else ()):
+        r = read_probe(model, positions, in_contact, pressure,
+                       Probe(name=f"{lv['name']} {side}", point=tuple(pt), radius=radius))
+        read[side] = r["pressure_mmhg"]
+    e = _course_strain(model, positions, strain_warp, z) if strain_warp is not None else None
+    return {"level": lv["name"], "z_m": z, "height_m": lv["height_m"], "girth_m": lv["girth_m"],
+            "loop_m": lv["loop_m"], "how": lv["how"], "course_strain": e,
+            "reduction_pct": None if e is None else 100.0 * e / (1.0 + e), "mean_mmhg": mean, "sides": read}
+
+
 def read_levels(scene, model, positions, in_contact, pressure, strain_warp=None, lset=None) -> dict:
     """Per level: {level, z_m, height_m, girth_m, loop_m, how, course_strain, reduction_pct,
     mean_mmhg, sides {side: mmHg}, percent_of_b, required_percent, gradient_ok} and the
@@ -310,24 +338,9 @@ def read_levels(scene, model, positions, in_contact, pressure, strain_warp=None,
 
     lset = lset if lset is not None else level_set(scene, model.mold)
     spec = getattr(scene, "levels", None)
-    radius = spec.radius if spec is not None else 0.01
+    radius = sensor_radius(scene)
     required = dict(spec.gradient) if spec is not None else {}
-    rows = []
-    for lv in lset["levels"]:
-        z = lv["z_m"]
-        prof = read_profile(model, positions, in_contact, pressure,
-                            Profile.model_validate({"name": lv["name"], "axis": "z", "from": z, "to": z, "step": 1.0}))
-        mean = prof["slices"][0]["mean_mmhg"]
-        sides = {}
-        for side, pt in lv["sides"].items():
-            r = read_probe(model, positions, in_contact, pressure,
-                           Probe(name=f"{lv['name']} {side}", point=tuple(pt), radius=radius))
-            sides[side] = r["pressure_mmhg"]
-        e = _course_strain(model, positions, strain_warp, z) if strain_warp is not None else None
-        rows.append({"level": lv["name"], "z_m": z, "height_m": lv["height_m"], "girth_m": lv["girth_m"],
-                     "loop_m": lv["loop_m"], "how": lv["how"], "course_strain": e,
-                     "reduction_pct": None if e is None else 100.0 * e / (1.0 + e),
-                     "mean_mmhg": mean, "sides": sides})
+    rows = [read_level(model, positions, in_contact, pressure, lv, radius, strain_warp) for lv in lset["levels"]]
     b = next((r for r in rows if r["level"] == "B"), None)
     verdicts = []
     for r in rows:

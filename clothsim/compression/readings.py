@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..plottext import failure
-from .levels import LevelError, level_point, level_set, levels_csv, read_levels, wants_levels
+from .levels import (LevelError, level_point, level_set, levels_csv, read_level, read_levels, sensor_radius,
+                     wants_levels)
 from .levelspec import Levels
 from .probes import NO_READING, probes_csv, profile_png, profiles_csv, read_probe, read_profile
 from .standards import classify_all
@@ -77,6 +78,34 @@ class Readings:
             for r in out["probes"]:
                 if r["name"] == classes.probe:
                     r["classes"] = {c["standard"]: c["class"] for c in out["classes"]["results"]}
+        return out
+
+    def read(self, model: Model, positions: np.ndarray, in_contact: np.ndarray, pressure: np.ndarray,
+             names) -> dict:
+        """{name: mmHg or None}: the named readings alone, each by the code :meth:`evaluate` reads it
+        with (the same numbers): a probe's pressure (a probe's name wins over a level's), else a
+        measuring level's mean (:func:`.levels.read_level` without its side sensors and course
+        strain; None: no contact round the level). What a fit reads on each solve, where the full
+        readings (every probe, every level's four sensor discs, profiles) would cost more than
+        the targets need. Raises LevelError for a name that is neither a probe nor a level the
+        scene can place (the message says why)."""
+        probes = {pr.name: pr for pr in self.probes}
+        lset, level_error = None, ""
+        if any(n not in probes or probes[n].point is None for n in names):
+            try:
+                lset = level_set(self, model.mold)
+            except LevelError as e:
+                level_error = str(e)
+        out: dict = {}
+        for n in names:
+            if n in probes:
+                out[n] = _read_probe_or_level(model, positions, in_contact, pressure, probes[n], lset,
+                                              level_error)["pressure_mmhg"]
+                continue
+            lv = next((r for r in (lset or {}).get("levels", []) if r["name"] == n), None)
+            if lv is None:
+                raise LevelError(level_error or f"'{n}' is neither a probe nor a measuring level of the scene")
+            out[n] = read_level(model, positions, in_contact, pressure, lv, sensor_radius(self), sides=False)["mean_mmhg"]
         return out
 
     def files(self, readings: dict, title: str) -> dict[str, bytes]:
