@@ -152,6 +152,9 @@ def test_a_try_whose_node_count_changed_is_solved_from_the_scenes_own_start(monk
         def run(self):
             pass
 
+        def solved_along_a_path(self):
+            return False                                   # no stages, friction or load steps
+
         def result(self):
             x, state = self.x, self.state
             return type("R", (), {"state": state, "solve": type("V", (), {"status": "converged"})(),

@@ -21,6 +21,7 @@ import pytest
 import trimesh
 
 import clothsim
+from clothsim.compression.levels import read_level
 from clothsim.compression.probes import ON_BODY_GAP_M, on_body, profiles_csv
 from clothsim.config import scene_from_dict
 from conftest import ROOT
@@ -106,6 +107,11 @@ def test_girth_mean_on_an_ellipse_and_a_stadium_integrates_laplace(tmp_path):
         assert sl["girth_mean_pa"] == pytest.approx(T * 2 * np.pi / sl["girth_m"], rel=0.01)
         # the flats' fabric (5.6 of 30.8 cm) is out of the contact set: the contact mean reads 22 % higher
         assert sl["mean_pa"] > 1.1 * sl["girth_mean_pa"]
+        # a measuring level there reads the girth mean too (it read the contact mean, 22 % high)
+        lv = read_level(st.model, X, st.state.in_contact, st._f()[3],  # pressure per node [Pa]
+                        {"name": "L", "z_m": sl["height_m"], "height_m": sl["height_m"], "girth_m": sl["girth_m"],
+                         "loop_m": sl["girth_m"], "how": "given", "sides": {}}, 0.01, sides=False)
+        assert lv["mean_mmhg"] == pytest.approx(sl["girth_mean_mmhg"], rel=1e-12)
     rows = list(csv.DictReader(io.StringIO(profiles_csv(st.compression()["profiles"]))))
     assert float(rows[2]["girth_mean_Pa"]) == pytest.approx(st.compression()["profiles"][0]["slices"][2]["girth_mean_pa"],
                                                              rel=1e-5)

@@ -21,8 +21,9 @@ Other levels (B1, E, F, G, ...) are taken at given heights (``levels.heights``).
 
 **Readings** per level (the standards' way: a girth mean and sensor discs on four sides):
 
-- mean: the girth mean, the contact pressure averaged along the sheet's cut at the level's
-  height (the profile's slice mean, :func:`.probes.read_profile`);
+- mean: the girth mean, the contact pressure integrated along the sheet's cut at the level's
+  height over the fabric's girth on the body (the profile's slice girth mean,
+  :func:`.probes.read_profile`; not the contact mean, which leaves out fabric lying on a flat);
 - anterior, posterior, medial, lateral: a sensor disc (:func:`.probes.read_probe`, radius
   ``levels.radius``) centred on the body's surface point in that direction from the level's
   centre (the leg's axis; a loop's centroid on a scan);
@@ -44,7 +45,7 @@ import numpy as np
 
 from ..mold.leg import leg_girth, leg_loop_length, leg_radius
 from .levelspec import SIDES
-from .probes import read_probe, read_profile
+from .probes import read_probe, read_profile, reported_mmhg
 from .spec import Probe, Profile
 from .standards import classify_all
 
@@ -318,7 +319,9 @@ def read_level(model, positions, in_contact, pressure, lv: dict, radius: float, 
     z = lv["z_m"]
     prof = read_profile(model, positions, in_contact, pressure,
                         Profile.model_validate({"name": lv["name"], "axis": "z", "from": z, "to": z, "step": 1.0}))
-    mean = prof["slices"][0]["mean_mmhg"]
+    # the girth mean (the profile's reported statistic, what a tape and sensor read round the
+    # limb), not the contact mean, which leaves out fabric lying on a flat of the body
+    mean = reported_mmhg(prof["slices"][0])
     read = {}
     for side, pt in (lv["sides"].items() if sides else ()):
         r = read_probe(model, positions, in_contact, pressure,
