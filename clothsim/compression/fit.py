@@ -25,17 +25,17 @@ scene solved along a loading path (stages, friction, ``solver.load_steps`` > 1) 
 its answer is the path's from the scene's start, and a path begun at another equilibrium can end
 elsewhere (the sewn sleeve drawn on at 1.1 and relaxed with mu 0.4, 20 x 8, at 0.235 m: 18.47
 mmHg from the 0.25 m equilibrium, 18.07 from its start), so each of its solves runs every stage
-from the scene's own start, as ``run`` does. A fit reached from such a warm start is then
-solved once more from the scene's own start (what ``run fitted.yaml`` does): where the equilibrium is not unique (a stocking's slack courses) the two can
-differ, and the search goes on from fresh starts until that reading meets the tolerance too, so
-the fitted run and its files are the ones a rerun reproduces (fit.csv's ``start`` column).
+from the scene's own start, as ``run`` does. A fit reached from a warm start is then solved once
+more from the scene's own start (what ``run fitted.yaml`` does): where the equilibrium is not
+unique (a stocking's slack courses) the two can differ, and the search goes on from fresh starts
+until that reading meets the tolerance too, so the fitted run and its files are the ones a rerun
+reproduces (fit.csv's ``start`` column).
 
 Limitations: the reading must depend continuously on the field (an integer field such as
 ``fabric.divisions`` is refused; a try whose scene has another node count than the previous one,
 as a panel's rows gain or lose nodes under a reduction per level, is solved from the scene's own
-start); the single-field search
-assumes the reading is monotonic between LO and HI (the reachable range it reports is the range
-between the readings at the bounds).
+start); the single-field search assumes the reading is monotonic between LO and HI (the
+reachable range it reports is the range between the readings at the bounds).
 """
 
 from __future__ import annotations
