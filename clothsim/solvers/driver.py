@@ -14,7 +14,8 @@ which runs one per batch). Until this refactor Newton also ran the same 1 %-gain
 own 100-iteration window inside its iteration loop, beside the driver's; the driver's rule with
 the window min(stall_iterations, 100) stops such a run at the same iteration, and keeps one
 message and one place for the rule. A solver that cannot move at all reports NO_PROGRESS from its
-step (status ``stalled`` at once).
+step (status ``stalled`` at once; the solver's ``failure`` text, when it has one, e.g. Newton's
+exactly singular system, ends the message).
 """
 
 from __future__ import annotations
@@ -181,6 +182,8 @@ def run(solver, state, limits, callback=None, history: History | None = None, be
             status = Status.STALLED
             message = (f"no further progress possible at ||V||_inf = {cur:.3e} N (e = {s.e:.3e} N); "
                        f"smallest residual reached {best:.3e} N")
+            if getattr(solver, "failure", ""):
+                message += f"; {solver.failure}"
             break
         # stall: the best residual has not improved by 1 % within the stall window
         window = s.stall_iterations if solver.stall_window is None else min(s.stall_iterations, solver.stall_window)

@@ -38,6 +38,11 @@ set of contact nodes and of taut/slack springs has settled. One iteration:
    the coarsest grid. Small problems (<= ``NewtonTuning.direct_dofs`` unknowns) are factorised directly (on a
    triangle-mesh mold a narrow band by a banded Cholesky in reverse Cuthill-McKee order,
    ``linalg._band_cholesky_solve``; otherwise, or when a pivot is not positive, the sparse LU).
+   A system the sparse LU finds exactly singular (a direction without stiffness under a shift below
+   the pivots' rounding) gives no step: the Levenberg shift is raised, and when no shift helps the
+   iteration reports ``StepStatus.NO_PROGRESS`` with the reason (``NewtonLevel.failure``, in the
+   run's message); the coarsest multigrid grid's LU is retried with larger diagonal shifts, then
+   replaced by its diagonal (``linalg.multigrid._coarse_solver``).
    On the smooth surface of a mesh K also holds the contact's curvature term -lam S, all of it
    while the system stays positive definite and its positive part otherwise
    (``NewtonTuning.curvature``, a ``Curvature`` mode); where it is indefinite on a direct level the step also moves along

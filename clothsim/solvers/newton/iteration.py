@@ -99,6 +99,10 @@ class NewtonLevel:
         else:
             self.mg = PaddedMultigrid(model.topology, _seam_pairs(model), tu)
         self.lm = 1e-10  # Levenberg shift relative to the mean diagonal stiffness
+        # exactly singular factorisations in the current iteration, and why the last iteration
+        # that found no step failed when they caused it ("" otherwise)
+        self.singular = 0
+        self.failure = ""
         kind = self.margs[0][0] if self.has_mold else -1
         rules = kind == MOLD_SMOOTH or (kind == MOLD_MESH and tu.scan_rules_on_facets)
         self._kink_decay = tu.kink_decay if rules else 1.0
@@ -219,8 +223,20 @@ class NewtonLevel:
             # (with all of the curvature term, pivots on the diagonal only: stable if the matrix
             # is positive definite, and then the pivots' signs are the test; with threshold
             # pivoting a positive definite but badly scaled matrix may take an off-diagonal one)
-            lu = sla.splu(M, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
-                          diag_pivot_thresh=0.0 if self._curv_full else 1e-3)
+            try:
+                lu = sla.splu(M, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
+                              diag_pivot_thresh=0.0 if self._curv_full else 1e-3)
+            except RuntimeError:
+                # "Factor is exactly singular": a pivot column vanished (a direction without
+                # stiffness whose Levenberg shift is below the other pivots' rounding). With all
+                # of the curvature term the system is not positive definite: its positive part.
+                # Otherwise no step: a non-finite one, which iterate answers with a larger shift,
+                # and after its attempts with NO_PROGRESS (the run stalls, keeping its state)
+                self.singular += 1
+                if self._curv_full:
+                    self._curvature_fallback()
+                    return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
+                return np.full(n3, np.nan), 1
             if self._curv_full and not _lu_positive_definite(lu):
                 self._curvature_fallback()
                 return self._solve_linear(rhs, mu_abs, tol, x0, reuse)
@@ -378,6 +394,8 @@ class NewtonLevel:
         else:
             E0 = self.energy_forces(pos, F)
         self._cache = None
+        self.singular = 0
+        self.failure = ""
         contact = state.in_contact
         contact_before = contact.copy()
         Q = self.queries(pos)
@@ -512,6 +530,9 @@ class NewtonLevel:
                         self._set_kink(max(self._kink_scale / self._kink_decay, tu.kink_floor))
                 return accepted
             self.lm = max(self.lm * 100.0, 1e-6)
+        if self.singular:
+            self.failure = (f"the Newton system was exactly singular in {self.singular} factorisation(s) "
+                            f"up to a Levenberg shift of {self.lm:.0e} x the mean diagonal")
         return v_base, E0, StepStatus.NO_PROGRESS
 
     def _line_search(self, state, dx, E0, slope, v_base):

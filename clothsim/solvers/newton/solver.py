@@ -45,6 +45,8 @@ class NewtonSolver(Solver):
         # None, or state -> Model: the model with the friction refreshed at the state, taken
         # before every iteration (set by clothsim.solvers.friction)
         self.refresh = None
+        # why the last iteration that found no step failed, when known (the driver's message)
+        self.failure = ""
 
     def retarget(self, model):
         """Go on with ``model``: the same lattice and mold with another frozen friction
@@ -115,6 +117,7 @@ class NewtonSolver(Solver):
             state.in_contact[:] = prev_c
             return 0, v0, math.nan, StepStatus.DIVERGED
         if status == StepStatus.NO_PROGRESS:
+            self.failure = fine.failure
             return 0, v0, math.nan, StepStatus.NO_PROGRESS
         self._remember(state, v)
         return 1, v, E, StepStatus.CONVERGED if v <= e else StepStatus.OK

@@ -181,9 +181,7 @@ class Multigrid:
         d = Alast.diagonal()
         scale = np.abs(d).max() if d.size else 1.0
         fix = np.where(np.abs(d) <= 1e-12 * max(scale, 1e-300), max(scale, 1.0), 0.0)
-        Alast = (Alast + sp.diags(fix + 1e-12 * max(scale, 1e-300))).tocsc()
-        last.lu = sla.splu(Alast, permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True),
-                           diag_pivot_thresh=1e-3)
+        last.lu = _coarse_solver(Alast, fix, scale)
         self.levels = levels
 
     def vcycle(self, b, lv=0):
@@ -465,3 +463,35 @@ class AlgebraicMultigrid:
 
     def vcycle(self, b):
         return self._M @ b
+
+
+# the coarsest grid's diagonal shifts (relative to its largest diagonal entry) tried in turn
+COARSE_SHIFTS = (1e-12, 1e-8, 1e-4)
+
+
+class _DiagonalSolve:
+    """A coarsest-grid solve by the inverse of the diagonal (|d|, its zeros by ``big``): the
+    preconditioner's last resort when no shifted LU exists (CG still solves the true system)."""
+
+    def __init__(self, d, big):
+        a = np.abs(d)
+        self.inv = 1.0 / np.where(a > 0.0, a, big)
+
+    def solve(self, b):
+        return self.inv * b
+
+
+def _coarse_solver(Alast, fix, scale):
+    """The coarsest grid's solver (``.solve(b)``): the sparse LU of Alast (CSC) with ``fix`` (its
+    zero diagonal entries' stand-ins) plus a small shift added to the diagonal. A factorisation
+    scipy finds exactly singular is tried again with the larger shifts of ``COARSE_SHIFTS``, then
+    the diagonal stands in: a preconditioner only needs to be positive definite, and the V-cycle
+    must never stop the run."""
+    s = max(scale, 1e-300)
+    for shift in COARSE_SHIFTS:
+        try:
+            return sla.splu((Alast + sp.diags(fix + shift * s)).tocsc(), permc_spec="MMD_AT_PLUS_A",
+                            options=dict(SymmetricMode=True), diag_pivot_thresh=1e-3)
+        except RuntimeError:
+            continue
+    return _DiagonalSolve(Alast.diagonal() + fix, max(scale, 1.0))
