@@ -20,7 +20,9 @@ from clothsim.solvers.tuning import Curvature, NewtonTuning
 NEWTON = Path(__file__).resolve().parents[1] / "clothsim" / "solvers" / "newton"
 # module-level upper-case names that are no switches: the contact tolerance the paper's solver
 # shares, the driver's stall window, the default contact rules' array, the caches' sizes
-NOT_SWITCHES = {"PENETRATION_TOL", "STALL_NEWTON", "RULES", "HIERARCHY_CACHE", "LAYOUT_CACHE"}
+# constants that are not behaviour switches (COARSE_SHIFTS: the fixed ladder of shifts a singular
+# coarsest-grid factorisation is retried with, a safeguard no scene tunes)
+NOT_SWITCHES = {"PENETRATION_TOL", "STALL_NEWTON", "RULES", "HIERARCHY_CACHE", "LAYOUT_CACHE", "COARSE_SHIFTS"}
 
 
 def test_no_newton_module_keeps_a_switch_of_its_own():
