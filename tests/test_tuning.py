@@ -19,9 +19,8 @@ from clothsim.solvers.tuning import Curvature, NewtonTuning
 
 NEWTON = Path(__file__).resolve().parents[1] / "clothsim" / "solvers" / "newton"
 # module-level upper-case names that are no switches: the contact tolerance the paper's solver
-# shares, the driver's stall window, the default contact rules' array, the caches' sizes
-# constants that are not behaviour switches (COARSE_SHIFTS: the fixed ladder of shifts a singular
-# coarsest-grid factorisation is retried with, a safeguard no scene tunes)
+# shares, the driver's stall window, the default contact rules' array, the caches' sizes, the
+# fixed ladder of shifts a singular coarsest-grid factorisation is retried with (a safeguard)
 NOT_SWITCHES = {"PENETRATION_TOL", "STALL_NEWTON", "RULES", "HIERARCHY_CACHE", "LAYOUT_CACHE", "COARSE_SHIFTS"}
 
 
