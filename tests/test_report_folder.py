@@ -87,6 +87,12 @@ def test_report_from_a_moved_folder_without_its_files(tmp_path, capsys, limb_run
     np.testing.assert_allclose(again.positions.reshape(-1, 3), P, atol=1e-9)
 
 
+def _report_page(capsys, folder) -> str:
+    """`report FOLDER` run in-process (exit status 0 asserted) and the page it wrote."""
+    assert cli_main(capsys, "report", str(folder))[0] == 0
+    return (folder / "report.html").read_text()
+
+
 def _cells(page: str, table: str, cls: str) -> list[str]:
     body = page.split(f"<table id='{table}'>", 1)[1].split("</table>", 1)[0]
     return re.findall(rf"<td class='[^']*\b{cls}\b[^']*'>([^<]*)</td>", body)
@@ -157,8 +163,7 @@ def test_levels_csv_read_tolerantly_and_refused_when_not_numbers(tmp_path, capsy
         "B,0.12,22.8,30,24.5,26,23,20,28,x\n"
         "C,0.35,37.6,28,17.2,,18,15,19,y\n"
         "<b id=inj>D</b>,0.42,35,n/a,14.0,14,14,13,15,z\n")
-    assert cli_main(capsys, "report", str(d))[0] == 0
-    page = (d / "report.html").read_text()
+    page = _report_page(capsys, d)
     assert "<b id=inj>" not in page and "&lt;b id=inj&gt;D&lt;/b&gt;" in page
     assert _cells(page, "levels", "mean") == ["24.5", "17.2", "14.0"]
     row_c = page.split("<td>C</td>", 1)[1].split("</tr>", 1)[0]
@@ -171,8 +176,7 @@ def test_levels_csv_read_tolerantly_and_refused_when_not_numbers(tmp_path, capsy
         "posterior_mmHg,medial_mmHg,lateral_mmHg,percent_of_B,required_percent_of_B,gradient_ok\n"
         "B,12.00,0.12000,22.80,23.10,found,0.3012,23.15,28.100,39.600,25.000,20.100,27.000,100.0,100-100,1\n"
         "C,35.00,0.35000,37.60,38.00,found,0.2500,20.00,14.300,15.000,14.000,13.000,15.500,50.9,50-80,1\n")
-    assert cli_main(capsys, "report", str(d))[0] == 0
-    page = (d / "report.html").read_text()
+    page = _report_page(capsys, d)
     assert _cells(page, "levels", "mean") == ["28.1", "14.3"]
     row_b = page.split("<td>B</td>", 1)[1].split("</tr>", 1)[0]
     assert re.findall(r"<td class='n'>([^<]*)</td>", row_b) == ["0.120", "22.8", "23.1", "39.6", "25.0", "20.1",
