@@ -75,6 +75,8 @@ def test_size_chart_sweep_fits_the_laplace_width_per_limb(tmp_path):
     bad = rows[2]
     assert bad["status"] == "out_of_reach" and "reachable range" in bad["message"]
     assert bad["fit:fabric.size.0"] == ""
+    kept = (out / bad["run_id"] / "scene.yaml").read_text()   # no path: the files by name
+    assert "csv: compression_knit_course.csv" in kept and "../" not in kept
     # each run folder holds the fitted scene, the tries and the fitted run's files
     d = out / rows[0]["run_id"]
     for f in ("fitted.yaml", "fit.csv", "fit.json", "result.npz", "probes.csv", "summary.json"):
@@ -121,3 +123,30 @@ def test_example_size_chart_is_valid():
     """configs/sweeps/size_chart.yaml expands to five valid fitting runs."""
     s = _validated(ROOT / "configs" / "sweeps" / "size_chart.yaml")
     assert len(s.runs) == 5 and s.spec.fit is not None
+
+
+def test_a_failed_runs_scene_yaml_names_its_files_without_a_path(tmp_path):
+    """A run that ends without a result (an error, a fit out of reach) keeps its scene.yaml as a
+    result folder does: file references by name (the sweep's relative ../static/... paths do not
+    resolve from the run's folder), their SHA-256 in the header; with the files put beside it, it
+    loads. A scene that does not load is kept as it was, headed by where its paths start."""
+    import shutil
+
+    from clothsim.config import load_scene
+    from clothsim.sweep.worker import failed_scene_yaml
+
+    raw = yaml.safe_load(CLASS2.read_text())
+    text = failed_scene_yaml({"scene": raw, "source": str(CLASS2)}).decode()
+    d = yaml.safe_load(text)
+    assert d["fabric"]["warp"]["csv"] == "compression_knit_course.csv"
+    assert d["fabric"]["weft"]["csv"] == "compression_knit_wale.csv"
+    assert "../" not in text and str(ROOT) not in text
+    assert "sha256" in text.splitlines()[3]
+    (tmp_path / "scene.yaml").write_text(text)
+    for name in ("compression_knit_course.csv", "compression_knit_wale.csv"):
+        shutil.copy(ROOT / "static" / "materials" / name, tmp_path / name)
+    assert load_scene(tmp_path / "scene.yaml").fabric.warp.csv == "compression_knit_course.csv"
+    bad = dict(raw, solver={"method": "nonsense"})
+    text = failed_scene_yaml({"scene": bad, "source": str(CLASS2)}).decode()
+    assert text.startswith("# The run's scene did not load") and "class2_sleeve.yaml" in text
+    assert yaml.safe_load(text) == bad

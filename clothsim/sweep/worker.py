@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 from numba.core.dispatcher import Dispatcher
 
+from ..compression.folder import portable_scene_yaml
 from ..compression.fit import FitError, FitResult, fit_data, fit_info, write_outputs
 from ..config import scene_from_dict
 from ..simulation import prepare, solve, warm_up
@@ -64,7 +65,7 @@ def run_one(task: dict) -> dict:
     except Exception as exc:  # a failing run is recorded, never raised
         summary = {"converged": False, "status": "error", "message": f"{type(exc).__name__}: {exc}"}
         files = {
-            "scene.yaml": yaml.safe_dump(task["scene"], sort_keys=False).encode(),
+            "scene.yaml": failed_scene_yaml(task),
             "error.txt": traceback.format_exc().encode(),
             "summary.json": json.dumps(summary, indent=2).encode(),
         }
@@ -74,6 +75,20 @@ def run_one(task: dict) -> dict:
     record["numba_compiled"] = m1 - m0
     record["extra"]["run_time_s"] = time.perf_counter() - t0
     return {"run_id": task["run_id"], "files": files, "record": record}
+
+
+def failed_scene_yaml(task: dict) -> bytes:
+    """``scene.yaml`` of a run that ended without a result (an error, a fit out of reach): as a
+    result folder's (:func:`clothsim.compression.folder.portable_scene_yaml`: file references by
+    name, each file's SHA-256 in the header, no path of the machine that ran it) when the run's
+    scene loads; otherwise the scene as the sweep made it, headed by where its relative file
+    references start from (the base scene's folder, by name)."""
+    try:
+        return portable_scene_yaml(scene_from_dict(task["scene"], task["source"])).encode()
+    except Exception:  # the scene itself is what failed: keep it as it was, said so
+        head = (f"# The run's scene did not load (error.txt says why). Its file references are relative to the\n"
+                f"# folder of the sweep's base scene, {Path(task['source']).name}.\n")
+        return (head + yaml.safe_dump(task["scene"], sort_keys=False)).encode()
 
 
 def _result_files(result, extra=None) -> dict[str, bytes]:
@@ -105,7 +120,7 @@ def _fit_one(task: dict):
         res = FitResult(False, str(exc), [], [], tries=exc.tries)
         info = {**fit_info(res, varies, targets), "fields": {}, "readings_mmhg": {}}
         summary = {"converged": False, "status": "out_of_reach", "message": str(exc), "fit": info}
-        files = {"scene.yaml": yaml.safe_dump(task["scene"], sort_keys=False).encode(),
+        files = {"scene.yaml": failed_scene_yaml(task),
                  "fit.csv": res.tries_csv(varies, targets).encode(),
                  "fit.json": json.dumps(info, indent=2).encode(),
                  "summary.json": json.dumps(summary, indent=2).encode()}
