@@ -272,11 +272,11 @@ def map_png(pos, faces, values, label: str, cmap: str, scale: dict, body_v=None,
 
 
 def profile_png(profiles: list[dict], band: dict | None, levels: list[dict] | None, title: str = "",
-                b_mmhg: float | None = None) -> bytes:
+                b_mmhg: float | None = None, no_b: bool = False) -> bytes:
     """Two panels: the girth-mean pressure [mmHg] against height (the min-max band shaded, the
     class band of the classed probe as a grey stripe, the levels as labelled points) and each
     reading as a percentage of ``b_mmhg`` (the girth mean at B; default the lowest slice's): the
-    gradient."""
+    gradient. ``no_b``: the levels have no B (an arm): the gradient panel says so, empty."""
     Figure = _mpl()
     fig = Figure(figsize=(10.0, 4.8), dpi=100, layout="constrained")
     ax, ag = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
@@ -297,7 +297,7 @@ def profile_png(profiles: list[dict], band: dict | None, levels: list[dict] | No
         ax.fill_betweenx(h, lo, hi, color=line.get_color(), alpha=0.15, label=f"{pf['name']}: least to greatest")
         top = max(top, float(np.max(hi)))
         ref = b_mmhg if b_mmhg else m[0]
-        if ref > 0:
+        if ref > 0 and not no_b:
             ag.plot(100.0 * m / ref, h, "o-", ms=3, color=line.get_color(), label=f"{pf['name']}: % of B")
     if levels:
         def at(x):   # where the level sits on the profile's axis (levels.csv's z, else its height)
@@ -311,7 +311,7 @@ def profile_png(profiles: list[dict], band: dict | None, levels: list[dict] | No
                             fontsize=8, **PLAIN)
                 top = max(top, x["mean"])
             b = b_mmhg or lv[0]["mean"]
-            if b > 0:
+            if b > 0 and not no_b:
                 ag.plot([100.0 * x["mean"] / b for x in lv], [at(x) for x in lv], "s-", color="black", ms=5,
                         label="levels: % of B")
     ax.set_xlim(0.0, 1.1 * top if top > 0 else 1.0)
@@ -322,7 +322,7 @@ def profile_png(profiles: list[dict], band: dict | None, levels: list[dict] | No
     ag.set_xlim(0.0, max(110.0, ag.get_xlim()[1]))
     ag.set_xlabel("girth mean as % of B")
     ag.set_ylabel("height [m]")
-    ag.set_title("gradient")
+    ag.set_title("gradient: no level B" if no_b else "gradient")
     for a in (ax, ag):
         a.grid(True, alpha=0.3)
         if a.get_legend_handles_labels()[0]:

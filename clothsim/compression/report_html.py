@@ -90,8 +90,8 @@ def _class_band(s: dict, scene: dict) -> dict | None:
 
 def _levels(s, f, levels):
     """(rows, from_file): levels.csv's rows, or rows from the profiles (report_levels); the row
-    that is B marked ``b`` (levels.csv: the level named B, else the first; the profile: the slice
-    nearest the classed probe's height, else the lowest)."""
+    that is B marked ``b`` (levels.csv: the level named B, none without one, as on an arm; the
+    profile: the slice nearest the classed probe's height, else the lowest)."""
     if levels:
         rows, from_file = levels, True
         b = next((r for r in rows if str(r.get("level") or "").strip().upper() == "B"), None)
@@ -107,7 +107,8 @@ def _levels(s, f, levels):
     else:
         return [], False
     rows = [r for r in rows]
-    b = b if b is not None else next((r for r in rows if r.get("mean") is not None), None)
+    if b is None and not from_file:   # levels.csv without a level B (an arm) has no B
+        b = next((r for r in rows if r.get("mean") is not None), None)
     for r in rows:
         r["b"] = r is b
     return rows, from_file
@@ -142,9 +143,11 @@ def levels_table(rows: list[dict], from_file: bool, standards: list[dict]) -> st
            "and the four sides)" if from_file else
            "from the profile's slices (no levels.csv in the folder): the body's girth there (the convex hull of "
            "its section, as a tape measures it) and the girth mean, least and greatest pressure round it")
+    no_b = (" This body has no level B (an arm's levels are named otherwise), so no class and no percentage of B "
+            "is given." if b is None else "")
     return (out[0] + "".join(out[1:]) +
             f"<p><small>Per level, {src}. A compression class is specified at B (levels.csv's level B, or the slice "
-            f"at the classed probe's height); every level is given as a percentage of B.</small></p>")
+            f"at the classed probe's height); every level is given as a percentage of B.{no_b}</small></p>")
 
 
 def summary_table(s: dict) -> str:
@@ -201,6 +204,9 @@ def _headline(s: dict, rows: list[dict], from_file: bool) -> str:
         if last is not b and b["mean"] > 0:
             add("gradient", f"{100.0 * last['mean'] / b['mean']:.0f} % of B",
                 f"at {_t(last['level'])}" if from_file else f"at {last['height']:.3f} m")
+    elif on:   # levels without a B (an arm): the first level's girth mean, no class, no % of B
+        add(f"girth mean at {_t(on[0]['level'])}", f"<span id='girth-mean-first'>{on[0]['mean']:.1f}</span> mmHg",
+            "the pressure averaged round the limb (levels.csv); no level B: no class, no % of B")
     if s.get("max_sensor_pressure_mmhg") is not None:
         add(f"greatest sensor reading (disc {1e3 * (s.get('sensor_radius_m') or 0):.0f} mm radius)",
             f"{_num(s.get('max_sensor_pressure_mmhg'), '.1f')} mmHg", "anywhere on the garment")
@@ -296,7 +302,7 @@ def build_html(s: dict, history, f, levels, pmax: float | None = None) -> str:
             if s.get("profiles") or rows:
                 b = next((r["mean"] for r in rows if r.get("b")), None)
                 png = _figure("profile plot", rf.profile_png, s.get("profiles") or [], _class_band(s, scene),
-                              rows if from_file else None, str(s.get("name", "")), b)
+                              rows if from_file else None, str(s.get("name", "")), b, b is None and from_file)
                 parts += ["<h2>Profile and gradient</h2>", _img(png, "profile plot")]
                 for pf in s.get("profiles") or []:
                     g = pf.get("gradient") or {}
