@@ -76,6 +76,25 @@ def test_the_graded_stocking_sweep_is_valid():
         assert p["mold.leg.levels.D.girth_cm"][n] == pytest.approx(c * 35.85 / 37.73, abs=0.005)
 
 
+def _run_as_shipped(sweep_file, tmp_path):
+    """(the output folder, summary.csv's rows) of a shipped sweep run on 2 workers from a copy
+    in tmp_path (its base made absolute); every one of its 4 runs fitted."""
+    import csv
+    import io
+
+    from clothsim import sweep as sw
+
+    data = yaml.safe_load(sweep_file.read_text())
+    data["base"] = str(sweep_file.parent / data["base"])
+    path = tmp_path / sweep_file.name
+    path.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    sw.run_sweep(path, out, workers=2, stream=io.StringIO(), plots=False)
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    assert len(rows) == 4 and all(r["fit_converged"] == "True" for r in rows), rows
+    return out, rows
+
+
 #: the fitted reductions [%] of sizes 2-5 on the shipped lattice (configs/sweeps/stocking_graded.yaml's
 #: header and docs/guide/levels.md, measured on this code)
 SHIPPED_REDUCTIONS = [23.32, 24.71, 26.18, 27.57]
@@ -90,20 +109,9 @@ def test_the_graded_stocking_fits_each_size_to_class_ii_at_b(tmp_path):
     reduction rises with the size (a larger limb asks a tighter garment for the same pressure:
     Laplace's p = T / r) and is the documented one within 0.15 points (the fit's 0.1 mmHg is
     about 0.05 points: B moves about 2 mmHg per point of reduction)."""
-    import csv
-    import io
-
     import clothsim
-    from clothsim import sweep as sw
 
-    data = yaml.safe_load(GRADED.read_text())
-    data["base"] = str(GRADED.parent / data["base"])
-    path = tmp_path / "graded.yaml"
-    path.write_text(yaml.safe_dump(data))
-    out = tmp_path / "out"
-    sw.run_sweep(path, out, workers=2, stream=io.StringIO(), plots=False)
-    rows = list(csv.DictReader((out / "summary.csv").open()))
-    assert len(rows) == 4 and all(r["fit_converged"] == "True" for r in rows), rows
+    out, rows = _run_as_shipped(GRADED, tmp_path)
     reductions = [float(r["fit:garment.reduction"]) for r in rows]
     assert reductions == sorted(reductions), reductions
     assert reductions == pytest.approx(SHIPPED_REDUCTIONS, abs=0.15), reductions
@@ -173,19 +181,7 @@ def test_the_graduated_stocking_fits_b_and_c_for_each_size(tmp_path):
     full readings, C is cut tighter than B (a larger reduction: Laplace's p = T / r asks more
     tension round the wider calf for 70 % of B's pressure), and both reductions are the
     documented ones within 0.15 points."""
-    import csv
-    import io
-
-    from clothsim import sweep as sw
-
-    data = yaml.safe_load(GRADUATED.read_text())
-    data["base"] = str(GRADUATED.parent / data["base"])
-    path = tmp_path / "graduated.yaml"
-    path.write_text(yaml.safe_dump(data))
-    out = tmp_path / "out"
-    sw.run_sweep(path, out, workers=2, stream=io.StringIO(), plots=False)
-    rows = list(csv.DictReader((out / "summary.csv").open()))
-    assert len(rows) == 4 and all(r["fit_converged"] == "True" for r in rows), rows
+    out, rows = _run_as_shipped(GRADUATED, tmp_path)
     for r, (rb, rc) in zip(rows, GRADUATED_REDUCTIONS):
         got_b, got_c = float(r["fit:garment.levels.0.reduction"]), float(r["fit:garment.levels.1.reduction"])
         assert got_c > got_b and (got_b, got_c) == pytest.approx((rb, rc), abs=0.15), r
