@@ -141,8 +141,9 @@ def _size3(divisions) -> list[str]:
 def test_the_graded_stockings_reading_at_b_does_not_depend_on_the_lattice():
     """Size 3 at its fitted reduction on the shipped lattice (14 x 30 per panel) and a finer one
     (20 x 42): B's and C's girth means and B's course strain agree within 2 % (measured: B 27.52
-    and 27.43 mmHg, C 15.24 and 15.34 mmHg, B's course strain 0.3166 and 0.3178). Before the stocking's rows ended on the outline and its turning was held at
-    the seam, B read 27.5 and 34.7 mmHg on these two lattices at this reduction."""
+    and 27.43 mmHg, C 15.24 and 15.34 mmHg, B's course strain 0.3166 and 0.3178). Before the
+    stocking's rows ended on the outline and its turning was held at the seam, B read 34.7 and
+    27.5 mmHg on these two lattices at this reduction."""
     import clothsim
 
     read = {}

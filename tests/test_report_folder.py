@@ -277,3 +277,24 @@ def test_run_inputs_reads_each_scene_file_once(monkeypatch):
     monkeypatch.setattr(folder, "_sha256", sha256)
     assert inputs.scene_yaml == folder.portable_scene_yaml(scene)
     assert inputs.scene_brief == folder.scene_brief(scene)
+
+
+def test_a_level_b_without_a_reading_is_not_taken_for_no_level_b():
+    """levels.csv rows: with a B that has no reading (the garment starts above it) the page says
+    so and gives no % of B, without calling the body B-less; without any B (an arm) it says there
+    is no level B and gives the first level's girth mean; with a B, every level is a % of B."""
+    from clothsim.compression.report_html import _headline, _levels, levels_table
+
+    def rows(b_mean, names=("B", "C")):
+        return [{"level": n, "height": 0.1 * (k + 1), "girth": 0.3, "reduction": 20.0,
+                 "mean": b_mean if k == 0 else 15.0} for k, n in enumerate(names)]
+
+    for given, says, head in [
+            (rows(None), "B has no reading here", "girth-mean-b'>no reading"),
+            (rows(None, ("cC", "cD")), "This body has no level B", "girth-mean-first'>15.0"),
+            (rows(30.0), "every level is given as a percentage of B.", "girth-mean-b'>30.0")]:
+        got, from_file = _levels({}, None, given)
+        page = levels_table(got, from_file, []) + _headline({}, got, from_file)
+        assert says in page and head in page, (given, page)
+        assert ("This body has no level B" in page) == (given[0]["level"] != "B")
+        assert ("<td class='n'>50</td>" in page) == (given[0]["mean"] == 30.0)   # C: 15 / 30

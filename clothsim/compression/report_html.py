@@ -143,11 +143,14 @@ def levels_table(rows: list[dict], from_file: bool, standards: list[dict]) -> st
            "and the four sides)" if from_file else
            "from the profile's slices (no levels.csv in the folder): the body's girth there (the convex hull of "
            "its section, as a tape measures it) and the girth mean, least and greatest pressure round it")
-    no_b = (" This body has no level B (an arm's levels are named otherwise), so no class and no percentage of B "
-            "is given." if b is None else "")
-    return (out[0] + "".join(out[1:]) +
-            f"<p><small>Per level, {src}. A compression class is specified at B (levels.csv's level B, or the slice "
-            f"at the classed probe's height); every level is given as a percentage of B.{no_b}</small></p>")
+    if not any(r.get("b") for r in rows):
+        about_b = ("This body has no level B (an arm's levels are named otherwise), so no class and no percentage "
+                   "of B is given.")
+    else:
+        about_b = ("A compression class is specified at B (levels.csv's level B, or the slice at the classed "
+                   "probe's height); every level is given as a percentage of B" +
+                   (" (B has no reading here: no contact at its height)." if b is None else "."))
+    return out[0] + "".join(out[1:]) + f"<p><small>Per level, {src}. {about_b}</small></p>"
 
 
 def summary_table(s: dict) -> str:
@@ -196,7 +199,11 @@ def _headline(s: dict, rows: list[dict], from_file: bool) -> str:
             add(f"probe {_t(name)}", f"{p['pressure_mmhg']:.1f} mmHg", f"contact fraction {p['contact_fraction']:.2f}")
     on = [r for r in rows if r.get("mean") is not None]
     b = next((r for r in on if r.get("b")), None)
-    if b is not None:
+    b_row = next((r for r in rows if r.get("b")), None)
+    if b_row is not None and b is None:   # a level B without a reading (no contact there)
+        add(f"girth mean at {_t(b_row.get('level') or 'B')}", "<span id='girth-mean-b'>no reading</span>",
+            "no contact at its height: no class, no % of B")
+    elif b is not None:
         last = on[-1]
         add(f"girth mean at {_t(b['level'])}" if from_file else f"girth mean at B, {b['height']:.3f} m",
             f"<span id='girth-mean-b'>{b['mean']:.1f}</span> mmHg",
@@ -302,7 +309,8 @@ def build_html(s: dict, history, f, levels, pmax: float | None = None) -> str:
             if s.get("profiles") or rows:
                 b = next((r["mean"] for r in rows if r.get("b")), None)
                 png = _figure("profile plot", rf.profile_png, s.get("profiles") or [], _class_band(s, scene),
-                              rows if from_file else None, str(s.get("name", "")), b, b is None and from_file)
+                              rows if from_file else None, str(s.get("name", "")), b,
+                              from_file and not any(r.get("b") for r in rows))
                 parts += ["<h2>Profile and gradient</h2>", _img(png, "profile plot")]
                 for pf in s.get("profiles") or []:
                     g = pf.get("gradient") or {}
