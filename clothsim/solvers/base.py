@@ -71,13 +71,16 @@ class Solver:
     Class attributes read by the driver: ``initial_batch`` (iterations of the first batch; the
     driver then sizes batches to about 50 ms), ``max_batch`` (most iterations per batch, None =
     unbounded: Newton does one, each being a linear solve), ``stall_window`` (the solver's own
-    bound on the stall window in iterations, None = the run's ``stall_iterations`` only)."""
+    bound on the stall window in iterations, None = the run's ``stall_iterations`` only),
+    ``failure`` (why the last step that found no move failed, "" when unknown: the run's message
+    ends with it)."""
 
     name: str = ""
     Options: type = object
     initial_batch: int = 1
     max_batch: int | None = None
     stall_window: int | None = None
+    failure: str = ""
 
     def __init__(self, model, options=None):
         if options is None:

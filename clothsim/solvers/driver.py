@@ -182,7 +182,7 @@ def run(solver, state, limits, callback=None, history: History | None = None, be
             status = Status.STALLED
             message = (f"no further progress possible at ||V||_inf = {cur:.3e} N (e = {s.e:.3e} N); "
                        f"smallest residual reached {best:.3e} N")
-            if getattr(solver, "failure", ""):
+            if solver.failure:
                 message += f"; {solver.failure}"
             break
         # stall: the best residual has not improved by 1 % within the stall window
