@@ -23,6 +23,7 @@ import errno
 import os
 import shutil
 import stat
+import time
 from pathlib import Path
 from typing import Any
 
@@ -280,6 +281,19 @@ def fmt_beyond(x: float, bound: float) -> str:
     return repr(x)
 
 
+def _holder_words(fh, wait: float = 2.0) -> list[str]:
+    """The words "PID COMMAND" of a lock file another process holds. The holder writes them
+    just after it takes the lock, so a file read in between is still empty: read again for up
+    to ``wait`` seconds before calling the holder unknown."""
+    deadline = time.monotonic() + wait
+    while True:
+        fh.seek(0)
+        words = fh.read(200).split()
+        if words or time.monotonic() >= deadline:
+            return words
+        time.sleep(0.02)
+
+
 class FolderLock:
     """An exclusive lock on an output folder while a command writes it: ``fcntl.flock`` on
     out/LOCK_FILE, which holds "PID COMMAND" (``command``: run, fit, sweep). A second command on
@@ -308,8 +322,7 @@ class FolderLock:
             try:
                 fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
-                fh.seek(0)
-                words = fh.read(200).split()
+                words = _holder_words(fh)
                 fh.close()
                 pid = words[0] if words else "unknown"
                 what = words[1] if len(words) > 1 and words[1].isalpha() else "clothsim command"

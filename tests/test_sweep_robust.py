@@ -186,6 +186,34 @@ def test_second_sweep_into_the_same_out_is_refused_naming_the_holder(tmp_path, c
     assert sw.main(_args(p, out)) == 0
 
 
+def test_a_holder_that_has_not_yet_written_its_name_is_still_named(tmp_path):
+    """The holder writes "PID COMMAND" just after it takes the lock; a second command refused in
+    between reads an empty file. It waits for the name instead of saying "pid unknown" (a CI run
+    hit that window with two sweeps started at once)."""
+    from clothsim.fileio import FolderLock, OutputError
+
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import fcntl, os, sys, time\n"
+         f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
+         "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
+         "print('locked', flush=True)\n"
+         "time.sleep(0.5)\n"
+         "f.truncate(0); f.write(f'{os.getpid()} sweep'); f.flush()\n"
+         "time.sleep(60)\n"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(OutputError) as err:
+            with FolderLock(out, "run"):
+                pass
+        assert f"in use by another sweep (pid {holder.pid})" in str(err.value)
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 def test_two_sweeps_at_once_never_crash(tmp_path):
     p = _strip_sweep(tmp_path, {"solver.C": [2, 3, 4, 5, 6, 7]})
     out = tmp_path / "out"
