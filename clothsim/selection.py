@@ -3,12 +3,14 @@
 A selector is a name (``left``, ``right``, ``bottom``, ``top``, ``perimeter``, ``corners``,
 ``bottom_left``, ``bottom_right``, ``top_left``, ``top_right``, ``all``, ``outline``: the nodes on
 a panel's cut outline, the perimeter of a rectangle) or an object with ``i``
-and ``j`` (an index, an inclusive ``[a, b]`` range with negatives counting from the end, or None
-for the whole range), read on a panel's (i, j) grid. These functions read plain attributes only:
+and ``j`` (an index, an inclusive ``[a, b]`` range with negatives counting from the end, a share
+of the way across ``"50%"``, or None for the whole range), read on a panel's (i, j) grid. These functions read plain attributes only:
 they import nothing from the scene layer, so the scene's validators can call them.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -22,17 +24,27 @@ class SelectionError(ValueError):
     """A selector that selects nothing valid; the message starts with the field it names."""
 
 
+def lattice_index(x, n: int) -> int:
+    """The node index an index field names on an axis with nodes 0..n: an int as given (negative:
+    from the end, -1 = n), a share ``"p%"`` the node nearest p % of the way from 0 to n (a half
+    rounds up: "50%" of 15 divisions is 8)."""
+    if isinstance(x, str):
+        return int(math.floor(float(x.rstrip("%")) * n / 100.0 + 0.5))
+    return x + n + 1 if x < 0 else x
+
+
 def index_range(r, n: int, name: str, what: str = "constraints") -> tuple[int, int]:
-    """(first, last) node index of a selector's inclusive range r (None: all; an int: one;
-    negative counts from the end) on an axis with nodes 0..n; SelectionError ``what: name range
-    [a, b] outside 0..n`` when it does not fit."""
+    """(first, last) node index of a selector's inclusive range r (None: all; an int or a share
+    "p%": one; see :func:`lattice_index`) on an axis with nodes 0..n; SelectionError ``what: name
+    range [a, b] outside 0..n`` when it does not fit."""
     if r is None:
         return 0, n
-    a, b = (r, r) if isinstance(r, int) else r
-    a = a + n + 1 if a < 0 else a
-    b = b + n + 1 if b < 0 else b
+    one = isinstance(r, (int, str))
+    a, b = (r, r) if one else r
+    a, b = lattice_index(a, n), lattice_index(b, n)
     if not (0 <= a <= b <= n):
-        raise SelectionError(f"{what}: {name} range {list(r) if not isinstance(r, int) else r} outside 0..{n}")
+        given = r if one else list(r)
+        raise SelectionError(f"{what}: {name} range {given} outside 0..{n}")
     return a, b
 
 

@@ -5,7 +5,7 @@ positive numbers, integers that refuse booleans, and the tags of the mold union'
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any
+from typing import Annotated, Any, Union
 
 from pydantic import BeforeValidator
 
@@ -69,6 +69,28 @@ def _strict_int(v):
 
 #: an int field that refuses booleans (pydantic would take true as 1)
 Int = Annotated[int, BeforeValidator(_strict_int)]
+
+
+def _lattice_index(v):
+    """A lattice index: an integer (negative counts from the end) or a share of the way across,
+    ``"50%"`` (0 to 100 %; :func:`clothsim.selection.index_range` takes the nearest node), kept as
+    the text ``"<p>%"``."""
+    if isinstance(v, str):
+        text = v.strip()
+        try:
+            share = float(text[:-1]) if text.endswith("%") else None
+        except ValueError:
+            share = None
+        if share is None or not (0.0 <= share <= 100.0):
+            raise ValueError(f"must be an integer or a share of the way across from 0% to 100%, such as "
+                             f"'50%' (got {_short(v)})")
+        return f"{share:g}%"
+    return _strict_int(v)
+
+
+#: a lattice index field: an integer, or a share of the way across ("50%", the nearest node), so
+#: that a selector keeps its place when the divisions change
+LatticeIndex = Annotated[Union[int, str], BeforeValidator(_lattice_index)]
 
 
 def _short(v: Any, n: int = 40) -> str:

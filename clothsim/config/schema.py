@@ -15,8 +15,8 @@ from ..material import TENSION_MAX, MaterialError, check_table, warn_implausible
 from ..panels import PanelError, check_outline
 from ..presets import PRESETS
 from ..strict import Strict as _Strict
-from .fields import (COORD_MAX, DENSITY_MAX, G_MAX, SEAM_STIFFNESS_MAX, Int, _coords, _direction,
-                     _finite, _positive)
+from .fields import (COORD_MAX, DENSITY_MAX, G_MAX, SEAM_STIFFNESS_MAX, Int, LatticeIndex, _coords,
+                     _direction, _finite, _positive)
 
 SOLVER_METHODS = ("auto", "paper", "newton")
 NODE_SETS = (
@@ -122,11 +122,13 @@ class Fabric(_Strict):
         return self
 
 
-IndexRange = tuple[Int, Int]
+IndexRange = tuple[LatticeIndex, LatticeIndex]
 
 
 class NodeRange(_Strict):
-    """Explicit inclusive index ranges; negative indices count from the end (-1 = last).
+    """Explicit inclusive index ranges; negative indices count from the end (-1 = last), and an
+    index may be a share of the way across, ``"50%"`` (the nearest node: the middle wale on any
+    lattice).
 
     With ``panels``: ``panel`` names the panel the selector reads (omitted: every panel);
     ``side`` a named set of that panel's lattice (left, right, ... as in constraints); ``edge``
@@ -134,8 +136,8 @@ class NodeRange(_Strict):
     (counter-clockwise), ordered along it; a vertex is its index in the outline, or for a panel
     read from a pattern file the name of one of its notches (``notch1``, ``notch2``, ...)."""
 
-    i: IndexRange | Int | None = None
-    j: IndexRange | Int | None = None
+    i: IndexRange | LatticeIndex | None = None
+    j: IndexRange | LatticeIndex | None = None
     panel: str | None = None
     side: Literal[NODE_SETS] | None = None  # type: ignore[valid-type]
     edge: tuple[Int | str, Int | str] | None = None
