@@ -29,7 +29,7 @@ from .model import Model, PanelBuild, Placement, RunInputs, State
 from .mold import load_mold, mold_reach_warning, mold_scale_warning
 from .panels import PanelError, panel_geometry, rectangle_geometry
 from .patterns import DEFAULT_TOLERANCE, PatternError
-from .selection import SelectionError
+from .selection import SelectionError, select_nodes
 from .sizing import sized, sized_spacing
 
 _NO_MOLD = object()
@@ -296,7 +296,7 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     panels = scene_panels(scene, mold)
     if warn:
         _warn_scale(mold, panels)
-    seams, constraints = _named_vertices(scene)
+    seams, constraints, regions = _named_vertices(scene)
     try:
         model = build_model(
             panels=panels,
@@ -313,19 +313,40 @@ def compile_model(scene: Scene, mold=_NO_MOLD) -> Model:
     if mu and mold is not None:
         # Coulomb friction with the mold (clothsim.friction): only a scene that asks pays for it
         model = dataclasses.replace(model, friction_mu=float(mu))
+    if regions and mold is not None:
+        model = dataclasses.replace(model, friction_mu_nodes=_region_mu(model, regions))
     return model
 
 
+def _region_mu(model: Model, regions) -> np.ndarray | None:
+    """(N,) each node's Coulomb coefficient: ``model.friction_mu``, then each friction region's
+    on the nodes it selects (a later region over an earlier one); None when that is
+    ``friction_mu`` everywhere (the scene then pays nothing for its regions)."""
+    mu = np.full(model.node_count, float(model.friction_mu))
+    for n, r in enumerate(regions):
+        try:
+            mask = select_nodes(r.nodes, model.topology, what="friction_regions")
+        except SelectionError as exc:
+            raise SceneError(f"mold.friction_regions.{n}.nodes: {exc}") from None
+        if not mask.any():
+            raise SceneError(f"mold.friction_regions.{n}.nodes: selects no nodes")
+        mu[mask] = float(r.friction)
+    return None if (mu == model.friction_mu).all() else mu
+
+
 def _named_vertices(scene: Scene):
-    """The scene's seams and constraints with every outline vertex given by name (a pattern
-    piece's notch, ``edge: [notch1, notch2]``) replaced by its index in the panel's outline
-    (clothsim.patterns.Piece.vertex_names). Nothing is read unless a selector names a vertex."""
+    """The scene's seams, constraints and friction regions with every outline vertex given by
+    name (a pattern piece's notch, ``edge: [notch1, notch2]``) replaced by its index in the
+    panel's outline (clothsim.patterns.Piece.vertex_names). Nothing is read unless a selector
+    names a vertex."""
+    regions = scene.mold.regions if scene.mold is not None else []
     sels = [(f"seams.{n}.{k}", s, k) for n, s in enumerate(scene.seams) for k in ("a", "b")]
     sels += [(f"constraints.{n}.nodes", c, "nodes") for n, c in enumerate(scene.constraints)]
+    sels += [(f"mold.friction_regions.{n}.nodes", r, "nodes") for n, r in enumerate(regions)]
     named = [(w, o, k) for w, o, k in sels
              if getattr(getattr(o, k), "edge", None) is not None and any(isinstance(v, str) for v in getattr(o, k).edge)]
     if not named:
-        return scene.seams, scene.constraints
+        return scene.seams, scene.constraints, regions
     by_panel = {p.name: n for n, p in enumerate(scene.panels)}
     cache: dict = {}
     fixed: dict = {}
@@ -352,7 +373,8 @@ def _named_vertices(scene: Scene):
         upd = {k: fixed[id(obj), k] for k in keys if (id(obj), k) in fixed}
         return obj.model_copy(update=upd) if upd else obj
 
-    return ([resolved(s, ("a", "b")) for s in scene.seams], [resolved(c, ("nodes",)) for c in scene.constraints])
+    return ([resolved(s, ("a", "b")) for s in scene.seams], [resolved(c, ("nodes",)) for c in scene.constraints],
+            [resolved(r, ("nodes",)) for r in regions])
 
 
 def _warn_scale(mold, panels) -> None:

@@ -34,7 +34,8 @@ class FrictionLag:
     """The friction frozen for one solve. nodes (m,) int64: the contact nodes that carry it;
     anchor (m, 3) [m]: their positions at the previous load step's equilibrium; normal (m, 3):
     the frozen unit outward normals; lam (m,) [N]: the frozen normal forces; weight (m,) [N] =
-    mu lam; eps [m]: the slip below which a node sticks; mu: the coefficient."""
+    mu lam; eps [m]: the slip below which a node sticks; mu (m,) [-]: each node's coefficient
+    (``mold.friction``, or a friction region's)."""
 
     nodes: np.ndarray
     anchor: np.ndarray
@@ -42,7 +43,7 @@ class FrictionLag:
     lam: np.ndarray
     weight: np.ndarray
     eps: float
-    mu: float
+    mu: np.ndarray
 
 
 def slip_eps(model) -> float:
@@ -83,7 +84,7 @@ def lag_friction(model, state, anchor, eps_scale: float = 1.0) -> FrictionLag:
     step's equilibrium); its slip eps ``eps_scale`` times :func:`slip_eps` (above 1 only for a
     load step's smoother first solve: ``solvers/friction.py``)."""
     nodes, nrm, lam = normal_forces(model, state)
-    mu = float(model.friction_mu)
+    mu = model.friction_mu_of(nodes)
     return FrictionLag(nodes, np.ascontiguousarray(anchor[nodes], float), np.ascontiguousarray(nrm),
                        lam, mu * lam, eps_scale * slip_eps(model), mu)
 
@@ -111,5 +112,5 @@ def friction_report(model, lag: FrictionLag, positions, e: float) -> dict:
         n = lag.normal[big]
         ft = np.linalg.norm(F - np.einsum("ij,ij->i", F, n)[:, None] * n, axis=1)
         fn = lag.lam[big]
-        viol = float(np.max(np.maximum(0.0, ft - lag.mu * fn) / fn))
+        viol = float(np.max(np.maximum(0.0, ft - lag.mu[big] * fn) / fn))
     return {"stick": int(np.count_nonzero(pressed)) - slip, "slip": slip, "cone_violation": viol}

@@ -272,9 +272,27 @@ class Model:
     seams: tuple[SeamInfo, ...] = ()
     #: the scene's Coulomb coefficient between fabric and mold (``mold.friction``; 0: frictionless)
     friction_mu: float = 0.0
+    #: (N,) float64 [-] each node's Coulomb coefficient when the garment has friction regions
+    #: (``mold.friction_regions``: a grip band); None: every node has ``friction_mu``
+    friction_mu_nodes: np.ndarray | None = None
     #: the frozen friction of the load step being solved (set by the frictional load steps;
     #: None: no friction force)
     friction: FrictionLag | None = None
+
+    @property
+    def has_friction(self) -> bool:
+        """Whether the fabric has friction against the mold at some node (and there is a mold)."""
+        if self.mold is None:
+            return False
+        if self.friction_mu_nodes is not None:
+            return bool((self.friction_mu_nodes > 0).any())
+        return self.friction_mu > 0
+
+    def friction_mu_of(self, nodes: np.ndarray) -> np.ndarray:
+        """(m,) float64 [-]: the Coulomb coefficients of ``nodes`` (m,) (node numbers)."""
+        if self.friction_mu_nodes is None:
+            return np.full(len(nodes), float(self.friction_mu))
+        return np.ascontiguousarray(self.friction_mu_nodes[nodes], float)
 
     @property
     def seam_count(self) -> int:

@@ -144,7 +144,8 @@ class FrictionReport(Record):
     """A run in load steps (friction with the mold, stages, solver.load_steps): summary.json
     ``friction`` (clothsim.solvers.friction.solve_steps, clothsim.friction.friction_report)."""
 
-    mu: float = out("friction coefficient mu", "-")
+    mu: float = out("friction coefficient mu", "-", "mold.friction: the nodes outside friction regions")
+    mu_max: float = out("largest friction coefficient", "-", "over the nodes, with friction regions", optional=True)
     load_steps: int = out("load steps", "")
     steps_solved: int = out("load steps solved", "")
     cuts: int = out("load steps cut in half", "")

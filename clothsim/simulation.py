@@ -299,7 +299,7 @@ class Simulation:
     def _staged(self) -> bool:
         """Whether the scene is solved in load steps: stages, friction with the mold, or
         ``solver.load_steps`` > 1 (a scene without any pays nothing for them)."""
-        return bool(self.scene.stages) or self.model.friction_mu > 0 or self.settings.load_steps > 1
+        return bool(self.scene.stages) or self.model.has_friction or self.settings.load_steps > 1
 
     def solved_along_a_path(self) -> bool:
         """Whether the run follows a loading path from the scene's start (stages, friction,

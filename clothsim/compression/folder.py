@@ -138,6 +138,32 @@ def _friction(scene) -> float:
     return mu
 
 
+def _selector_text(sel) -> str:
+    """A node selector in words: a set's name, or its panel, side, edge and i/j ranges."""
+    if isinstance(sel, str):
+        return sel
+    d = sel if isinstance(sel, dict) else sel.model_dump(exclude_none=True)
+    bits = []
+    for k in ("panel", "side", "edge", "i", "j"):
+        v = d.get(k)
+        if v is None:
+            continue
+        if isinstance(v, (list, tuple)):
+            v = f"{v[0]} to {v[1]}" if k != "edge" else f"vertices {v[0]} to {v[1]}"
+        bits.append(f"{k} {v}")
+    return ", ".join(bits) or "all"
+
+
+def _friction_regions(scene) -> list[dict]:
+    """The friction regions at the end of the loading path (the last stage that sets
+    mold.friction_regions, else the mold's): [{"nodes": the selector in words, "friction": mu}]."""
+    regions = [(r.nodes, r.friction) for r in scene.mold.regions] if scene.mold is not None else []
+    for st in scene.stages:
+        if "mold.friction_regions" in (st.set or {}):
+            regions = [(r.get("nodes"), r.get("friction")) for r in st.set["mold.friction_regions"] or []]
+    return [{"nodes": _selector_text(n), "friction": float(mu or 0.0)} for n, mu in regions]
+
+
 def _mold_text(d: dict, files: list[dict]) -> str | None:
     m = d.get("mold")
     if not m:
@@ -197,6 +223,7 @@ def scene_brief(scene, portable: tuple[dict, list[dict]] | None = None) -> dict:
         "garment": garment,
         "body": _mold_text(d, files),
         "friction_mu": _friction(scene),
+        "friction_regions": _friction_regions(scene),
         "stages": [_stage_text(st) for st in scene.stages],
         "constraints": len(d.get("constraints") or []),
         "solver": f"{solver.get('method', 'auto')}, residual tolerance e = {_fmt(solver.get('e'))} N",

@@ -155,6 +155,11 @@ def check_scene_summary(a: np.ndarray, where: str) -> dict:
     c = _Check(where)
     c.obj(d, "scene_summary")
     c.number(d, "friction_mu", "friction_mu")
+    for i, r in enumerate(c.items(d.get("friction_regions"), "friction_regions")):
+        c.obj(r, f"friction_regions[{i}]")
+        c.number(r, "friction", f"friction_regions[{i}].friction", null=False)
+        if not isinstance(r.get("nodes"), str):
+            c.fail(f"friction_regions[{i}].nodes", "not text", r.get("nodes"))
     c.number(d, "node_count", "node_count", integer=True)
     for i, m in enumerate(c.items(d.get("materials"), "materials")):
         c.obj(m, f"materials[{i}]")

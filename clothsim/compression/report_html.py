@@ -224,11 +224,18 @@ def _headline(s: dict, rows: list[dict], from_file: bool) -> str:
     return "<div id='headline'>" + "".join(box) + "</div>"
 
 
+def _regions_text(scene: dict) -> str:
+    """The friction regions in words ("" without): "; mu = 1.2 on panel front, j 90% to 100%"."""
+    return "".join(f"; mu = {r['friction']:g} on {_t(r['nodes'])}" for r in scene.get("friction_regions") or [])
+
+
 def _assumptions(scene: dict, s: dict) -> str:
     mu = scene.get("friction_mu") or 0.0
+    regions = scene.get("friction_regions") or []
     stages = scene.get("stages") or []
-    fr = (f"Friction: Coulomb, mu = {mu:g} between garment and skin, on the loading path of the stages below "
-          f"(a result with friction depends on how the garment was put on)." if mu > 0 else
+    frictional = mu > 0 or any(r["friction"] > 0 for r in regions)
+    fr = (f"Friction: Coulomb, mu = {mu:g} between garment and skin{_regions_text(scene)}, on the loading path "
+          f"of the stages below (a result with friction depends on how the garment was put on)." if frictional else
           "No friction: the garment slides freely on the body; what holds it along the limb are the held rows "
           "(constraints).")
     items = [
@@ -250,7 +257,8 @@ def _scene_summary(scene: dict) -> str:
                      for m in scene.get("materials") or [])
     rows = [("scene", scene.get("name")), ("garment", scene.get("garment")), ("nodes", scene.get("node_count")),
             ("body", scene.get("body") or "none"), ("materials", None),
-            ("friction", f"Coulomb, mu = {scene['friction_mu']:g}" if scene.get("friction_mu") else "none (frictionless)"),
+            ("friction", f"Coulomb, mu = {scene.get('friction_mu') or 0:g}{_regions_text(scene)}"
+             if scene.get("friction_mu") or scene.get("friction_regions") else "none (frictionless)"),
             ("held", f"{scene.get('constraints')} constraint(s)"), ("solver", scene.get("solver"))]
     out = ["<table id='scene'>"]
     for k, v in rows:

@@ -12,24 +12,55 @@ from pydantic import BaseModel, Discriminator, StrictBool, Tag, field_validator,
 from ..legspec import LegParams
 from ..strict import Strict as _Strict
 from .fields import COORD_MAX, MOLD_PRIMITIVES, _coords, _finite3, _nonzero3, _positive, _short
+from .schema import NODE_SETS, NodeRange, check_node_selector
 
 # the largest Coulomb coefficient a scene may give (measured fabric-skin values lie about 0.2-0.7)
 FRICTION_MAX = 10.0
 
 
-class _MoldFriction(_Strict):
-    """friction: the Coulomb coefficient mu between the fabric and the mold (>= 0; one value for
-    static and kinetic friction; omitted or 0: frictionless contact). A scene with mu > 0 is
-    solved in load steps by Newton (``solver.load_steps``; see docs/method/friction.md)."""
+def _check_mu(v):
+    if v is not None and not (math.isfinite(v) and 0.0 <= v <= FRICTION_MAX):
+        raise ValueError(f"must be a number from 0 to {FRICTION_MAX:g} (got {_short(v)})")
+    return v
 
-    friction: float | None = None
+
+class FrictionRegion(_Strict):
+    """A part of the garment whose Coulomb coefficient against the mold is not ``mold.friction``
+    (a silicone grip band, a slippery lining): nodes, a selector as in ``constraints``; friction,
+    its mu (0 to FRICTION_MAX). Where regions overlap the later one holds."""
+
+    nodes: Union[Literal[NODE_SETS], NodeRange]  # type: ignore[valid-type]
+    friction: float
+
+    @field_validator("nodes", mode="before")
+    @classmethod
+    def _nodes(cls, v):
+        return check_node_selector(v)
 
     @field_validator("friction")
     @classmethod
     def _mu(cls, v):
-        if v is not None and not (math.isfinite(v) and 0.0 <= v <= FRICTION_MAX):
-            raise ValueError(f"must be a number from 0 to {FRICTION_MAX:g} (got {_short(v)})")
-        return v
+        return _check_mu(v)
+
+
+class _MoldFriction(_Strict):
+    """friction: the Coulomb coefficient mu between the fabric and the mold (>= 0; one value for
+    static and kinetic friction; omitted or 0: frictionless contact); friction_regions: parts of
+    the garment with their own mu (:class:`FrictionRegion`). A scene with any mu > 0 is solved in
+    load steps by Newton (``solver.load_steps``; see docs/method/friction.md)."""
+
+    friction: float | None = None
+    friction_regions: list[FrictionRegion] | None = None
+
+    @field_validator("friction")
+    @classmethod
+    def _mu(cls, v):
+        return _check_mu(v)
+
+    @property
+    def regions(self) -> list[FrictionRegion]:
+        """The friction regions (none when the field is omitted)."""
+        return list(self.friction_regions or [])
 
 
 class MeshMoldSpec(_MoldFriction):

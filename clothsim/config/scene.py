@@ -156,6 +156,7 @@ class Scene(_Strict):
                 raise ValueError(f"panels.{n}.name: '{name}' is used twice")
         sels = [(f"constraints.{n}.nodes", c.nodes) for n, c in enumerate(self.constraints)]
         sels += [(f"seams.{n}.{k}", getattr(s, k)) for n, s in enumerate(self.seams) for k in ("a", "b")]
+        sels += [(f"mold.friction_regions.{n}.nodes", r.nodes) for n, r in enumerate(self._regions())]
         for where, sel in sels:
             if isinstance(sel, NodeRange) and sel.panel is not None and sel.panel not in names:
                 known = ", ".join(names) if names else "none: the scene has no panels"
@@ -169,23 +170,37 @@ class Scene(_Strict):
         if self.panels or self.fabric.divisions is None:
             return self
         nx, ny = self.fabric.divisions
-        for n, c in enumerate(self.constraints):
-            if isinstance(c.nodes, NodeRange) and c.nodes.side is None and c.nodes.edge is None:
+        sels = [(f"constraints.{n}.nodes", "constraints", c.nodes) for n, c in enumerate(self.constraints)]
+        sels += [(f"mold.friction_regions.{n}.nodes", "friction_regions", r.nodes)
+                 for n, r in enumerate(self._regions())]
+        for where, what, sel in sels:
+            if isinstance(sel, NodeRange) and sel.side is None and sel.edge is None:
                 try:
-                    index_range(c.nodes.i, nx, "i", "constraints")
-                    index_range(c.nodes.j, ny, "j", "constraints")
+                    index_range(sel.i, nx, "i", what)
+                    index_range(sel.j, ny, "j", what)
                 except SelectionError as exc:
-                    raise ValueError(f"constraints.{n}.nodes: {exc}") from None
+                    raise ValueError(f"{where}: {exc}") from None
         return self
+
+    def _regions(self) -> list:
+        """The mold's friction regions (none without a mold)."""
+        return self.mold.regions if self.mold is not None else []
 
     @model_validator(mode="after")
     def _friction_method(self):
         """The paper's relaxation is frictionless: a scene with friction asks for Newton."""
-        mu = getattr(self.mold, "friction", None) if self.mold is not None else None
-        if mu and self.solver.method == "paper":
+        if self.mold is None or self.solver.method != "paper":
+            return self
+        mu = self.mold.friction
+        if mu:
             raise ValueError(f"solver.method: 'paper' is frictionless (the paper's relaxation has no "
                              f"friction) but mold.friction is {mu:g}: use method newton or auto, or "
                              f"mold.friction: 0")
+        for n, r in enumerate(self.mold.regions):
+            if r.friction > 0:
+                raise ValueError(f"solver.method: 'paper' is frictionless (the paper's relaxation has no "
+                                 f"friction) but mold.friction_regions.{n}.friction is {r.friction:g}: use "
+                                 f"method newton or auto")
         return self
 
     @model_validator(mode="after")

@@ -154,6 +154,16 @@ class NodeRange(_Strict):
         return self
 
 
+def check_node_selector(v):
+    """``v`` if it can be a node selector (a node set's name, or a mapping for :class:`NodeRange`),
+    else ValueError naming the known sets."""
+    if isinstance(v, str) and v not in NODE_SETS:
+        raise ValueError(f"unknown node set '{v}' (known: {', '.join(NODE_SETS)}; or give {{i: [a, b], j: [c, d]}})")
+    if not isinstance(v, (str, dict)) and not isinstance(v, NodeRange):
+        raise ValueError(f"must be a node set name or {{i: [a, b], j: [c, d]}} (got {v!r})")
+    return v
+
+
 class Constraint(_Strict):
     """Nodes held on some axes (paper 3.2.3), optionally moved before relaxing.
 
@@ -170,11 +180,7 @@ class Constraint(_Strict):
     @field_validator("nodes", mode="before")
     @classmethod
     def _nodes(cls, v):
-        if isinstance(v, str) and v not in NODE_SETS:
-            raise ValueError(f"unknown node set '{v}' (known: {', '.join(NODE_SETS)}; or give {{i: [a, b], j: [c, d]}})")
-        if not isinstance(v, (str, dict)) and not isinstance(v, NodeRange):
-            raise ValueError(f"must be a node set name or {{i: [a, b], j: [c, d]}} (got {v!r})")
-        return v
+        return check_node_selector(v)
 
     @field_validator("axes")
     @classmethod

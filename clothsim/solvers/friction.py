@@ -143,7 +143,7 @@ def _rescue(m, state, snap, anchor, limits, callback, hist, tuning: FrictionTuni
 def solve_steps(model, state, controls, limits, callback=None, history=None, make_solver=None,
                 model_scale=(1.0, 1.0), tuning: FrictionTuning = FrictionTuning(), model_force=None):
     """Solve ``state`` in place through the load steps ``controls`` (Controls, from the model's
-    current prescribed positions), with friction when ``model.friction_mu`` > 0 (``limits``: a
+    current prescribed positions), with friction when the model has any (``Model.has_friction``; ``limits``: a
     SolverSettings or RunLimits; the Newton solver's options from it when it is a SolverSettings);
     ``make_solver(model)`` solves the frictionless steps (default: Newton); ``model_scale``: the rest
     scale the state is at before the first control (a halved first step ramps from it); ``model_force``:
@@ -158,7 +158,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
     t0 = time.perf_counter()
     it0 = state.iteration
     base = dataclasses.replace(model, friction=None)
-    frictional = model.friction_mu > 0 and model.mold is not None
+    frictional = model.has_friction
     queue = [(c.prescribed_positions, c.rest_scale, c.external_force) for c in controls]
     prev = model.prescribed_positions
     prev_scale = prev_force = None
@@ -209,6 +209,7 @@ def solve_steps(model, state, controls, limits, callback=None, history=None, mak
     done = len(steps)
     converged = res is not None and res.converged and not queue
     report = {"mu": float(model.friction_mu), "load_steps": len(controls), "steps_solved": done,
+              **({} if model.friction_mu_nodes is None else {"mu_max": float(model.friction_mu_nodes.max())}),
               "cuts": cuts, "refreshes": relags_total, "steps": steps}
     if rep is not None:
         report.update(rep)
@@ -236,9 +237,9 @@ def coulomb_residual(model, state) -> float:
     lagged friction needs it; a converged step's friction lies in the cone, so this is at most
     the solver's residual). With mu = 0 it is the frictionless residual."""
     F = elastic_forces(model, state.positions)
-    mu = float(model.friction_mu)
-    if mu > 0 and model.mold is not None:
+    if model.has_friction:
         nodes, nrm, lam = normal_forces(model, state)
+        mu = model.friction_mu_of(nodes)
         f = F[nodes]
         ft = f - np.einsum("ij,ij->i", f, nrm)[:, None] * nrm
         mag = np.linalg.norm(ft, axis=1)

@@ -42,7 +42,7 @@ def friction_state(model, positions: np.ndarray, in_contact: np.ndarray) -> np.n
 
     out = in_contact.astype(np.float64)
     lag = model.friction
-    if lag is None or lag.mu <= 0 or not len(lag.nodes):
+    if lag is None or not len(lag.nodes) or not (lag.mu > 0).any():
         return out
     pressed = lag.lam > 0.0
     nodes = lag.nodes[pressed]

@@ -68,9 +68,10 @@ class StagesPanel(Panel):
         app, g = self.app, self.gui
         g["mu"] = app.on(gui.add_number("Friction mu (mold)", 0.0, step=0.01, min=0.0, max=FRICTION_MAX,
                                         hint="Coulomb's coefficient between the fabric and the mold (one "
-                                             "value for sticking and sliding; 0: frictionless). Applied "
-                                             "with Apply edits; a stage that sets mold.friction overrides "
-                                             "it from that stage on"),
+                                             "value for sticking and sliding; 0: frictionless), outside "
+                                             "the scene's friction regions (mold.friction_regions, given "
+                                             "in its file). Applied with Apply edits; a stage that sets "
+                                             "mold.friction overrides it from that stage on"),
                          self.set_mu, "friction")
         app.err("friction")
         g["stages_table"] = gui.add_markdown("")
