@@ -281,17 +281,9 @@ def fmt_beyond(x: float, bound: float) -> str:
     return repr(x)
 
 
-def _holder_words(fh, wait: float = 2.0) -> list[str]:
-    """The words "PID COMMAND" of a lock file another process holds. The holder writes them
-    just after it takes the lock, so a file read in between is still empty: read again for up
-    to ``wait`` seconds before calling the holder unknown."""
-    deadline = time.monotonic() + wait
-    while True:
-        fh.seek(0)
-        words = fh.read(200).split()
-        if words or time.monotonic() >= deadline:
-            return words
-        time.sleep(0.02)
+#: how long [s] a refused command waits for the lock's holder to write its name (it writes it
+#: just after it takes the lock) before calling it unknown
+HOLDER_WAIT = 2.0
 
 
 class FolderLock:
@@ -302,7 +294,9 @@ class FolderLock:
     the lock with the process however it ends, so a stale lock file (after kill -9) never blocks.
     The holder removes the file when it is done, still holding the lock; a command that locked
     a file already removed (it opened it just before) sees that its inode is no longer the path's
-    and tries again, so two commands never both hold a lock."""
+    and tries again, so two commands never both hold a lock. A command refused while the holder
+    has not yet written its name (it writes it just after it locks) tries again for up to
+    HOLDER_WAIT seconds: it then names the holder, or takes the lock if the holder is done."""
 
     def __init__(self, out: str | Path, command: str, flag: str = "--out"):
         self.out, self.command, self.flag = Path(out), command, flag
@@ -314,7 +308,8 @@ class FolderLock:
             import fcntl
         except ImportError:  # pragma: no cover (not POSIX): no lock
             return self
-        for _ in range(100):
+        deadline = time.monotonic() + HOLDER_WAIT
+        for _ in range(1000):
             try:
                 fh = open(self.path, "a+")
             except OSError as exc:
@@ -322,8 +317,12 @@ class FolderLock:
             try:
                 fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
-                words = _holder_words(fh)
+                fh.seek(0)
+                words = fh.read(200).split()
                 fh.close()
+                if not words and time.monotonic() < deadline:
+                    time.sleep(0.02)  # locked, its name not yet written: try again
+                    continue
                 pid = words[0] if words else "unknown"
                 what = words[1] if len(words) > 1 and words[1].isalpha() else "clothsim command"
                 raise OutputError(f"{self.flag} {self.out}: in use by another {what} (pid {pid}); wait for it to "
@@ -336,7 +335,7 @@ class FolderLock:
             if now is not None and (now.st_ino, now.st_dev) == (mine.st_ino, mine.st_dev):
                 break
             fh.close()  # locked a file its holder had just removed: lock the current one
-        else:  # pragma: no cover (the file replaced a hundred times meanwhile)
+        else:  # pragma: no cover (the file replaced a thousand times meanwhile)
             raise OutputError(f"{self.flag} {self.out}: cannot lock the folder (its lock file keeps changing)")
         fh.seek(0)
         fh.truncate()

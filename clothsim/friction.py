@@ -80,11 +80,14 @@ def normal_forces(model, state):
 
 def lag_friction(model, state, anchor, eps_scale: float = 1.0) -> FrictionLag:
     """The friction frozen at ``state``: its contact nodes' normals and normal forces
-    (:func:`normal_forces`), each node anchored at ``anchor`` (n, 3) [m] (the previous load
+    (:func:`normal_forces`; only the nodes whose mu is above 0), each node anchored at ``anchor`` (n, 3) [m] (the previous load
     step's equilibrium); its slip eps ``eps_scale`` times :func:`slip_eps` (above 1 only for a
     load step's smoother first solve: ``solvers/friction.py``)."""
     nodes, nrm, lam = normal_forces(model, state)
     mu = model.friction_mu_of(nodes)
+    if model.friction_mu_nodes is not None:  # a node with mu = 0 (outside a grip band) carries none
+        keep = mu > 0
+        nodes, nrm, lam, mu = nodes[keep], nrm[keep], lam[keep], mu[keep]
     return FrictionLag(nodes, np.ascontiguousarray(anchor[nodes], float), np.ascontiguousarray(nrm),
                        lam, mu * lam, eps_scale * slip_eps(model), mu)
 
@@ -98,7 +101,7 @@ def slides(lag: FrictionLag, positions) -> np.ndarray:
 
 def friction_report(model, lag: FrictionLag, positions, e: float) -> dict:
     """The Coulomb state of an equilibrium, ``lag`` being the friction refreshed there: stick and
-    slip counts over the contact nodes pressed onto the mold (slip: slid at least eps in the
+    slip counts over the contact nodes with friction pressed onto the mold (slip: slid at least eps in the
     step), and the cone violation max((|f_t| - mu f_n)+ / f_n) of the mold's reaction (f_n its
     normal part, f_t its tangential part: minus the springs' and loads' resultant) over the
     nodes pressed by more than e [N], the residual limit (below it the cone holds to within the

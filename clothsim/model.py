@@ -270,7 +270,9 @@ class Model:
     seam_stiffness: np.ndarray = _empty(0)
     #: one :class:`SeamInfo` per scene seam, in scene order
     seams: tuple[SeamInfo, ...] = ()
-    #: the scene's Coulomb coefficient between fabric and mold (``mold.friction``; 0: frictionless)
+    #: the scene's Coulomb coefficient between fabric and mold (``mold.friction``; 0: frictionless);
+    #: with ``friction_mu_nodes`` set it is only the summary's ``mu`` (replace both to change the
+    #: model's friction)
     friction_mu: float = 0.0
     #: (N,) float64 [-] each node's Coulomb coefficient when the garment has friction regions
     #: (``mold.friction_regions``: a grip band); None: every node has ``friction_mu``

@@ -145,7 +145,8 @@ class FrictionReport(Record):
     ``friction`` (clothsim.solvers.friction.solve_steps, clothsim.friction.friction_report)."""
 
     mu: float = out("friction coefficient mu", "-", "mold.friction: the nodes outside friction regions")
-    mu_max: float = out("largest friction coefficient", "-", "over the nodes, with friction regions", optional=True)
+    mu_max: float = out("largest friction coefficient", "-", "largest mu over the nodes (with friction regions)",
+                        optional=True)
     load_steps: int = out("load steps", "")
     steps_solved: int = out("load steps solved", "")
     cuts: int = out("load steps cut in half", "")

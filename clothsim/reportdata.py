@@ -123,7 +123,8 @@ def scene_summary(brief: dict, model) -> dict:
             "written_utc": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "garment": brief["garment"], "node_count": int(model.node_count), "body": brief["body"],
             "materials": _materials(model),
-            **{k: brief[k] for k in ("friction_mu", "stages", "constraints", "solver", "files", "standards")}}
+            **{k: brief[k] for k in ("friction_mu", "stages", "constraints", "solver", "files", "standards")},
+            "friction_regions": brief.get("friction_regions", [])}
 
 
 def scene_summary_json(brief: dict, model) -> str:

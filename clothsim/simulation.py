@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import threading
 import time
 import warnings
@@ -324,7 +325,12 @@ class Simulation:
         scale = (1.0, 1.0)
         force = self.model.external_force
         for n, (st, sc) in enumerate(stage_scenes(self.scene)):
-            m = compile_model(sc)
+            try:
+                m = compile_model(sc)
+            except SceneError as exc:  # a selector the stage set that the lattice refuses: named
+                # where the stage is, not where the scene's own field would be
+                why = re.sub(rf"^{re.escape(str(sc._label))}(:\d+)?: ", "", str(exc)) if sc._label else str(exc)
+                raise SceneError(self.scene.locate(f"stages.{n}.set: {why}")) from None
             if m.node_count != self.model.node_count:
                 raise SceneError(self.scene.locate(f"stages.{n}.set: changes the lattice"))
             new = st.scale(scale)

@@ -38,7 +38,9 @@ def _sheet(i):
             "constraints": [{"nodes": {"i": i}, "axes": "x"}]}
 
 
-@pytest.mark.parametrize("given,kept", [("50%", "50%"), (" 50 %", "50%"), ("12.5%", "12.5%")])
+@pytest.mark.parametrize("given,kept", [("50%", "50%"), (" 50 %", "50%"), ("12.5%", "12.5%"),
+                                        ("50.0%", "50%"), ("33.33333333%", "33.33333333%"),
+                                        ("12.4999999%", "12.4999999%")])
 def test_the_schema_keeps_a_share_as_its_text(given, kept):
     assert scene_from_dict(_sheet(given)).constraints[0].nodes.i == kept
 
@@ -48,6 +50,13 @@ def test_a_bad_share_is_refused_naming_the_field(bad):
     with pytest.raises(SceneError, match=r"constraints\.0\.nodes\.i: must be an integer or a share of the way "
                                          r"across from 0% to 100%"):
         scene_from_dict(_sheet(bad))
+
+
+def test_a_bad_share_in_a_range_is_one_error_line():
+    with pytest.raises(SceneError) as exc:
+        scene_from_dict(_sheet([0, "150%"]))
+    lines = str(exc.value).splitlines()
+    assert len(lines) == 1 and lines[0].startswith("<scene>: constraints.0.nodes.i.1: must be an integer or a share"), lines
 
 
 def _held_x(scene):

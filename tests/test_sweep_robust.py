@@ -214,6 +214,30 @@ def test_a_holder_that_has_not_yet_written_its_name_is_still_named(tmp_path):
         holder.wait()
 
 
+def test_a_holder_that_finishes_before_writing_its_name_leaves_the_folder_free(tmp_path):
+    """Refused by a holder that has not written its name, a command tries again while it waits
+    for the name: a holder that is done by then leaves it the folder."""
+    from clothsim.fileio import FolderLock
+
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import fcntl, time\n"
+         f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
+         "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
+         "print('locked', flush=True)\n"
+         "time.sleep(0.4)\n"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with FolderLock(out, "run") as lock:
+            assert lock.path.read_text().split()[1] == "run"
+        assert holder.wait(timeout=30) == 0   # it let go by ending
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 def test_two_sweeps_at_once_never_crash(tmp_path):
     p = _strip_sweep(tmp_path, {"solver.C": [2, 3, 4, 5, 6, 7]})
     out = tmp_path / "out"

@@ -31,6 +31,7 @@ from pathlib import Path, PurePath
 
 import yaml
 
+from ..config.load import stage_scenes
 from .standards import STANDARDS, standard
 
 
@@ -125,17 +126,17 @@ def _fmt(v) -> str:
     return format(v, ".4g") if isinstance(v, float) else str(v)
 
 
+def _last_scene(scene):
+    """The scene the loading path ends with: its last stage's (whatever path its stages set
+    fields by), or the scene itself without stages."""
+    stages = stage_scenes(scene)
+    return stages[-1][1] if stages else scene
+
+
 def _friction(scene) -> float:
-    """The Coulomb coefficient at the end of the loading path (the last stage that sets
-    mold.friction, else the mold's; 0 without)."""
-    mu = 0.0
-    mold = scene.mold
-    if mold is not None and mold.friction:
-        mu = float(mold.friction)
-    for st in scene.stages:
-        if "mold.friction" in (st.set or {}):
-            mu = float(st.set["mold.friction"] or 0.0)
-    return mu
+    """The Coulomb coefficient at the end of the loading path (0 without)."""
+    mold = _last_scene(scene).mold
+    return float(mold.friction or 0.0) if mold is not None else 0.0
 
 
 def _selector_text(sel) -> str:
@@ -155,13 +156,11 @@ def _selector_text(sel) -> str:
 
 
 def _friction_regions(scene) -> list[dict]:
-    """The friction regions at the end of the loading path (the last stage that sets
-    mold.friction_regions, else the mold's): [{"nodes": the selector in words, "friction": mu}]."""
-    regions = [(r.nodes, r.friction) for r in scene.mold.regions] if scene.mold is not None else []
-    for st in scene.stages:
-        if "mold.friction_regions" in (st.set or {}):
-            regions = [(r.get("nodes"), r.get("friction")) for r in st.set["mold.friction_regions"] or []]
-    return [{"nodes": _selector_text(n), "friction": float(mu or 0.0)} for n, mu in regions]
+    """The friction regions at the end of the loading path (the last stage's scene, whatever
+    path its stages set them by): [{"nodes": the selector in words, "friction": mu}]."""
+    mold = _last_scene(scene).mold
+    regions = mold.regions if mold is not None else []
+    return [{"nodes": _selector_text(r.nodes), "friction": float(r.friction)} for r in regions]
 
 
 def _mold_text(d: dict, files: list[dict]) -> str | None:
@@ -180,7 +179,7 @@ def _mold_text(d: dict, files: list[dict]) -> str | None:
     for kind in ("cylinder", "sphere", "plane", "box"):
         if m.get(kind):
             return f"{kind} " + ", ".join(f"{k} {v}" for k, v in m[kind].items())
-    return ", ".join(f"{k} {v}" for k, v in m.items() if k != "friction")
+    return ", ".join(f"{k} {v}" for k, v in m.items() if k not in ("friction", "friction_regions"))
 
 
 def _stage_text(st) -> str:

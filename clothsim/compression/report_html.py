@@ -224,6 +224,11 @@ def _headline(s: dict, rows: list[dict], from_file: bool) -> str:
     return "<div id='headline'>" + "".join(box) + "</div>"
 
 
+def _frictional(scene: dict) -> bool:
+    """Whether the scene in short has friction anywhere (mold.friction or a region above 0)."""
+    return (scene.get("friction_mu") or 0.0) > 0 or any(r["friction"] > 0 for r in scene.get("friction_regions") or [])
+
+
 def _regions_text(scene: dict) -> str:
     """The friction regions in words ("" without): "; mu = 1.2 on panel front, j 90% to 100%"."""
     return "".join(f"; mu = {r['friction']:g} on {_t(r['nodes'])}" for r in scene.get("friction_regions") or [])
@@ -231,9 +236,8 @@ def _regions_text(scene: dict) -> str:
 
 def _assumptions(scene: dict, s: dict) -> str:
     mu = scene.get("friction_mu") or 0.0
-    regions = scene.get("friction_regions") or []
     stages = scene.get("stages") or []
-    frictional = mu > 0 or any(r["friction"] > 0 for r in regions)
+    frictional = _frictional(scene)
     fr = (f"Friction: Coulomb, mu = {mu:g} between garment and skin{_regions_text(scene)}, on the loading path "
           f"of the stages below (a result with friction depends on how the garment was put on)." if frictional else
           "No friction: the garment slides freely on the body; what holds it along the limb are the held rows "
@@ -258,7 +262,7 @@ def _scene_summary(scene: dict) -> str:
     rows = [("scene", scene.get("name")), ("garment", scene.get("garment")), ("nodes", scene.get("node_count")),
             ("body", scene.get("body") or "none"), ("materials", None),
             ("friction", f"Coulomb, mu = {scene.get('friction_mu') or 0:g}{_regions_text(scene)}"
-             if scene.get("friction_mu") or scene.get("friction_regions") else "none (frictionless)"),
+             if _frictional(scene) else "none (frictionless)"),
             ("held", f"{scene.get('constraints')} constraint(s)"), ("solver", scene.get("solver"))]
     out = ["<table id='scene'>"]
     for k, v in rows:

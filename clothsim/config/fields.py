@@ -84,7 +84,7 @@ def _lattice_index(v):
         if share is None or not (0.0 <= share <= 100.0):
             raise ValueError(f"must be an integer or a share of the way across from 0% to 100%, such as "
                              f"'50%' (got {_short(v)})")
-        return f"{share:g}%"
+        return f"{int(share)}%" if share.is_integer() else f"{share!r}%"
     return _strict_int(v)
 
 

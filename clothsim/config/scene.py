@@ -200,7 +200,7 @@ class Scene(_Strict):
             if r.friction > 0:
                 raise ValueError(f"solver.method: 'paper' is frictionless (the paper's relaxation has no "
                                  f"friction) but mold.friction_regions.{n}.friction is {r.friction:g}: use "
-                                 f"method newton or auto")
+                                 f"method newton or auto, or mold.friction_regions.{n}.friction: 0")
         return self
 
     @model_validator(mode="after")

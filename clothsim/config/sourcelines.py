@@ -40,7 +40,7 @@ def _is_tag(part) -> bool:
     """Whether a location part is pydantic's tag of a union's branch (``list[any]``,
     ``literal[...]``, ``function-after[_one(), Space]``, ``NodeRange``, a mold kind), not a field."""
     return isinstance(part, str) and (_TAG.match(part) is not None or part.startswith("function-")
-                                      or part in ("NodeRange", "float", "int") or part in _MOLD_TAGS)
+                                      or part in ("NodeRange", "float", "int", "str") or part in _MOLD_TAGS)
 
 
 def _clean_loc(loc: tuple) -> tuple:
@@ -51,17 +51,21 @@ def _clean_loc(loc: tuple) -> tuple:
 def _winning_branches(errors: list[dict]) -> list[dict]:
     """A union's errors without the branches the input plainly is not: an error at a branch's own
     level (a list expected, a literal string expected) is dropped when another branch of the same
-    union got further (an error inside it, or its own validator's message). ``{linspace: [1, 3,
-    -2]}`` then reports the bad n alone, not also "Input should be a valid list"."""
-    def branch(e):
+    union got further (an error inside it, or its own validator's message), at every level of
+    nested unions. ``{linspace: [1, 3, -2]}`` then reports the bad n alone, not also "Input should
+    be a valid list"; ``i: [0, '150%']`` the bad share alone, not also "a valid integer"."""
+    def levels(e):
         loc = tuple(e["loc"])
-        i = next((k for k, p in enumerate(loc) if _is_tag(p)), None)
-        return (None, None, False) if i is None else (loc[:i], loc[i], len(loc) > i + 1 or e["type"] == "value_error")
+        # (the union's location, the branch, whether the error lies further than the branch's
+        # own level: a field or index below it; a nested branch tag is still its own level)
+        return [(loc[:i], p, any(not _is_tag(q) for q in loc[i + 1:]) or e["type"] == "value_error")
+                for i, p in enumerate(loc) if _is_tag(p)]
 
-    info = [branch(e) for e in errors]
+    info = [levels(e) for e in errors]
+    further = {(base, tag) for lv in info for base, tag, far in lv if far}
     keep = []
-    for e, (base, tag, far) in zip(errors, info):
-        if base is not None and not far and any(b == base and t != tag and f for b, t, f in info):
+    for e, lv in zip(errors, info):
+        if any(not far and any(b == base and t != tag for b, t in further) for base, tag, far in lv):
             continue
         keep.append(e)
     return keep

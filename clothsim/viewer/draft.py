@@ -411,11 +411,13 @@ class SceneDraft:
         return self.edit("friction", mutate)
 
     def set_mold(self, spec: dict | None):
-        """Make ``spec`` the draft's mold (with the draft's friction coefficient); returns the
+        """Make ``spec`` the draft's mold (with the draft's friction coefficient and regions); returns the
         loaded Mold (parsed now, so that a broken file is refused here) or None for no mold."""
         mu = self.friction()
+        regions = (self.data.get("mold") or {}).get("friction_regions")
         if spec is not None:
-            spec = {k: v for k, v in spec.items() if k != "friction"} | ({"friction": mu} if mu > 0 else {})
+            spec = {k: v for k, v in spec.items() if k not in ("friction", "friction_regions")} \
+                | ({"friction": mu} if mu > 0 else {}) | ({"friction_regions": regions} if regions else {})
         scene = self.validate({**self.data, "mold": spec})  # field-level check first
         mold = load_mold(spec, scene.base_dir) if spec is not None else None
         self.edit("mold", lambda d: d.__setitem__("mold", spec) if spec is not None else d.pop("mold", None))
