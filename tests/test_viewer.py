@@ -348,13 +348,20 @@ def test_cli_view_prints_url_and_warns_off_loopback():
             assert r.status == 200
     finally:
         proc.send_signal(signal.SIGINT)
+        state = ""
         try:
             out, err = proc.communicate(timeout=20)
         except subprocess.TimeoutExpired:
+            # why it did not stop: its signal masks (blocked, ignored, pending) and threads
+            try:
+                state = "".join(ln for ln in Path(f"/proc/{proc.pid}/status").read_text().splitlines(True)
+                                if ln.startswith(("Sig", "Shd", "Threads", "State")))
+            except OSError:
+                pass
             proc.kill()
             out, err = proc.communicate()
     assert "warning: binding 0.0.0.0" in err
-    assert proc.returncode == 0, err
+    assert proc.returncode == 0, err + state
 
 
 def test_downloads_build_valid_files(app):
