@@ -161,20 +161,28 @@ def test_killed_dask_driver_takes_its_cluster_along(tmp_path, sig):
 # ----------------------------------------------------------------------------- 12: one sweep per folder
 
 
+def _lock_holder(out, then: str):
+    """A process that takes out's folder lock as a command does, says "locked", then runs the
+    Python lines ``then`` (f: the lock file; os and time imported); it is locked on return."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import fcntl, os, time\n"
+         f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
+         "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
+         "print('locked', flush=True)\n" + then], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "locked"
+    return holder
+
+
+NAME_IT = "f.truncate(0); f.write(f'{os.getpid()} sweep'); f.flush()\n"
+
+
 def test_second_sweep_into_the_same_out_is_refused_naming_the_holder(tmp_path, capsys):
     p = _strip_sweep(tmp_path, {"solver.C": [2, 3]})
     out = tmp_path / "out"
     out.mkdir()
-    holder = subprocess.Popen(
-        [sys.executable, "-c",
-         "import fcntl, os, sys, time\n"
-         f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
-         "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
-         "f.truncate(0); f.write(f'{os.getpid()} sweep'); f.flush()\n"
-         "print('locked', flush=True)\n"
-         "time.sleep(60)\n"], stdout=subprocess.PIPE, text=True)
+    holder = _lock_holder(out, NAME_IT + "time.sleep(60)\n")
     try:
-        assert holder.stdout.readline().strip() == "locked"
         assert sw.main(_args(p, out)) == 2
         err = capsys.readouterr().err
         assert f"--out {out}: in use by another sweep (pid {holder.pid})" in err
@@ -194,17 +202,8 @@ def test_a_holder_that_has_not_yet_written_its_name_is_still_named(tmp_path):
 
     out = tmp_path / "out"
     out.mkdir()
-    holder = subprocess.Popen(
-        [sys.executable, "-c",
-         "import fcntl, os, sys, time\n"
-         f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
-         "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
-         "print('locked', flush=True)\n"
-         "time.sleep(0.5)\n"
-         "f.truncate(0); f.write(f'{os.getpid()} sweep'); f.flush()\n"
-         "time.sleep(60)\n"], stdout=subprocess.PIPE, text=True)
+    holder = _lock_holder(out, "time.sleep(0.5)\n" + NAME_IT + "time.sleep(60)\n")
     try:
-        assert holder.stdout.readline().strip() == "locked"
         with pytest.raises(OutputError) as err:
             with FolderLock(out, "run"):
                 pass
@@ -221,15 +220,8 @@ def test_a_holder_that_finishes_before_writing_its_name_leaves_the_folder_free(t
 
     out = tmp_path / "out"
     out.mkdir()
-    holder = subprocess.Popen(
-        [sys.executable, "-c",
-         "import fcntl, time\n"
-         f"f = open({str(out / sw.LOCK_FILE)!r}, 'a+')\n"
-         "fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
-         "print('locked', flush=True)\n"
-         "time.sleep(0.4)\n"], stdout=subprocess.PIPE, text=True)
+    holder = _lock_holder(out, "time.sleep(0.4)\n")
     try:
-        assert holder.stdout.readline().strip() == "locked"
         with FolderLock(out, "run") as lock:
             assert lock.path.read_text().split()[1] == "run"
         assert holder.wait(timeout=30) == 0   # it let go by ending

@@ -12,7 +12,7 @@ from pydantic import BaseModel, Discriminator, StrictBool, Tag, field_validator,
 from ..legspec import LegParams
 from ..strict import Strict as _Strict
 from .fields import COORD_MAX, MOLD_PRIMITIVES, _coords, _finite3, _nonzero3, _positive, _short
-from .schema import NODE_SETS, NodeRange, check_node_selector
+from .schema import NodeSelection
 
 # the largest Coulomb coefficient a scene may give (measured fabric-skin values lie about 0.2-0.7)
 FRICTION_MAX = 10.0
@@ -24,18 +24,12 @@ def _check_mu(v):
     return v
 
 
-class FrictionRegion(_Strict):
+class FrictionRegion(NodeSelection):
     """A part of the garment whose Coulomb coefficient against the mold is not ``mold.friction``
     (a silicone grip band, a slippery lining): nodes, a selector as in ``constraints``; friction,
     its mu (0 to FRICTION_MAX). Where regions overlap the later one holds."""
 
-    nodes: Union[Literal[NODE_SETS], NodeRange]  # type: ignore[valid-type]
     friction: float
-
-    @field_validator("nodes", mode="before")
-    @classmethod
-    def _nodes(cls, v):
-        return check_node_selector(v)
 
     @field_validator("friction")
     @classmethod

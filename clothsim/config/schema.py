@@ -164,7 +164,20 @@ def check_node_selector(v):
     return v
 
 
-class Constraint(_Strict):
+class NodeSelection(_Strict):
+    """The base of a record that applies to some nodes: ``nodes``, a named set (perimeter, left,
+    right, bottom, top, corners, bottom_left, ...) or index ranges ``{i: [a, b], j: [c, d]}``
+    (:class:`NodeRange`)."""
+
+    nodes: Union[Literal[NODE_SETS], NodeRange]  # type: ignore[valid-type]
+
+    @field_validator("nodes", mode="before")
+    @classmethod
+    def _nodes(cls, v):
+        return check_node_selector(v)
+
+
+class Constraint(NodeSelection):
     """Nodes held on some axes (paper 3.2.3), optionally moved before relaxing.
 
     nodes: a named set (perimeter, left, right, bottom, top, corners, bottom_left, ...) or
@@ -172,15 +185,9 @@ class Constraint(_Strict):
     displacement [m]: added to the selected nodes. stretch: scale factor (or [sx, sy]) about the
     sheet centre in the sheet plane, applied to the selected nodes."""
 
-    nodes: Union[Literal[NODE_SETS], NodeRange]  # type: ignore[valid-type]
     axes: str = "xyz"
     displacement: tuple[float, float, float] | None = None
     stretch: float | tuple[float, float] | None = None
-
-    @field_validator("nodes", mode="before")
-    @classmethod
-    def _nodes(cls, v):
-        return check_node_selector(v)
 
     @field_validator("axes")
     @classmethod
