@@ -328,9 +328,26 @@ def test_core_does_not_import_viser():
         assert not re.search(r"^\s*(import|from)\s+viser\b", p.read_text(), re.M), p
 
 
+def _sigint_ignored() -> bool:
+    """Whether this process ignores SIGINT at the kernel's level (/proc/self/status SigIgn; the
+    signal module only sees handlers set through it)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("SigIgn:"):
+                return bool(int(line.split()[1], 16) & (1 << (signal.SIGINT - 1)))
+    except OSError:
+        pass
+    return False
+
+
 def test_cli_view_prints_url_and_warns_off_loopback():
     """``python app.py view scene --host 0.0.0.0 --no-browser`` prints the real URL and a warning
     that others on the network can drive it; Ctrl+C stops it with status 0."""
+    if _sigint_ignored():
+        # a test run started as a shell's background job (`pytest &` without job control) ignores
+        # SIGINT, and the viewer inherits that: Ctrl+C's default action cannot be tested (two such
+        # local runs saw the viewer's SigIgn 0x1001006, SIGINT and SIGQUIT ignored, and no stop)
+        pytest.skip("this test process ignores SIGINT (started in the background): Ctrl+C cannot be tested")
     port = free_port()
     cfg = ROOT / "configs" / "sphere_cap.yaml"
     proc = subprocess.Popen([sys.executable, str(ROOT / "app.py"), "view", str(cfg), "--host", "0.0.0.0",
