@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clothsim.bench.friction import end_tensions  # (T, d) at the strip's two ends
+from clothsim.bench.friction import end_tensions, turn_angle  # (T, d) at the strip's two ends; its wrap
 from clothsim.compile import compile_model, compile_state
 from clothsim.config import SceneError, load_scene, scene_from_dict
 from clothsim.solvers import Control, load_steps, solve
@@ -40,7 +40,7 @@ def _capstan(nx, pull=0.06, steps=20):
     _, res = solve_steps(dataclasses.replace(model, friction_mu=MU), state, controls, sc.solver)
     (tl, dl), (tr, dr) = end_tensions(model, state.positions)
     # the angle the strip turns through from its left end's direction to its right end's (x-z plane)
-    phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
+    phi = turn_angle(dl, dr)
     return tr / tl, phi, res
 
 
@@ -235,7 +235,7 @@ def test_stages_drape_then_pull_reach_the_capstan_and_keep_every_stage():
     # each step's iterations count all its solves (on main only the last refresh's: 97 of 304)
     assert [sum(x["iterations"] for x in t["friction"]["steps"]) for t in st] == [t["iterations"] for t in st]
     (tl, dl), (tr, dr) = end_tensions(r.model, r.state.positions)
-    phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
+    phi = turn_angle(dl, dr)
     assert abs(tr / tl / math.exp(MU * phi) - 1) < 2e-3
     ratio, _, _ = _capstan(40)
     assert tr / tl == pytest.approx(ratio, rel=1e-5)

@@ -14,34 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clothsim.bench.friction import column_tensions, turn_angle  # (T, d) of warp columns; wrap angle
 from clothsim.compile import compile_model, compile_state
 from clothsim.config import SceneError, load_scene
 from clothsim.friction import lag_friction, normal_forces
-from clothsim.kernels import spring_strains_tensions
-from clothsim.model import SpringFamily
 from clothsim.solvers import Control, load_steps, solve
 from clothsim.solvers.friction import solve_steps
 
 ROOT = Path(__file__).resolve().parent.parent
 WRAP = ROOT / "configs" / "cylinder_wrap.yaml"
-
-
-def _column(model, pos, x):
-    """(T [N], unit direction) of the warp springs whose rest midpoints lie nearest x [m]."""
-    s, f = np.empty(model.spring_count), np.empty(model.spring_count)
-    spring_strains_tensions(pos, *model.spring_args(), s, f)
-    warp = model.spring_family == SpringFamily.WARP
-    a, b = model.spring_nodes[warp].T
-    xm = 0.5 * (model.rest_positions[a, 0] + model.rest_positions[b, 0])
-    sel = np.isclose(xm, xm[np.argmin(abs(xm - x))])
-    d = pos[b[sel]] - pos[a[sel]]
-    d = (d / np.linalg.norm(d, axis=1)[:, None]).mean(axis=0)
-    return float(f[warp][sel].sum()), d / np.linalg.norm(d)
-
-
-def _turn(d1, d2) -> float:
-    """The angle [rad] the strip turns through from direction d1 to d2 (x-z plane)."""
-    return (math.atan2(d1[2], d1[0]) - math.atan2(d2[2], d2[0])) % (2 * math.pi)
 
 
 def _pulled(nx, overrides, pull=0.06, steps=20):
@@ -80,10 +61,8 @@ def test_capstan_over_part_of_the_arc_is_e_to_mu_phi_over_that_part():
     first = model.rest_positions[in_band, 0].min()
     assert first == pytest.approx(0.08)   # node 16 of 40
     h = 0.2 / 40
-    tl, dl = _column(model, pos, h / 2)
-    tr, dr = _column(model, pos, 0.2 - h / 2)
-    ts, ds = _column(model, pos, first - h / 2)
-    phi2, phi = _turn(ds, dr), _turn(dl, dr)
+    (tl, dl), (tr, dr), (ts, ds) = column_tensions(model, pos, (h / 2, 0.2 - h / 2, first - h / 2))
+    phi2, phi = turn_angle(ds, dr), turn_angle(dl, dr)
     assert 1.5 < phi2 < phi < 2.2
     assert ts / tl == pytest.approx(1.0, abs=2e-3)
     assert tr / ts == pytest.approx(math.exp(mu * phi2), rel=1e-3)

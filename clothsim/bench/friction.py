@@ -48,9 +48,10 @@ MU_CONE = 0.1
 TARGET_RATIO = 3.0
 
 
-def end_tensions(model, pos):
-    """[(T, d)] for the strip's first and last columns of warp springs: their summed force [N] and
-    mean unit direction (the straight free ends of the capstan)."""
+def column_tensions(model, pos, xs=None):
+    """[(T, d)] for columns of warp springs, each the column whose rest midpoints lie nearest
+    one of ``xs`` [m] (None: the strip's first and last columns, the straight free ends of the
+    capstan): their summed force [N] and mean unit direction."""
 
     s = np.empty(model.spring_count)
     f = np.empty(model.spring_count)
@@ -59,12 +60,23 @@ def end_tensions(model, pos):
     a, b = model.spring_nodes[warp].T
     xm = 0.5 * (model.rest_positions[a, 0] + model.rest_positions[b, 0])
     out = []
-    for col in (xm.min(), xm.max()):
-        sel = np.isclose(xm, col)
+    for x in ((xm.min(), xm.max()) if xs is None else xs):
+        sel = np.isclose(xm, xm[np.argmin(np.abs(xm - x))])
         d = pos[b[sel]] - pos[a[sel]]
         d = (d / np.linalg.norm(d, axis=1)[:, None]).mean(axis=0)
         out.append((float(f[warp][sel].sum()), d / np.linalg.norm(d)))
     return out
+
+
+def turn_angle(d1, d2) -> float:
+    """The angle [rad] a strip turns through from direction d1 to direction d2 in the x-z plane
+    (the capstan's wrap phi between its straight ends)."""
+    return (math.atan2(d1[2], d1[0]) - math.atan2(d2[2], d2[0])) % (2 * math.pi)
+
+
+def end_tensions(model, pos):
+    """[(T, d)] for the strip's first and last columns of warp springs (:func:`column_tensions`)."""
+    return column_tensions(model, pos)
 
 
 def _cpu(fn):
@@ -114,7 +126,7 @@ def capstan_row(nx: int) -> dict:
                                                     controls, sc.solver))
     assert res.converged, res.message
     (tl, dl), (tr, dr) = end_tensions(model, state.positions)
-    phi = (math.atan2(dl[2], dl[0]) - math.atan2(dr[2], dr[0])) % (2 * math.pi)
+    phi = turn_angle(dl, dr)
     steps = res.friction["steps"]
     per = [s["seconds"] for s in steps]
     return {"scene": f"capstan {nx} x {max(2, nx // 20)}", "nodes": int(model.node_count),

@@ -133,10 +133,9 @@ def _last_scene(scene):
     return stages[-1][1] if stages else scene
 
 
-def _friction(scene) -> float:
-    """The Coulomb coefficient at the end of the loading path (0 without)."""
-    mold = _last_scene(scene).mold
-    return float(mold.friction or 0.0) if mold is not None else 0.0
+def _friction(last) -> float:
+    """The Coulomb coefficient of ``last``, the scene the loading path ends with (0 without)."""
+    return float(last.mold.friction or 0.0) if last.mold is not None else 0.0
 
 
 def _selector_text(sel) -> str:
@@ -155,11 +154,10 @@ def _selector_text(sel) -> str:
     return ", ".join(bits) or "all"
 
 
-def _friction_regions(scene) -> list[dict]:
-    """The friction regions at the end of the loading path (the last stage's scene, whatever
-    path its stages set them by): [{"nodes": the selector in words, "friction": mu}]."""
-    mold = _last_scene(scene).mold
-    regions = mold.regions if mold is not None else []
+def _friction_regions(last) -> list[dict]:
+    """The friction regions of ``last``, the scene the loading path ends with: [{"nodes": the
+    selector in words, "friction": mu}]."""
+    regions = last.mold.regions if last.mold is not None else []
     return [{"nodes": _selector_text(r.nodes), "friction": float(r.friction)} for r in regions]
 
 
@@ -217,12 +215,13 @@ def scene_brief(scene, portable: tuple[dict, list[dict]] | None = None) -> dict:
         f = d.get("fabric") or {}
         garment = f"a rectangle {f.get('size')} m, {f.get('divisions')} divisions"
     solver = d.get("solver") or {}
+    last = _last_scene(scene)   # the stages validated once, for both friction fields
     return {
         "name": scene.name,
         "garment": garment,
         "body": _mold_text(d, files),
-        "friction_mu": _friction(scene),
-        "friction_regions": _friction_regions(scene),
+        "friction_mu": _friction(last),
+        "friction_regions": _friction_regions(last),
         "stages": [_stage_text(st) for st in scene.stages],
         "constraints": len(d.get("constraints") or []),
         "solver": f"{solver.get('method', 'auto')}, residual tolerance e = {_fmt(solver.get('e'))} N",
